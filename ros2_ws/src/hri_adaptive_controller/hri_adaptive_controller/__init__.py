@@ -1,0 +1,1 @@
+"""Event-based task switching and the adaptive HRI torque controller."""

@@ -1,0 +1,1 @@
+"""Learning HRI tasks from demonstration: rosbag2 recorder and learner."""

@@ -1,0 +1,1 @@
+"""Simulated 2-link SCARA, scripted human hand and scripted demonstrator."""

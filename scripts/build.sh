@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# colcon build of ros2_ws/src against the wheels in .venv (build/, install/, log/ at the root).
+# Symlink install: edits to Python sources take effect without a rebuild.
+set -euo pipefail
+
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+venv="$root/.venv"
+cd "$root"
+mkdir -p "$root/log"
+export PATH="$venv/bin:$PATH"
+export AMENT_PREFIX_PATH="$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+export CMAKE_PREFIX_PATH="$venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+printf '[setup] colcon build of ros2_ws/src\n' >&2
+# The wheels' prefix has no local_setup files; colcon's warning about it is expected noise.
+colcon --log-level error build --symlink-install --base-paths ros2_ws/src \
+  --event-handlers console_direct- summary- status- \
+  --cmake-args -DPython3_EXECUTABLE="$venv/bin/python" -DBUILD_TESTING=OFF \
+  > "$root/log/build.out" 2>&1 || {
+    printf '[setup] colcon build failed; its output:\n' >&2
+    cat "$root/log/build.out" >&2
+    exit 1
+  }

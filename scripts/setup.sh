@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Sets up the project on this machine, idempotently: a virtual environment with the pinned
+# ROS 2 Jazzy wheels and tools (requirements.lock), the wheels' CMake exports pointed at this
+# machine's headers, and a colcon build of ros2_ws/src. A second run only rebuilds what changed.
+set -euo pipefail
+
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+venv="$root/.venv"
+lock="$root/requirements.lock"
+stamp="$venv/.requirements.sha256"
+
+say() { printf '[setup] %s\n' "$*" >&2; }
+
+find_python() {
+  local candidate
+  for candidate in "${HRI_PYTHON:-}" python3.11 python3; do
+    [ -n "$candidate" ] || continue
+    command -v "$candidate" >/dev/null 2>&1 || continue
+    if "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+      command -v "$candidate"
+      return 0
+    fi
+  done
+  return 1
+}
+
+want=$(sha256sum "$lock" | cut -d' ' -f1)
+if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  python=$(find_python) || {
+    say "CPython 3.11 is required (the ROS 2 Jazzy wheels are cp311); set HRI_PYTHON to one"
+    exit 1
+  }
+  say "creating the virtual environment in $venv with $python"
+  "$python" -m venv "$venv"
+  say "installing the pinned packages of requirements.lock (about a minute on first run)"
+  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --require-virtualenv \
+    -r "$lock"
+  "$venv/bin/python" "$root/scripts/fix_wheel_cmake_paths.py" >&2
+  echo "$want" > "$stamp"
+fi
+
+"$root/scripts/build.sh"

@@ -1,0 +1,88 @@
+"""Figures of a learned task, like the paper's Fig. 3 (b)-(d).
+
+The normalised task energy P_d/||P_d|| of the demonstration samples (eq. 3, 4) is drawn as
+points, the fitted potential P (eq. 2) as a line scaled by the same ||P|| over the samples as in
+eq. 7, both against the distance to x_r, with the desired region shaded. Drawing uses
+matplotlib's object API on an Agg canvas (no pyplot, no display, no global backend state), so
+it works headless and inside a running node.
+"""
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from hri_demo_learning.potential import log_potential
+
+_GRID_POINTS = 600
+_MAX_LOG = 700.0  # keeps exp() finite when P at a grid point dwarfs P at the samples
+
+
+def _desired_spans(shape, right):
+    """(start, end) intervals in m of the desired region (P = 0) within [0, right]."""
+    if shape.s == 1:
+        spans = [(shape.d1, min(shape.d2, right))]
+    else:
+        spans = [(0.0, min(shape.d1, right)), (shape.d2, right)]
+    return [(start, end) for start, end in spans if end > start]
+
+
+def plot_task_fit(distance, energy, shape, path, title=''):
+    """Write a PNG of the fit: P_d/||P_d|| (points) and P/||P|| (line) against |x - x_r|.
+
+    distance: (N,) m; energy: (N,) P_d, not all zero; shape: TaskShape of the fitted P;
+    path: PNG file to write (its folder is created); title: figure title.
+    Returns the Path written. Raises ValueError for unusable input.
+    """
+    d = np.asarray(distance, dtype=float)
+    e = np.asarray(energy, dtype=float)
+    if d.ndim != 1 or e.shape != d.shape or d.size == 0:
+        raise ValueError(f'distance and energy must be non-empty (N,) arrays, got {d.shape}, '
+                         f'{e.shape}')
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(e))):
+        raise ValueError('non-finite input: distance and energy must be finite')
+    if np.any(d < 0.0):
+        raise ValueError('distance must be >= 0')
+    norm_d = float(np.linalg.norm(e))
+    if norm_d == 0.0:
+        raise ValueError('the task energy P_d is zero on every sample: nothing to draw')
+
+    right = 1.1 * float(np.max(d)) if np.max(d) > 0.0 else 1.0
+    grid = np.linspace(0.0, right, _GRID_POINTS)
+    log_samples = log_potential(d, shape)
+    if np.any(np.isfinite(log_samples)):
+        top = float(np.max(log_samples))
+        log_norm = top + 0.5 * np.log(np.sum(np.exp(2.0 * (log_samples - top))))
+        fitted_samples = np.exp(log_samples - log_norm)
+        fitted_grid = np.exp(np.minimum(log_potential(grid, shape) - log_norm, _MAX_LOG))
+    else:
+        fitted_samples = np.zeros_like(d)
+        fitted_grid = np.zeros_like(grid)
+    demonstrated = e / norm_d
+
+    figure = Figure(figsize=(6.4, 4.2), dpi=120)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    for index, (start, end) in enumerate(_desired_spans(shape, right)):
+        axes.axvspan(start, end, color='tab:green', alpha=0.15,
+                     label='desired region' if index == 0 else None)
+    axes.scatter(d, demonstrated, s=6, color='tab:blue', alpha=0.6,
+                 label=r'demonstration $P_d/\|P_d\|$')
+    axes.plot(grid, fitted_grid, color='tab:red', linewidth=1.8,
+              label=rf'fit $P/\|P\|$: S={shape.s:+d}, $a_1$={shape.a1:.4g}, '
+                    rf'$a_2$={shape.a2:.4g}')
+    ceiling = max(float(np.max(demonstrated)), float(np.max(fitted_samples)))
+    axes.set_xlim(0.0, right)
+    axes.set_ylim(-0.05 * ceiling, 1.15 * ceiling)
+    axes.set_xlabel(r'distance to the reference $\|x - x_r\|$ (m)')
+    axes.set_ylabel('normalised energy')
+    axes.set_title(title or f'd1 = {shape.d1:.3f} m, d2 = {shape.d2:.3f} m')
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc='best', fontsize='small')
+    figure.tight_layout()
+
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(target, format='png')
+    return target

@@ -1,0 +1,251 @@
+"""Task energy P_d of a demonstration (paper eq. 3) and of combined demonstrations (eq. 4).
+
+A demonstration is the end-effector path x_i (m) at times t_i (s) while a person moves the robot
+by hand, with a reference position x_r set by that person. Per eq. 3
+
+    P_d,i = ||x_i - x_d||^2 - T   while the hand moves (||dx_i/dt|| > 0),
+    P_d,i = 0                      while it is at rest,
+
+with x_d the position where the person stopped moving the robot and T = min ||x_i - x_d||^2.
+Made precise here:
+
+* Speed is estimated with a smoothing differentiator, not a raw finite difference: the samples
+  (uneven rates allowed; duplicate stamps averaged) are resampled linearly to a uniform grid at
+  their median interval, differentiated with a Savitzky-Golay filter (cubic, window
+  ``smoothing_window`` s) and interpolated back to the sample times. A sample moves when its
+  speed exceeds ``stationary_speed`` (m/s), otherwise it is at rest.
+* The demonstration starts at its first moving sample: samples at rest before it (the person has
+  not started yet) are dropped, so that the start position is not mistaken for a goal.
+* x_d is the mean position of the final rest segment (the samples at rest after the last moving
+  sample). For a repeated demonstration the x_d of all repetitions are averaged
+  (``repeated_demonstration_energy``).
+* T is the minimum of ||x_i - x_d||^2 over the moving samples, so P_d >= 0 everywhere and it
+  rises from 0 where the motion ends.
+
+Combinations (eq. 4) are formed on the distance axis |x_i - x_r|: ``combine_energy_profiles``
+moves demonstration i's profile outward by its shift C_i (m) and concatenates the samples.
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+DEFAULT_STATIONARY_SPEED = 0.01
+"""m/s: a sample slower than this is at rest (eq. 3's ||dx/dt|| = 0)."""
+
+DEFAULT_SMOOTHING_WINDOW = 0.25
+"""s: Savitzky-Golay window of the speed estimate. Its derivative gain is >= 0.94 of the true one
+up to 3 Hz (hand motion) and <= 0.125 of it at 8-12 Hz (physiological tremor)."""
+
+MIN_SAMPLES = 8
+"""Fewest samples a demonstration may have."""
+
+_SAVGOL_ORDER = 3
+_MAX_GRID_POINTS = 2_000_000
+
+
+@dataclass(frozen=True)
+class EnergyProfile:
+    """Task energy against distance to the reference: the input of identification and fit.
+
+    distance: (N,) m, |x_i - x_r| (plus the shift C_i in a combination); energy: (N,) m^2, P_d
+    (eq. 3, 4); moving: (N,) bool, True where the speed exceeds the stationary speed.
+    """
+
+    distance: np.ndarray
+    energy: np.ndarray
+    moving: np.ndarray
+
+
+@dataclass(frozen=True)
+class TaskEnergy:
+    """Task energy of one demonstration (eq. 3), from its first moving sample to its end.
+
+    times: (M,) s; distance: (M,) m to x_r; energy: (M,) m^2, P_d; moving: (M,) bool;
+    speed: (M,) m/s, smoothed; target: (2,) m, x_d; offset: m^2, T of eq. 3.
+    """
+
+    times: np.ndarray
+    distance: np.ndarray
+    energy: np.ndarray
+    moving: np.ndarray
+    speed: np.ndarray
+    target: np.ndarray
+    offset: float
+
+    @property
+    def profile(self):
+        """The EnergyProfile (distance, energy, moving) of this demonstration."""
+        return EnergyProfile(self.distance, self.energy, self.moving)
+
+
+def _check_demonstration(times, positions):
+    t = np.asarray(times, dtype=float)
+    x = np.asarray(positions, dtype=float)
+    if t.ndim != 1 or x.shape != (t.size, 2):
+        raise ValueError(f'times must be (N,) and positions (N, 2), got {t.shape} and {x.shape}')
+    if t.size < MIN_SAMPLES:
+        raise ValueError(f'too few samples: {t.size} (need at least {MIN_SAMPLES})')
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(x))):
+        raise ValueError('non-finite input: times and positions must be finite')
+    if np.any(np.diff(t) < 0.0):
+        raise ValueError('times must be non-decreasing')
+    if t[-1] <= t[0]:
+        raise ValueError('the demonstration has zero duration')
+    return t, x
+
+
+def _check_positive(name, value, unit):
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f'{name} must be > 0 {unit}, got {value}')
+
+
+def _check_speed_parameters(stationary_speed, smoothing_window):
+    _check_positive('stationary_speed', stationary_speed, 'm/s')
+    _check_positive('smoothing_window', smoothing_window, 's')
+
+
+def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
+    """Smoothed end-effector speed ||dx/dt|| at each sample (the speed test of eq. 3).
+
+    times: (N,) s, non-decreasing, uneven spacing allowed; positions: (N, 2) m.
+    Resamples to a uniform grid at the median sample interval, applies a cubic Savitzky-Golay
+    differentiator over ``smoothing_window`` s and interpolates back. Returns (N,) m/s.
+    """
+    t, x = _check_demonstration(times, positions)
+    _check_positive('smoothing_window', smoothing_window, 's')
+    stamps, inverse, counts = np.unique(t, return_inverse=True, return_counts=True)
+    mean_x = np.stack([np.bincount(inverse, weights=x[:, k]) / counts for k in range(2)], axis=1)
+    duration = stamps[-1] - stamps[0]
+    step = max(float(np.median(np.diff(stamps))), duration / (_MAX_GRID_POINTS - 1))
+    grid = stamps[0] + step * np.arange(int(math.floor(duration / step)) + 1)
+    resampled = np.stack([np.interp(grid, stamps, mean_x[:, k]) for k in range(2)], axis=1)
+    window = int(round(smoothing_window / step)) // 2 * 2 + 1
+    window = max(window, _SAVGOL_ORDER + 2)
+    if window > grid.size:
+        window = grid.size if grid.size % 2 else grid.size - 1
+    if window <= _SAVGOL_ORDER:
+        raise ValueError(f'too few samples on a uniform grid: {grid.size} '
+                         f'(need at least {_SAVGOL_ORDER + 1})')
+    velocity = savgol_filter(resampled, window, _SAVGOL_ORDER, deriv=1, delta=step, axis=0,
+                             mode='interp')
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    # Within half a window of either end the one-sided fit is noisy: hold the speed of the
+    # nearest sample whose window is complete.
+    half = window // 2
+    if grid.size > 2 * half:
+        speed[:half] = speed[half]
+        speed[grid.size - half:] = speed[grid.size - half - 1]
+    return np.interp(t, grid, speed)
+
+
+def _demonstration_span(speed, stationary_speed, smoothing_window):
+    """Moving mask, first and last moving index; ValueError without motion or final rest."""
+    moving = speed > stationary_speed
+    if not np.any(moving):
+        raise ValueError(f'no sample moving: the speed never exceeds stationary_speed '
+                         f'{stationary_speed} m/s')
+    first = int(np.argmax(moving))
+    last = moving.size - 1 - int(np.argmax(moving[::-1]))
+    if last == moving.size - 1:
+        raise ValueError(f'no sample at rest after the motion: the demonstration must end with '
+                         f'the robot held still (speed < {stationary_speed} m/s) for at least '
+                         f'{smoothing_window} s')
+    return moving, first, last
+
+
+def rest_position(times, positions, stationary_speed=DEFAULT_STATIONARY_SPEED,
+                  smoothing_window=DEFAULT_SMOOTHING_WINDOW):
+    """Target x_d of eq. 3: mean position of the final rest segment of a demonstration.
+
+    times: (N,) s; positions: (N, 2) m. Returns (2,) m. Raises ValueError when no sample moves
+    or the demonstration does not end at rest.
+    """
+    _check_speed_parameters(stationary_speed, smoothing_window)
+    t, x = _check_demonstration(times, positions)
+    speed = estimate_speed(t, x, smoothing_window)
+    _, _, last = _demonstration_span(speed, stationary_speed, smoothing_window)
+    return x[last + 1:].mean(axis=0)
+
+
+def demonstration_energy(times, positions, reference, stationary_speed=DEFAULT_STATIONARY_SPEED,
+                         smoothing_window=DEFAULT_SMOOTHING_WINDOW, target=None):
+    """Task energy P_d of one demonstration (eq. 3).
+
+    times: (N,) s; positions: (N, 2) m; reference: x_r, (2,) m; stationary_speed: m/s;
+    target: x_d, (2,) m, or None to take the mean of the final rest segment.
+    Returns a TaskEnergy over the samples from the first moving one to the end.
+    Raises ValueError (one-line reason) for too few samples, non-finite input, no sample
+    moving, or no rest at the end.
+    """
+    _check_speed_parameters(stationary_speed, smoothing_window)
+    t, x = _check_demonstration(times, positions)
+    x_r = np.asarray(reference, dtype=float)
+    if x_r.shape != (2,) or not np.all(np.isfinite(x_r)):
+        raise ValueError(f'reference must be a finite (2,) position, got {reference!r}')
+    speed = estimate_speed(t, x, smoothing_window)
+    moving, first, last = _demonstration_span(speed, stationary_speed, smoothing_window)
+    if target is None:
+        x_d = x[last + 1:].mean(axis=0)
+    else:
+        x_d = np.asarray(target, dtype=float)
+        if x_d.shape != (2,) or not np.all(np.isfinite(x_d)):
+            raise ValueError(f'target must be a finite (2,) position, got {target!r}')
+    t, x, speed, moving = t[first:], x[first:], speed[first:], moving[first:]
+    squared = np.sum((x - x_d) ** 2, axis=1)
+    offset = float(np.min(squared[moving]))
+    energy = np.where(moving, squared - offset, 0.0)
+    distance = np.hypot(x[:, 0] - x_r[0], x[:, 1] - x_r[1])
+    return TaskEnergy(times=t, distance=distance, energy=energy, moving=moving, speed=speed,
+                      target=x_d, offset=offset)
+
+
+def repeated_demonstration_energy(demonstrations, reference,
+                                  stationary_speed=DEFAULT_STATIONARY_SPEED,
+                                  smoothing_window=DEFAULT_SMOOTHING_WINDOW):
+    """Task energies (eq. 3) of repetitions of one demonstration with a shared, averaged x_d.
+
+    demonstrations: sequence of (times (N_k,) s, positions (N_k, 2) m), all with the same
+    reference x_r (2,) m. x_d is the mean of the repetitions' rest positions (paper: "if the
+    same demonstration is repeated, the average position can be used").
+    Returns a list of TaskEnergy, one per repetition.
+    """
+    if len(demonstrations) == 0:
+        raise ValueError('no demonstrations given')
+    targets = [rest_position(t, x, stationary_speed, smoothing_window)
+               for t, x in demonstrations]
+    x_d = np.mean(targets, axis=0)
+    return [demonstration_energy(t, x, reference, stationary_speed, smoothing_window, x_d)
+            for t, x in demonstrations]
+
+
+def combine_energy_profiles(profiles: Sequence, shifts: Sequence[float]):
+    """Task energy of a combination of demonstrations (eq. 4).
+
+    profiles: EnergyProfile or TaskEnergy objects; shifts: C_i in m, one per profile: profile
+    i is moved outward by C_i along the distance axis (its distances become |x - x_r| + C_i).
+    The combined profile is the concatenation of the shifted samples, P_d unchanged (the sum in
+    eq. 4 of energies defined on disjoint sample sets). Returns an EnergyProfile.
+    Raises ValueError when the counts differ, a shift is non-finite, or a shifted distance
+    would be negative.
+    """
+    if len(profiles) == 0:
+        raise ValueError('no energy profiles to combine')
+    if len(shifts) != len(profiles):
+        raise ValueError(f'one shift per profile needed: {len(profiles)} profiles, '
+                         f'{len(shifts)} shifts')
+    distances, energies, movings = [], [], []
+    for index, (profile, shift) in enumerate(zip(profiles, shifts, strict=True)):
+        if not math.isfinite(shift):
+            raise ValueError(f'shift {index} must be finite, got {shift}')
+        distance = np.asarray(profile.distance, dtype=float) + shift
+        if np.any(distance < 0.0):
+            raise ValueError(f'shift {index} ({shift} m) moves distances below 0')
+        distances.append(distance)
+        energies.append(np.asarray(profile.energy, dtype=float))
+        movings.append(np.asarray(profile.moving, dtype=bool))
+    return EnergyProfile(np.concatenate(distances), np.concatenate(energies),
+                         np.concatenate(movings))

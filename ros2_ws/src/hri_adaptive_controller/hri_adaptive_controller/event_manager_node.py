@@ -1,0 +1,212 @@
+"""The `event_manager` node: holds the learned tasks and ramps a(E, t) to switch between them.
+
+Tasks come from the YAML files in `tasks_dir` at start and from /hri/task at any time (a task
+with a known name replaces the old one; an invalid one is rejected with a warning). An event
+on /hri/events names the task to switch to; `EventWeightSchedule` (eq. 13) fades the weight
+out, swaps the task while a = 0, and fades it in again. The node publishes TaskState on every
+change, at `publish_rate_hz` (>= 100 Hz) during a ramp, and every `heartbeat_period` otherwise.
+
+Choices where DESIGN.md is silent:
+- `initial_task` fades in from a = 0 at start (a ramp of `ramp_time`), like any other switch,
+  so a robot never starts with the full task force at once.
+- A task that arrives on /hri/task under the active task's name goes through a full switch
+  (fade out, swap, fade in): its parameters never change under a nonzero weight.
+- An event whose `task` is empty fades out to 'idle' (a = 0: the controller holds still).
+- /hri/task_state is reliable and transient-local (depth 1): a controller that starts late
+  gets the current state at once.
+"""
+
+import sys
+import time
+from itertools import count
+
+import rclpy
+from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from hri_adaptive_controller.event_weight import (
+    PHASE_FADING_IN,
+    PHASE_FADING_OUT,
+    PHASE_IDLE,
+    EventWeightSchedule,
+)
+from hri_demo_learning.task_file import TaskRecord, load_task_directory
+from hri_demo_learning.task_message import TASK_QOS, task_message, task_record
+from scara_sim.node_common import (
+    ParameterSpec,
+    StartupError,
+    declare_parameters,
+    init_ros,
+    spin_until_stopped,
+)
+
+NODE_NAME = 'event_manager'
+# Latest state: a late controller gets it at once.
+TASK_STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+WARNING_THROTTLE = 1.0  # s between repeats of one kind of warning
+
+PARAMETERS = {
+    'tasks_dir': ParameterSpec('tasks', 'folder of task YAML files loaded at start',
+                               read_only=True),
+    'initial_task': ParameterSpec('', 'task faded in at start ("" = start idle, a = 0)',
+                                  read_only=True),
+    'ramp_time': ParameterSpec(1.0, 'duration of a full fade 1 -> 0 or 0 -> 1 (s)',
+                               low=0.05, high=60.0),
+    'publish_rate_hz': ParameterSpec(200.0, 'TaskState rate during a ramp (Hz)',
+                                     low=100.0, high=1000.0, read_only=True),
+    'heartbeat_period': ParameterSpec(0.5, 'TaskState period when nothing changes (s)',
+                                      low=0.01, high=60.0),
+}
+
+
+class EventManager(Node):
+    """Task store and event-weight schedule, published as TaskState."""
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        values = declare_parameters(self, PARAMETERS)
+        self._heartbeat_period = values['heartbeat_period']
+        self._revisions = count()
+        # Schedule keys are (name, revision): a new revision of the active task is a switch.
+        self._tasks: dict[str, tuple[str, int]] = {}
+        self._records: dict[tuple[str, int], TaskRecord] = {}
+        loaded, rejected = load_task_directory(values['tasks_dir'])
+        for path, reason in rejected:
+            self.get_logger().warning(f'task file {path} rejected: {reason}')
+        for record in loaded.values():
+            self._store(record)
+        initial = values['initial_task']
+        if initial and initial not in self._tasks:
+            known = ', '.join(sorted(self._tasks)) or 'none'
+            raise StartupError(f'initial_task {initial!r} is not a known task '
+                               f'(loaded from {values["tasks_dir"]}: {known})')
+        self._schedule = EventWeightSchedule(values['ramp_time'])
+        self._event_name = ''
+        if initial:
+            self._event_name = 'initial_task'
+            self._schedule.request(self._tasks[initial], time.monotonic())
+        self._last_published = None
+        self._last_publish_time = -float('inf')
+
+        self._state_publisher = self.create_publisher(TaskState, '/hri/task_state',
+                                                      TASK_STATE_QOS)
+        self.create_subscription(TaskParameters, '/hri/task', self._on_task, TASK_QOS)
+        self.create_subscription(TaskEvent, '/hri/events', self._on_event, EVENT_QOS)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.create_timer(1.0 / values['publish_rate_hz'], self._publish)
+        self.get_logger().info(
+            f'{len(self._tasks)} task(s) loaded ({", ".join(sorted(self._tasks)) or "none"}); '
+            f'initial task {initial or "none (idle)"}; ramp_time {values["ramp_time"]:g} s')
+
+    def _store(self, record: TaskRecord) -> tuple[str, int]:
+        key = (record.name, next(self._revisions))
+        self._tasks[record.name] = key
+        self._records[key] = record
+        return key
+
+    def _on_task(self, msg: TaskParameters) -> None:
+        try:
+            record = task_record(msg)
+        except ValueError as error:
+            current = self._schedule.evaluate(time.monotonic()).active_task
+            keeping = current[0] if current else 'no task'
+            self.get_logger().warning(
+                f'task {msg.name!r} on /hri/task rejected: {error}; keeping {keeping}',
+                throttle_duration_sec=WARNING_THROTTLE)
+            return
+        replaced = record.name in self._tasks
+        key = self._store(record)
+        self.get_logger().info(
+            f'task {record.name!r} {"replaced" if replaced else "added"}: s={record.s} '
+            f'd1={record.d1:.3f} d2={record.d2:.3f} a1={record.a1:.4g} a2={record.a2:.4g}')
+        state = self._schedule.evaluate(time.monotonic())
+        if replaced and record.name in (_name(state.active_task), _name(state.pending_task)):
+            self._switch(key, f'task_updated:{record.name}')
+
+    def _on_event(self, msg: TaskEvent) -> None:
+        if msg.task and msg.task not in self._tasks:
+            self.get_logger().warning(
+                f'event {msg.name!r} names unknown task {msg.task!r}; ignored '
+                f'(known: {", ".join(sorted(self._tasks)) or "none"})',
+                throttle_duration_sec=WARNING_THROTTLE)
+            return
+        self._switch(self._tasks[msg.task] if msg.task else None, msg.name)
+
+    def _switch(self, key, event_name: str) -> None:
+        before = self._schedule.evaluate(time.monotonic())
+        after = self._schedule.request(key, time.monotonic())
+        if (after.phase, after.pending_task) != (before.phase, before.pending_task):
+            self._event_name = event_name
+            self.get_logger().info(
+                f'event {event_name!r}: {_name(before.active_task) or "idle"} -> '
+                f'{_name(after.pending_task) or _name(after.active_task) or "idle"} '
+                f'({after.phase})')
+        self._publish()
+
+    def _validate_parameters(self, parameters) -> SetParametersResult:
+        for parameter in parameters:
+            if parameter.name == 'ramp_time':
+                state = self._schedule.evaluate(time.monotonic())
+                if state.phase in (PHASE_FADING_IN, PHASE_FADING_OUT):
+                    return SetParametersResult(
+                        successful=False, reason='ramp_time cannot change during a ramp')
+                self._schedule = EventWeightSchedule(parameter.value, state.active_task)
+            elif parameter.name == 'heartbeat_period':
+                self._heartbeat_period = parameter.value
+        return SetParametersResult(successful=True)
+
+    def _publish(self) -> None:
+        now = time.monotonic()
+        state = self._schedule.evaluate(now)
+        ramping = state.phase in (PHASE_FADING_IN, PHASE_FADING_OUT)
+        summary = (state.phase, state.active_task, state.pending_task)
+        if not ramping and summary == self._last_published \
+                and now - self._last_publish_time < self._heartbeat_period:
+            return
+        msg = TaskState(weight=state.weight, weight_rate=state.rate, phase=state.phase,
+                        event=self._event_name, pending_task=_name(state.pending_task))
+        msg.header.stamp = self.get_clock().now().to_msg()
+        if state.active_task is not None:
+            msg.task = task_message(self._records[state.active_task])
+        if state.phase == PHASE_IDLE:
+            msg.weight, msg.weight_rate = 0.0, 0.0
+        self._state_publisher.publish(msg)
+        self._last_published = summary
+        self._last_publish_time = now
+
+
+def _name(key) -> str:
+    return key[0] if key else ''
+
+
+def main(args=None):
+    stop = init_ros(args)
+    node = None
+    executor = None
+    code = 0
+    try:
+        node = EventManager()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin_until_stopped(executor, stop)
+    except StartupError as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
+        code = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

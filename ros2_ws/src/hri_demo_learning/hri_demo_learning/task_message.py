@@ -1,0 +1,32 @@
+"""A task record as the TaskParameters message, and the QoS of the latest-tasks topic.
+
+The learner publishes learned tasks on /hri/task and the event manager takes them from there;
+both use these conversions and `TASK_QOS`, so that the two ends cannot drift apart.
+"""
+
+from hri_interfaces.msg import TaskParameters
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from hri_demo_learning.task_file import TaskRecord
+
+# /hri/task: every learned task reaches late joiners (DESIGN.md: keep_last >= 16).
+TASK_QOS = QoSProfile(depth=16, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def task_message(record: TaskRecord, stamp=None) -> TaskParameters:
+    """The TaskParameters message of a task record (`stamp`: builtin_interfaces/Time)."""
+    msg = TaskParameters(name=record.name, s=int(record.s), a1=float(record.a1),
+                         a2=float(record.a2), d1=float(record.d1), d2=float(record.d2),
+                         n=int(record.n), cost=float(record.cost),
+                         iterations=int(record.iterations))
+    if stamp is not None:
+        msg.header.stamp = stamp
+    return msg
+
+
+def task_record(msg: TaskParameters) -> TaskRecord:
+    """The task record of a TaskParameters message; ValueError with the reason if invalid."""
+    return TaskRecord(name=msg.name, s=int(msg.s), a1=msg.a1, a2=msg.a2, d1=msg.d1,
+                      d2=msg.d2, n=int(msg.n), cost=msg.cost, iterations=int(msg.iterations))

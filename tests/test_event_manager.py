@@ -1,0 +1,119 @@
+"""Topic-level tests of the event_manager: loading tasks, switching on events, bad input."""
+
+import math
+import time
+
+import pytest
+from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
+
+from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
+from hri_demo_learning.task_message import TASK_QOS
+from tests.common import REPO_ROOT, wait_for
+
+PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
+RAMP_TIME = 0.5
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture
+def manager(nodes, probe):
+    """A running event_manager with Table I's tasks, `follow` faded in, and its state list."""
+    states = probe.collect('/hri/task_state', TaskState, TASK_STATE_QOS)
+    process = nodes('hri_adaptive_controller', 'event_manager',
+                    params={'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow',
+                            'ramp_time': RAMP_TIME})
+    assert wait_for(lambda: states and states[-1].phase == 'active', 20.0), process.log()
+    events = probe.publisher('/hri/events', TaskEvent, 100)
+    assert wait_for(lambda: events.get_subscription_count() > 0, 10.0)
+    return process, states, events
+
+
+def weights_are_continuous(states: list[TaskState], max_rate: float) -> bool:
+    """No jump in a(E, t): consecutive samples differ by at most max_rate * dt (+ slack)."""
+    for before, after in zip(states, states[1:], strict=False):
+        dt = (after.header.stamp.sec - before.header.stamp.sec
+              + 1e-9 * (after.header.stamp.nanosec - before.header.stamp.nanosec))
+        if abs(after.weight - before.weight) > max_rate * max(dt, 0.0) + 0.02:
+            return False
+    return True
+
+
+def test_event_switches_task_through_a_smooth_ramp(manager):
+    process, states, events = manager
+    start = len(states)
+    events.publish(TaskEvent(name='hand_close', task='avoid'))
+    assert wait_for(lambda: states[-1].task.name == 'avoid'
+                    and states[-1].phase == 'active', 10.0), process.log()
+    ramp = states[start:]
+    phases = [s.phase for s in ramp]
+    assert 'fading_out' in phases and 'fading_in' in phases
+    assert min(s.weight for s in ramp) < 0.05
+    assert all(0.0 <= s.weight <= 1.0 for s in ramp)
+    # eq. 13: bounded rate (quintic smoothstep: 15/8 per ramp_time) and no jump.
+    assert max(abs(s.weight_rate) for s in ramp) <= 15.0 / 8.0 / RAMP_TIME * 1.01
+    assert weights_are_continuous(ramp, 15.0 / 8.0 / RAMP_TIME)
+    # >= 100 Hz during the ramp: 2 ramps of RAMP_TIME s.
+    assert len(ramp) >= 100 * 2 * RAMP_TIME * 0.8
+    assert ramp[-1].event == 'hand_close'
+    assert math.isclose(ramp[-1].task.d1, 0.183)
+
+
+def test_unknown_task_event_is_ignored(manager):
+    process, states, events = manager
+    events.publish(TaskEvent(name='bogus', task='no_such_task'))
+    assert wait_for(lambda: 'no_such_task' in process.log(), 5.0)
+    time.sleep(0.5)
+    assert states[-1].task.name == 'follow' and states[-1].phase == 'active'
+    assert process.alive()
+
+
+def test_invalid_task_is_rejected_and_current_kept(manager, probe):
+    process, states, _ = manager
+    tasks = probe.publisher('/hri/task', TaskParameters, TASK_QOS)
+    bad = TaskParameters(name='follow', s=0, a1=1.0, a2=1.0, d1=0.0, d2=0.05, n=3)
+    tasks.publish(bad)
+    inverted = TaskParameters(name='follow', s=1, a1=1.0, a2=1.0, d1=0.3, d2=0.1, n=3)
+    tasks.publish(inverted)
+    assert wait_for(lambda: process.log().count('rejected') >= 1, 10.0), process.log()
+    time.sleep(0.5)
+    assert states[-1].task.name == 'follow'
+    assert math.isclose(states[-1].task.d2, 0.041)
+    assert process.alive()
+
+
+def test_new_task_on_topic_becomes_switchable(manager, probe):
+    process, states, events = manager
+    tasks = probe.publisher('/hri/task', TaskParameters, TASK_QOS)
+    tasks.publish(TaskParameters(name='wide_follow', s=1, a1=2.0, a2=20.0, d1=0.0, d2=0.1,
+                                 n=3, cost=0.01, iterations=12))
+    assert wait_for(lambda: 'wide_follow' in process.log(), 10.0), process.log()
+    events.publish(TaskEvent(name='go_wide', task='wide_follow'))
+    assert wait_for(lambda: states[-1].task.name == 'wide_follow'
+                    and states[-1].phase == 'active', 10.0), process.log()
+    assert math.isclose(states[-1].task.d2, 0.1)
+
+
+def test_events_faster_than_the_ramp_keep_weight_continuous(manager):
+    process, states, events = manager
+    start = len(states)
+    for i in range(200):
+        events.publish(TaskEvent(name=f'burst{i}', task=('avoid', 'follow_safe', 'follow')[i % 3]))
+        time.sleep(0.002)
+    events.publish(TaskEvent(name='last', task='follow_safe'))
+    assert wait_for(lambda: states[-1].task.name == 'follow_safe'
+                    and states[-1].phase == 'active', 15.0), process.log()
+    burst = states[start:]
+    assert all(0.0 <= s.weight <= 1.0 and math.isfinite(s.weight_rate) for s in burst)
+    # Overlapping ramps may add their rates (event_weight's bound), never jump.
+    assert weights_are_continuous(burst, 2 * 15.0 / 8.0 / (RAMP_TIME / 2))
+    assert process.alive()
+
+
+def test_unknown_initial_task_exits_with_reason(nodes):
+    process = nodes('hri_adaptive_controller', 'event_manager',
+                    params={'tasks_dir': str(PAPER_TASKS), 'initial_task': 'dance'})
+    assert process.wait(20.0) == 1
+    log = process.log()
+    assert "initial_task 'dance' is not a known task" in log
+    assert 'Traceback' not in log

@@ -1,0 +1,255 @@
+"""The `demonstrator` node: plays the person who demonstrates a behaviour to the robot.
+
+1. Waits for /ee_position (geometry_msgs/PointStamped) from the arm; none within
+   `wait_timeout` s: one error line, exit code 1.
+2. Publishes the reference x_r (`reference`, m, base frame) on /demo/reference
+   (PointStamped) at `rate_hz` from then until it exits.
+3. After `start_delay` s, pushes the end-effector through /human/wrench
+   (geometry_msgs/WrenchStamped, force x, y in N, base frame) with the hand model of
+   `profiles.Demonstration`: a spring-damper (`stiffness`, `damping`, capped at `max_force`)
+   toward a set-point moving on a minimum-jerk path at `peak_speed`, plus seeded tremor
+   (`tremor_amplitude` N RMS in `tremor_band` Hz, `seed`). `mode: follow` brings the
+   end-effector from where it is toward x_r and stops `stop_distance` m from it;
+   `mode: avoid` moves it from near x_r straight away to `safe_distance` m (when it starts
+   within 5 mm of x_r, along `avoid_direction`).
+4. Lets go (zero force) once the end-effector has arrived and stopped (or `settle_timeout`
+   s after the path ends), keeps publishing a zero wrench for `hold_time` s, and exits 0.
+The end-effector velocity comes from the /ee_position stamps (low-passed differences). If
+the node is stopped mid-push, scara_sim drops the force after its `wrench_timeout`.
+"""
+
+import sys
+import time
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PointStamped, WrenchStamped
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from scara_sim.node_common import (
+    ParameterSpec,
+    StartupError,
+    declare_parameters,
+    init_ros,
+    spin_until_stopped,
+)
+from scara_sim.profiles import (
+    DEMONSTRATION_MODES,
+    Demonstration,
+    PushSettings,
+    Tremor,
+    VelocityEstimator,
+    demonstration_goal,
+)
+
+NODE_NAME = 'demonstrator'
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+REFERENCE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+EE_QOS = qos_profile_sensor_data
+# Every parameter is read-only: a demonstration runs once with the values it started with.
+PUSH_SETTINGS = {  # PushSettings fields
+    'stiffness': ParameterSpec(300.0, 'hand impedance stiffness (N/m)', 1.0, 5000.0,
+                               read_only=True),
+    'damping': ParameterSpec(40.0, 'hand impedance damping (N s/m)', 0.0, 1000.0,
+                             read_only=True),
+    'max_force': ParameterSpec(30.0, 'largest force the hand applies (N)', 0.1, 200.0,
+                               read_only=True),
+    'peak_speed': ParameterSpec(0.15, 'peak speed of the minimum-jerk path (m/s)', 0.01, 1.0,
+                                read_only=True),
+    'settle_tolerance': ParameterSpec(0.002, 'arrived: this close to the goal (m)', 1e-4, 0.1,
+                                      read_only=True),
+    'settle_speed': ParameterSpec(0.002, 'arrived: slower than this (m/s)', 1e-4, 0.1,
+                                  read_only=True),
+    'settle_timeout': ParameterSpec(5.0, 'let go this long after the path ends (s)', 0.1,
+                                    60.0, read_only=True),
+    'hold_time': ParameterSpec(3.0, 'zero force for this long before exiting (s)', 0.0,
+                               600.0, read_only=True),
+}
+PARAMETERS = {
+    'mode': ParameterSpec('follow', 'follow: toward x_r; avoid: away from x_r',
+                          choices=DEMONSTRATION_MODES, read_only=True),
+    'reference': ParameterSpec([0.45, 0.05], 'x_r, the demonstration reference [x, y] (m)',
+                               size=2, read_only=True),
+    'stop_distance': ParameterSpec(0.041, 'follow: stop this far from x_r (m)', 0.001, 2.0,
+                                   read_only=True),
+    'safe_distance': ParameterSpec(0.183, 'avoid: move out to this distance from x_r (m)',
+                                   0.001, 2.0, read_only=True),
+    'avoid_direction': ParameterSpec([0.0, -1.0], 'avoid: direction to move when starting '
+                                     'within 5 mm of x_r', size=2, read_only=True),
+    **PUSH_SETTINGS,
+    'tremor_amplitude': ParameterSpec(0.2, 'hand tremor force, RMS per axis (N)', 0.0, 10.0,
+                                      read_only=True),
+    'tremor_band': ParameterSpec([8.0, 12.0], 'hand tremor band [low, high] (Hz)', size=2,
+                                 read_only=True),
+    'seed': ParameterSpec(0, 'seed of the tremor noise', 0, 2**31 - 1, read_only=True),
+    'rate_hz': ParameterSpec(200.0, 'rate of /human/wrench and /demo/reference (Hz)', 10.0,
+                             1000.0, read_only=True),
+    'start_delay': ParameterSpec(1.0, 'wait after hearing the arm before pushing (s)', 0.0,
+                                 600.0, read_only=True),
+    'wait_timeout': ParameterSpec(10.0, 'give up when no /ee_position comes (s)', 0.1, 600.0,
+                                  read_only=True),
+    'velocity_filter_time': ParameterSpec(0.01, 'time constant of the end-effector velocity '
+                                          'filter (s)', 0.001, 1.0, read_only=True),
+    'base_frame': ParameterSpec('base', 'frame of /demo/reference and /human/wrench',
+                                read_only=True),
+}
+
+
+class Demonstrator(Node):
+    """Waits for the arm, pushes it along the demonstration, lets go, holds, finishes."""
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        values = declare_parameters(self, PARAMETERS)
+        self._mode = values['mode']
+        self._reference = np.array(values['reference'])
+        self._stop_distance = values['stop_distance']
+        self._safe_distance = values['safe_distance']
+        self._avoid_direction = values['avoid_direction']
+        self._start_delay = values['start_delay']
+        self._wait_timeout = values['wait_timeout']
+        self._frame = values['base_frame']
+        rate_hz = values['rate_hz']
+        settings = {name: values[name] for name in PUSH_SETTINGS}
+        try:
+            self._settings = PushSettings(**settings)
+            amplitude = values['tremor_amplitude']
+            self._tremor = (Tremor(amplitude, tuple(values['tremor_band']), rate_hz,
+                                   values['seed']) if amplitude > 0.0 else None)
+            self._velocity = VelocityEstimator(values['velocity_filter_time'])
+        except ValueError as error:
+            raise StartupError(f'bad parameters: {error}') from None
+
+        self.exit_code: int | None = None
+        self._position: np.ndarray | None = None
+        self._demonstration: Demonstration | None = None
+        self._created = time.monotonic()
+        self._heard_at: float | None = None
+        self._push_start = 0.0
+        self._peak_speed = 0.0
+        self._wrench_pub = self.create_publisher(WrenchStamped, '/human/wrench', COMMAND_QOS)
+        self._reference_pub = self.create_publisher(PointStamped, '/demo/reference',
+                                                    REFERENCE_QOS)
+        self.create_subscription(PointStamped, '/ee_position', self._on_position, EE_QOS)
+        self._wrench = WrenchStamped()
+        self._wrench.header.frame_id = self._frame
+        self._reference_msg = PointStamped()
+        self._reference_msg.header.frame_id = self._frame
+        self._reference_msg.point.x, self._reference_msg.point.y = self._reference.tolist()
+        self.create_timer(1.0 / rate_hz, self._on_tick)
+        self.get_logger().info(
+            f'{self._mode} demonstration around x_r = {self._reference.tolist()} m: waiting '
+            f'for /ee_position (up to {self._wait_timeout:g} s)')
+
+    def _on_position(self, msg: PointStamped) -> None:
+        position = np.array([msg.point.x, msg.point.y])
+        if not np.all(np.isfinite(position)):
+            self.get_logger().warning('ignored a non-finite /ee_position',
+                                      throttle_duration_sec=2.0)
+            return
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        self._velocity.update(position, stamp)
+        self._position = position
+
+    def _on_tick(self) -> None:
+        if self.exit_code is not None:
+            return
+        now = time.monotonic()
+        if self._heard_at is None:
+            if self._position is None:
+                if now - self._created > self._wait_timeout:
+                    self.get_logger().error(
+                        f'no /ee_position within {self._wait_timeout:g} s: is scara_sim '
+                        'running on this ROS_DOMAIN_ID?')
+                    self.exit_code = 1
+                return
+            self._heard_at = now
+            self.get_logger().info(f'end-effector at {np.round(self._position, 4).tolist()} '
+                                   f'm; pushing in {self._start_delay:g} s')
+        force = np.zeros(2)
+        if self._demonstration is None and now - self._heard_at >= self._start_delay:
+            if not self._begin(now):
+                return
+        if self._demonstration is not None:
+            force = self._push(now)
+        self._publish(force)
+
+    def _begin(self, now: float) -> bool:
+        """Plan the push from the current end-effector position; False if impossible."""
+        try:
+            goal = demonstration_goal(self._mode, self._position, self._reference,
+                                      self._stop_distance, self._safe_distance,
+                                      self._avoid_direction)
+        except ValueError as error:
+            self.get_logger().error(f'cannot demonstrate: {error}')
+            self.exit_code = 1
+            return False
+        self._demonstration = Demonstration(self._position, goal, self._settings, self._tremor)
+        self._push_start = now
+        self.get_logger().info(
+            f'pushing from {np.round(self._position, 4).tolist()} to '
+            f'{np.round(goal, 4).tolist()} m ({np.linalg.norm(goal - self._position):.3f} m '
+            f'in {self._demonstration.duration:.2f} s, peak {self._settings.peak_speed:g} m/s)')
+        return True
+
+    def _push(self, now: float) -> np.ndarray:
+        demo = self._demonstration
+        before = demo.phase
+        force = demo.update(now - self._push_start, self._position, self._velocity.velocity)
+        if demo.phase == 'pushing':
+            self._peak_speed = max(self._peak_speed, float(np.linalg.norm(
+                self._velocity.velocity)))
+        distance = float(np.linalg.norm(self._position - self._reference))
+        if before != 'holding' and demo.phase in ('holding', 'done'):
+            how = ('settle timeout: not arrived' if demo.settle_timed_out else 'arrived')
+            log = self.get_logger().warning if demo.settle_timed_out else self.get_logger().info
+            log(f'let go ({how}) at {distance:.4f} m from x_r; peak speed while pushing '
+                f'{self._peak_speed:.3f} m/s; holding still for {self._settings.hold_time:g} s')
+        if demo.phase == 'done':
+            self.get_logger().info(f'demonstration done: end-effector {distance:.4f} m from '
+                                   'x_r')
+            self.exit_code = 0
+        return force
+
+    def _publish(self, force: np.ndarray) -> None:
+        stamp = self.get_clock().now().to_msg()
+        self._reference_msg.header.stamp = stamp
+        self._reference_pub.publish(self._reference_msg)
+        self._wrench.header.stamp = stamp
+        self._wrench.wrench.force.x, self._wrench.wrench.force.y = (float(force[0]),
+                                                                    float(force[1]))
+        self._wrench_pub.publish(self._wrench)
+
+
+def main(args=None):
+    stop = init_ros(args)
+    node = None
+    executor = None
+    code = 0
+    try:
+        node = Demonstrator()
+        # /ee_position comes at 1 kHz: the EventsExecutor takes it at a fraction of the CPU;
+        # driven by spin_once because its spin() ignores shutdown (measured-limits.md).
+        executor = EventsExecutor()
+        executor.add_node(node)
+        spin_until_stopped(executor, stop, lambda: node.exit_code is not None)
+        code = node.exit_code if node.exit_code is not None else 0
+    except StartupError as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
+        code = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

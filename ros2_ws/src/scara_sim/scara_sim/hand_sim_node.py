@@ -1,0 +1,138 @@
+"""The `hand_sim` node: the human hand on /target, from a scripted profile.
+
+Publishes geometry_msgs/PointStamped (frame `base_frame`, m) on /target at `rate_hz`, the
+position of `profiles.hand_position` for the profile named by `profile` (hold, approach,
+retreat, back_and_forth, circle, waypoints) and its parameters `start`, `end`, `speed`,
+`period`, `radius`, `start_delay`, `waypoints`. The profile's clock starts when the node
+does; changing any profile parameter at run time (validated) restarts it.
+"""
+
+import sys
+import time
+
+import rclpy
+from geometry_msgs.msg import PointStamped
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from scara_sim.node_common import (
+    ParameterSpec,
+    StartupError,
+    declare_parameters,
+    init_ros,
+    spin_until_stopped,
+)
+from scara_sim.profiles import HAND_PROFILES, HandProfile, hand_position
+
+NODE_NAME = 'hand_sim'
+TARGET_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+PARAMETERS = {
+    'rate_hz': ParameterSpec(100.0, 'publish rate of /target (Hz)', 1.0, 1000.0,
+                             read_only=True),
+    'profile': ParameterSpec('hold', 'hand motion: ' + ', '.join(HAND_PROFILES),
+                             choices=HAND_PROFILES),
+    'start': ParameterSpec([0.45, 0.05], 'start point [x, y] (m); centre of the circle',
+                           size=2),
+    'end': ParameterSpec([0.30, 0.30], 'end point [x, y] (m)', size=2),
+    'speed': ParameterSpec(0.15, 'peak speed of approach, retreat and waypoints moves (m/s)',
+                           0.001, 5.0),
+    'period': ParameterSpec(8.0, 'cycle time of back_and_forth and circle (s)', 0.1, 3600.0),
+    'radius': ParameterSpec(0.08, 'circle radius (m)', 0.001, 2.0),
+    'start_delay': ParameterSpec(0.0, 'time the hand waits before moving (s)', 0.0, 3600.0),
+    'waypoints': ParameterSpec([0.45, 0.05, 0.30, 0.30],
+                               'waypoints profile: flat [x0, y0, x1, y1, ...] (m)'),
+    'base_frame': ParameterSpec('base', 'frame of /target', read_only=True),
+}
+PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
+                      'waypoints')
+
+
+class HandSim(Node):
+    """Publishes the scripted hand position at rate_hz."""
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        values = declare_parameters(self, PARAMETERS)
+        rate_hz = values['rate_hz']
+        self._frame = values['base_frame']
+        try:
+            self._profile = self._profile_from({})
+        except ValueError as error:
+            raise StartupError(f'bad parameters: {error}') from None
+        self._started = time.monotonic()
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self._publisher = self.create_publisher(PointStamped, '/target', TARGET_QOS)
+        self._msg = PointStamped()
+        self._msg.header.frame_id = self._frame
+        self.create_timer(1.0 / rate_hz, self._publish)
+        self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on /target')
+
+    def _profile_from(self, overrides: dict) -> HandProfile:
+        def value(name):
+            return overrides[name] if name in overrides else self.get_parameter(name).value
+
+        return HandProfile(
+            name=value('profile'), start=tuple(value('start')), end=tuple(value('end')),
+            speed=value('speed'), period=value('period'), radius=value('radius'),
+            start_delay=value('start_delay'), waypoints=tuple(value('waypoints')))
+
+    def _describe(self) -> str:
+        p = self._profile
+        details = {'hold': f'at {list(p.start)}',
+                   'approach': f'{list(p.start)} -> {list(p.end)} at {p.speed} m/s',
+                   'retreat': f'{list(p.end)} -> {list(p.start)} at {p.speed} m/s',
+                   'back_and_forth': f'{list(p.start)} <-> {list(p.end)}, period {p.period} s',
+                   'circle': f'centre {list(p.start)}, radius {p.radius} m, '
+                             f'period {p.period} s',
+                   'waypoints': f'{len(p.waypoints) // 2} points at {p.speed} m/s'}
+        return f'{p.name} ({details[p.name]}, start delay {p.start_delay} s)'
+
+    def _validate_parameters(self, parameters) -> SetParametersResult:
+        try:
+            self._profile_from({p.name: p.value for p in parameters})
+        except (ValueError, TypeError) as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters) -> None:
+        if any(p.name in PROFILE_PARAMETERS for p in parameters):
+            self._profile = self._profile_from({})
+            self._started = time.monotonic()
+            self.get_logger().info(f'hand profile restarted: {self._describe()}')
+
+    def _publish(self) -> None:
+        x, y = hand_position(self._profile, time.monotonic() - self._started)
+        self._msg.header.stamp = self.get_clock().now().to_msg()
+        self._msg.point.x, self._msg.point.y = float(x), float(y)
+        self._publisher.publish(self._msg)
+
+
+def main(args=None):
+    stop = init_ros(args)
+    node = None
+    executor = None
+    code = 0
+    try:
+        node = HandSim()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin_until_stopped(executor, stop)
+    except StartupError as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
+        code = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,347 @@
+"""Scripted human motion: the hand profiles of hand_sim and the demonstrator's push.
+
+The hand (`hand_sim`, topic /target) follows one of the named profiles of `HandProfile`.
+The demonstrator plays the person who guides the end-effector during a demonstration (the
+data behind the paper's eq. 3): its hand holds the tool through an impedance (a spring and a
+damper, `hand_force`) whose set-point follows a minimum-jerk path (`minimum_jerk_segment`)
+from where the end-effector starts to the demonstration's goal (`demonstration_goal`), plus
+physiological tremor (`Tremor`: band-limited, seeded noise).
+
+Positions are (..., 2) arrays in m in the robot's base frame, times in s, forces in N.
+No ROS import.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+HAND_PROFILES = ('hold', 'approach', 'retreat', 'back_and_forth', 'circle', 'waypoints')
+DEMONSTRATION_MODES = ('follow', 'avoid')
+
+# Peak speed of a minimum-jerk move over its mean speed: max of 30 s^2 (1 - s)^2 at s = 1/2.
+MINIMUM_JERK_PEAK_RATIO = 1.875
+
+
+def _point(value, name: str) -> np.ndarray:
+    """`value` as a finite float array of shape (2,); ValueError otherwise."""
+    array = np.asarray(value, dtype=float).reshape(-1)
+    if array.shape != (2,) or not np.all(np.isfinite(array)):
+        raise ValueError(f'{name} must be 2 finite values [x, y] in m, got {np.ravel(value)}')
+    return array
+
+
+def _positive(value: float, name: str, unit: str) -> float:
+    """`value` as a float; ValueError unless finite and > 0."""
+    value = float(value)
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f'{name} must be finite and > 0 {unit}, got {value}')
+    return value
+
+
+def minimum_jerk(s) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum-jerk time scaling: (10 s^3 - 15 s^4 + 6 s^5, its ds-derivative).
+
+    s is normalised time (any shape), clipped to [0, 1]; the value runs 0 -> 1 with zero
+    velocity and acceleration at both ends (Flash and Hogan's model of a reaching hand).
+    """
+    s = np.clip(np.asarray(s, dtype=float), 0.0, 1.0)
+    return s ** 3 * (10.0 + s * (-15.0 + 6.0 * s)), 30.0 * s ** 2 * (1.0 - s) ** 2
+
+
+def minimum_jerk_duration(distance: float, peak_speed: float) -> float:
+    """Duration (s) of a minimum-jerk move of `distance` m whose peak speed is `peak_speed`."""
+    _positive(peak_speed, 'peak_speed', 'm/s')
+    if not (math.isfinite(distance) and distance >= 0.0):
+        raise ValueError(f'distance must be finite and >= 0 m, got {distance}')
+    return MINIMUM_JERK_PEAK_RATIO * distance / peak_speed
+
+
+def minimum_jerk_segment(start, end, t, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Position (..., 2) in m and velocity (..., 2) in m/s of a minimum-jerk move.
+
+    Moves from `start` (2,) to `end` (2,) over `duration` s, starting at t = 0; before that
+    it is at `start`, after it at `end`. t may be a scalar or an array of shape (...).
+    A zero duration jumps at t = 0.
+    """
+    start, end = _point(start, 'start'), _point(end, 'end')
+    t = np.asarray(t, dtype=float)
+    if not (math.isfinite(duration) and duration >= 0.0):
+        raise ValueError(f'duration must be finite and >= 0 s, got {duration}')
+    if duration == 0.0:
+        fraction, rate = (t >= 0.0).astype(float), np.zeros_like(t)
+    else:
+        fraction, ds = minimum_jerk(t / duration)
+        rate = ds / duration
+    delta = end - start
+    return start + fraction[..., None] * delta, rate[..., None] * delta
+
+
+@dataclass(frozen=True)
+class HandProfile:
+    """A scripted hand motion (see `hand_position`).
+
+    name: one of HAND_PROFILES. start, end: points [x, y] (m). speed: peak speed of the
+    minimum-jerk moves of approach, retreat and waypoints (m/s). period: cycle time of
+    back_and_forth and circle (s). radius: of the circle (m), centred on `start`.
+    start_delay: time (s) the hand waits at its initial point. waypoints: flat
+    [x0, y0, x1, y1, ...] (m), at least two points.
+    """
+
+    name: str = 'hold'
+    start: tuple[float, float] = (0.45, 0.05)
+    end: tuple[float, float] = (0.30, 0.30)
+    speed: float = 0.15
+    period: float = 8.0
+    radius: float = 0.08
+    start_delay: float = 0.0
+    waypoints: tuple[float, ...] = field(default=())
+
+    def __post_init__(self):
+        if self.name not in HAND_PROFILES:
+            raise ValueError(f'unknown hand profile {self.name!r}; expected one of '
+                             f'{", ".join(HAND_PROFILES)}')
+        _point(self.start, 'start')
+        _point(self.end, 'end')
+        _positive(self.speed, 'speed', 'm/s')
+        _positive(self.period, 'period', 's')
+        _positive(self.radius, 'radius', 'm')
+        if not (math.isfinite(self.start_delay) and self.start_delay >= 0.0):
+            raise ValueError(f'start_delay must be finite and >= 0 s, got {self.start_delay}')
+        if self.name == 'waypoints':
+            points = np.asarray(self.waypoints, dtype=float)
+            if points.ndim != 1 or points.size < 4 or points.size % 2:
+                raise ValueError('waypoints must be a flat list [x0, y0, x1, y1, ...] of at '
+                                 f'least two points, got {len(self.waypoints)} values')
+            if not np.all(np.isfinite(points)):
+                raise ValueError('waypoints must be finite')
+
+
+def _waypoint_position(points: np.ndarray, t: float, speed: float) -> np.ndarray:
+    """Position along minimum-jerk moves between successive points (k, 2), peak `speed`."""
+    for a, b in zip(points[:-1], points[1:], strict=True):
+        duration = minimum_jerk_duration(float(np.linalg.norm(b - a)), speed)
+        if t <= duration:
+            return minimum_jerk_segment(a, b, t, duration)[0]
+        t -= duration
+    return points[-1].copy()
+
+
+def hand_position(profile: HandProfile, t: float) -> np.ndarray:
+    """Hand position (2,) in m at time t (s) since the profile started.
+
+    hold: stays at `start`. approach: minimum-jerk move start -> end at peak speed `speed`,
+    then stays at `end`. retreat: the same move backwards, end -> start. back_and_forth:
+    start -> end -> start ... as start + (end - start) (1 - cos(2 pi t / period)) / 2.
+    circle: centre `start`, `radius`, counter-clockwise, one turn per `period`, beginning at
+    start + [radius, 0]. waypoints: minimum-jerk moves through the points, then stays at the
+    last. Before `start_delay` the hand stays where the profile begins.
+    """
+    if not math.isfinite(t):
+        raise ValueError(f't must be finite, got {t}')
+    tau = max(0.0, t - profile.start_delay)
+    start, end = np.asarray(profile.start, float), np.asarray(profile.end, float)
+    if profile.name == 'hold':
+        return start.copy()
+    if profile.name in ('approach', 'retreat'):
+        a, b = (start, end) if profile.name == 'approach' else (end, start)
+        duration = minimum_jerk_duration(float(np.linalg.norm(b - a)), profile.speed)
+        return minimum_jerk_segment(a, b, tau, duration)[0]
+    if profile.name == 'back_and_forth':
+        return start + (end - start) * 0.5 * (1.0 - math.cos(2.0 * math.pi * tau / profile.period))
+    if profile.name == 'circle':
+        angle = 2.0 * math.pi * tau / profile.period
+        return start + profile.radius * np.array([math.cos(angle), math.sin(angle)])
+    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, 2)
+    return _waypoint_position(points, tau, profile.speed)
+
+
+def demonstration_goal(mode: str, start, reference, stop_distance: float,
+                       safe_distance: float, fallback_direction=(0.0, -1.0),
+                       min_direction_distance: float = 0.005) -> np.ndarray:
+    """Where the demonstrator brings the end-effector (2,) in m, base frame.
+
+    follow: onto the segment from `start` to the reference x_r, `stop_distance` m short of
+    x_r (the paper's following behaviour stops near the target: d2 of Table I). avoid: along
+    the ray from x_r through `start` out to `safe_distance` m from x_r (Table I's d1).
+    When `start` is within `min_direction_distance` m of x_r the direction is
+    `fallback_direction` instead. Raises ValueError when the move would not be toward x_r
+    (follow) or away from it (avoid).
+    """
+    start, reference = _point(start, 'start'), _point(reference, 'reference')
+    _positive(stop_distance, 'stop_distance', 'm')
+    _positive(safe_distance, 'safe_distance', 'm')
+    offset = start - reference
+    distance = float(np.linalg.norm(offset))
+    if distance >= min_direction_distance:
+        direction = offset / distance
+    else:
+        fallback = _point(fallback_direction, 'fallback_direction')
+        norm = float(np.linalg.norm(fallback))
+        if norm == 0.0:
+            raise ValueError('fallback_direction must not be zero')
+        direction = fallback / norm
+    if mode == 'follow':
+        if distance <= stop_distance:
+            raise ValueError(f'follow: the end-effector starts {distance:.3f} m from x_r, '
+                             f'already within stop_distance {stop_distance:.3f} m')
+        return reference + stop_distance * direction
+    if mode == 'avoid':
+        if distance >= safe_distance:
+            raise ValueError(f'avoid: the end-effector starts {distance:.3f} m from x_r, '
+                             f'already beyond safe_distance {safe_distance:.3f} m')
+        return reference + safe_distance * direction
+    raise ValueError(f'unknown demonstration mode {mode!r}; expected one of '
+                     f'{", ".join(DEMONSTRATION_MODES)}')
+
+
+def hand_force(setpoint, setpoint_velocity, position, velocity, stiffness: float,
+               damping: float, max_force: float) -> np.ndarray:
+    """Force (..., 2) in N of a hand holding the tool: K (x_s - x) + D (v_s - v), capped.
+
+    The arm's impedance of a person guiding a robot: set-point x_s (m) and its velocity
+    v_s (m/s), end-effector position x (m) and velocity v (m/s), stiffness K (N/m) and
+    damping D (N s/m). The force's magnitude is capped at `max_force` N, direction kept.
+    """
+    _positive(stiffness, 'stiffness', 'N/m')
+    if not (math.isfinite(damping) and damping >= 0.0):
+        raise ValueError(f'damping must be finite and >= 0 N s/m, got {damping}')
+    _positive(max_force, 'max_force', 'N')
+    force = (stiffness * (np.asarray(setpoint, float) - np.asarray(position, float))
+             + damping * (np.asarray(setpoint_velocity, float) - np.asarray(velocity, float)))
+    if not np.all(np.isfinite(force)):
+        raise ValueError('hand force inputs must be finite')
+    magnitude = np.linalg.norm(force, axis=-1, keepdims=True)
+    return force * np.minimum(1.0, max_force / np.maximum(magnitude, 1e-300))
+
+
+class Tremor:
+    """Physiological hand tremor: white noise through a band-pass, 2 axes, seeded.
+
+    Each axis is Gaussian white noise through a 4th-order Butterworth band-pass
+    [low, high] Hz sampled at `rate_hz`, scaled so that its stationary RMS is `amplitude` N.
+    Streaming: `sample()` returns the next (2,) value; the same seed gives the same sequence.
+    """
+
+    def __init__(self, amplitude: float, band: tuple[float, float], rate_hz: float,
+                 seed: int):
+        if not (math.isfinite(amplitude) and amplitude >= 0.0):
+            raise ValueError(f'tremor amplitude must be finite and >= 0 N, got {amplitude}')
+        low, high = float(band[0]), float(band[1])
+        rate_hz = _positive(rate_hz, 'rate_hz', 'Hz')
+        if not (0.0 < low < high < 0.5 * rate_hz):
+            raise ValueError(f'tremor band must satisfy 0 < low < high < rate/2 = '
+                             f'{0.5 * rate_hz} Hz, got [{low}, {high}]')
+        self._sos = signal.butter(2, [low, high], btype='bandpass', fs=rate_hz, output='sos')
+        impulse = np.zeros(int(20 * rate_hz))
+        impulse[0] = 1.0
+        noise_gain = float(np.sqrt(np.sum(signal.sosfilt(self._sos, impulse) ** 2)))
+        self._scale = amplitude / noise_gain
+        self._rng = np.random.default_rng(seed)
+        self._state = np.zeros((self._sos.shape[0], 2, 2))  # (sections, 2, axes)
+
+    def sample(self) -> np.ndarray:
+        """The next tremor force (2,) in N."""
+        out, self._state = signal.sosfilt(self._sos, self._rng.standard_normal((1, 2)),
+                                          axis=0, zi=self._state)
+        return self._scale * out[0]
+
+
+@dataclass(frozen=True)
+class PushSettings:
+    """How the demonstrator's hand pushes (see `Demonstration`).
+
+    stiffness (N/m) and damping (N s/m) of the hand's impedance, max_force (N), peak_speed
+    of the set-point's minimum-jerk path (m/s), settle_tolerance (m) and settle_speed (m/s)
+    that count as arrived, settle_timeout (s) after the path ends before letting go anyway,
+    hold_time (s) the hand stays off (zero force) before the demonstration is done.
+    """
+
+    stiffness: float = 300.0
+    damping: float = 40.0
+    max_force: float = 30.0
+    peak_speed: float = 0.15
+    settle_tolerance: float = 0.002
+    settle_speed: float = 0.002
+    settle_timeout: float = 5.0
+    hold_time: float = 3.0
+
+    def __post_init__(self):
+        for name in ('stiffness', 'max_force', 'peak_speed', 'settle_tolerance',
+                     'settle_speed', 'settle_timeout'):
+            _positive(getattr(self, name), name, '')
+        for name in ('damping', 'hold_time'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {value}')
+
+
+class Demonstration:
+    """The demonstrator's push from `start` to `goal`, as a force for each moment.
+
+    Phases: 'pushing' while the set-point runs its minimum-jerk path (duration from
+    `peak_speed`); 'settling' with the set-point at the goal until the end-effector is within
+    settle_tolerance of it and slower than settle_speed (or settle_timeout passes); then the
+    hand lets go: 'holding' (zero force) for hold_time; then 'done'. The force is
+    `hand_force` plus `tremor` (None: no tremor) while the hand holds the tool.
+    """
+
+    def __init__(self, start, goal, settings: PushSettings, tremor: 'Tremor | None' = None):
+        self.start, self.goal = _point(start, 'start'), _point(goal, 'goal')
+        self.settings = settings
+        self.tremor = tremor
+        self.duration = minimum_jerk_duration(float(np.linalg.norm(self.goal - self.start)),
+                                              settings.peak_speed)
+        self.phase = 'pushing'
+        self.released_at: float | None = None
+        self.settle_timed_out = False
+
+    def update(self, t: float, position, velocity) -> np.ndarray:
+        """Force (2,) in N at time t (s since the push began) for the measured end-effector
+        position (2,) in m and velocity (2,) in m/s; advances the phase."""
+        s = self.settings
+        position, velocity = _point(position, 'position'), _point(velocity, 'velocity')
+        if self.phase == 'pushing' and t >= self.duration:
+            self.phase = 'settling'
+        if self.phase == 'settling':
+            arrived = (np.linalg.norm(position - self.goal) <= s.settle_tolerance
+                       and np.linalg.norm(velocity) <= s.settle_speed)
+            self.settle_timed_out = t >= self.duration + s.settle_timeout and not arrived
+            if arrived or self.settle_timed_out:
+                self.phase, self.released_at = 'holding', t
+        if self.phase == 'holding' and t >= self.released_at + s.hold_time:
+            self.phase = 'done'
+        if self.phase in ('holding', 'done'):
+            return np.zeros(2)
+        setpoint, setpoint_velocity = minimum_jerk_segment(self.start, self.goal, t,
+                                                           self.duration)
+        force = hand_force(setpoint, setpoint_velocity, position, velocity, s.stiffness,
+                           s.damping, s.max_force)
+        return force if self.tremor is None else force + self.tremor.sample()
+
+
+class VelocityEstimator:
+    """End-effector velocity (2,) in m/s from stamped positions: low-passed differences.
+
+    Each new sample's finite difference goes through a first-order low-pass of time constant
+    `time_constant` s. A sample whose stamp does not advance is ignored.
+    """
+
+    def __init__(self, time_constant: float):
+        self._tc = _positive(time_constant, 'time_constant', 's')
+        self._last = None
+        self.velocity = np.zeros(2)
+
+    def update(self, position, stamp: float) -> np.ndarray:
+        """Feed a position (2,) in m taken at `stamp` s; return the filtered velocity."""
+        position = _point(position, 'position')
+        if self._last is not None:
+            dt = stamp - self._last[1]
+            if dt <= 0.0:
+                return self.velocity
+            raw = (position - self._last[0]) / dt
+            alpha = dt / (self._tc + dt)
+            self.velocity = self.velocity + alpha * (raw - self.velocity)
+        self._last = (position, stamp)
+        return self.velocity

@@ -1,0 +1,218 @@
+"""Unit tests of scara_sim.profiles: hand profiles and the demonstrator's path and force."""
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from scara_sim.dynamics import ScaraParameters, forward_kinematics, jacobian
+from scara_sim.profiles import (
+    Demonstration,
+    HandProfile,
+    PushSettings,
+    Tremor,
+    VelocityEstimator,
+    demonstration_goal,
+    hand_force,
+    hand_position,
+    minimum_jerk,
+    minimum_jerk_duration,
+    minimum_jerk_segment,
+)
+from scara_sim.simulation import ScaraSimulator, VelocityLoop
+
+
+def test_minimum_jerk_runs_zero_to_one_with_the_known_peak_rate():
+    s = np.linspace(0.0, 1.0, 10_001)
+    value, rate = minimum_jerk(s)
+    assert value[0] == 0.0 and value[-1] == 1.0
+    assert rate[0] == 0.0 and rate[-1] == 0.0
+    assert np.all(np.diff(value) >= 0.0)
+    assert rate.max() == pytest.approx(1.875)
+    np.testing.assert_allclose(np.gradient(value, s), rate, atol=1e-6)
+    assert minimum_jerk(-1.0)[0] == 0.0 and minimum_jerk(2.0)[0] == 1.0
+
+
+def test_minimum_jerk_segment_peak_speed_and_velocity():
+    start, end = np.array([0.4, 0.1]), np.array([0.2, 0.3])
+    duration = minimum_jerk_duration(float(np.linalg.norm(end - start)), 0.2)
+    t = np.linspace(-0.5, duration + 0.5, 20_001)
+    position, velocity = minimum_jerk_segment(start, end, t, duration)
+    np.testing.assert_allclose(position[0], start)
+    np.testing.assert_allclose(position[-1], end)
+    assert np.linalg.norm(velocity, axis=-1).max() == pytest.approx(0.2, rel=1e-6)
+    numeric = np.gradient(position, t, axis=0)
+    np.testing.assert_allclose(numeric[1:-1], velocity[1:-1], atol=1e-5)
+
+
+@pytest.mark.parametrize(('name', 't', 'expected'), [
+    ('hold', 5.0, [0.45, 0.05]),
+    ('approach', 0.0, [0.45, 0.05]),
+    ('approach', 100.0, [0.30, 0.30]),
+    ('retreat', 0.0, [0.30, 0.30]),
+    ('retreat', 100.0, [0.45, 0.05]),
+    ('back_and_forth', 0.0, [0.45, 0.05]),
+    ('back_and_forth', 4.0, [0.30, 0.30]),
+    ('back_and_forth', 8.0, [0.45, 0.05]),
+    ('circle', 0.0, [0.53, 0.05]),
+    ('circle', 2.0, [0.45, 0.13]),
+])
+def test_hand_profiles_pass_through_their_defining_points(name, t, expected):
+    profile = HandProfile(name=name, start=(0.45, 0.05), end=(0.30, 0.30), period=8.0,
+                          radius=0.08, speed=0.15)
+    np.testing.assert_allclose(hand_position(profile, t), expected, atol=1e-12)
+
+
+def test_hand_profiles_wait_for_the_start_delay():
+    profile = HandProfile(name='approach', start_delay=2.0)
+    np.testing.assert_array_equal(hand_position(profile, 1.9), profile.start)
+    assert not np.allclose(hand_position(profile, 2.5), profile.start)
+
+
+def test_approach_moves_at_the_requested_peak_speed():
+    profile = HandProfile(name='approach', speed=0.1)
+    t = np.arange(0.0, 6.0, 1e-3)
+    path = np.array([hand_position(profile, ti) for ti in t])
+    speed = np.linalg.norm(np.diff(path, axis=0), axis=-1) / 1e-3
+    assert speed.max() == pytest.approx(0.1, rel=1e-3)
+
+
+def test_circle_keeps_its_radius():
+    profile = HandProfile(name='circle', start=(0.3, 0.2), radius=0.05, period=3.0)
+    points = np.array([hand_position(profile, t) for t in np.linspace(0, 7, 99)])
+    np.testing.assert_allclose(np.linalg.norm(points - [0.3, 0.2], axis=-1), 0.05)
+
+
+def test_waypoints_visit_every_point_and_stop_at_the_last():
+    points = (0.4, 0.0, 0.4, 0.2, 0.2, 0.2)
+    profile = HandProfile(name='waypoints', waypoints=points, speed=0.2)
+    first = minimum_jerk_duration(0.2, 0.2)
+    np.testing.assert_allclose(hand_position(profile, 0.0), [0.4, 0.0])
+    np.testing.assert_allclose(hand_position(profile, first), [0.4, 0.2])
+    np.testing.assert_allclose(hand_position(profile, 2 * first + 1.0), [0.2, 0.2])
+
+
+@pytest.mark.parametrize(('kwargs', 'message'), [
+    ({'name': 'wave'}, "unknown hand profile 'wave'"),
+    ({'speed': 0.0}, 'speed must be finite and > 0'),
+    ({'period': -1.0}, 'period must be finite and > 0'),
+    ({'start': (0.1, float('nan'))}, 'start must be 2 finite values'),
+    ({'start_delay': -0.5}, 'start_delay must be finite and >= 0'),
+    ({'name': 'waypoints', 'waypoints': (0.1, 0.2, 0.3)}, 'at least two points'),
+])
+def test_hand_profile_rejects_bad_parameters(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        HandProfile(**kwargs)
+
+
+def test_follow_goal_stops_short_of_the_reference_on_the_way_to_it():
+    start, reference = np.array([0.35, 0.30]), np.array([0.45, 0.05])
+    goal = demonstration_goal('follow', start, reference, 0.041, 0.183)
+    assert np.linalg.norm(goal - reference) == pytest.approx(0.041)
+    direction = (start - reference) / np.linalg.norm(start - reference)
+    np.testing.assert_allclose((goal - reference) / 0.041, direction)
+
+
+def test_avoid_goal_moves_away_to_the_safe_distance():
+    reference = np.array([0.35, 0.30])
+    goal = demonstration_goal('avoid', reference + [0.01, 0.0], reference, 0.041, 0.183)
+    np.testing.assert_allclose(goal, reference + [0.183, 0.0])
+    goal = demonstration_goal('avoid', reference + [0.001, 0.0], reference, 0.041, 0.183,
+                              fallback_direction=(0.0, -2.0))
+    np.testing.assert_allclose(goal, reference + [0.0, -0.183])
+
+
+@pytest.mark.parametrize(('mode', 'start', 'message'), [
+    ('follow', (0.36, 0.30), 'already within stop_distance'),
+    ('avoid', (0.35, 0.0), 'already beyond safe_distance'),
+    ('push', (0.35, 0.0), "unknown demonstration mode 'push'"),
+])
+def test_demonstration_goal_rejects_impossible_demonstrations(mode, start, message):
+    with pytest.raises(ValueError, match=message):
+        demonstration_goal(mode, start, (0.35, 0.30), 0.041, 0.183)
+
+
+def test_hand_force_is_a_capped_spring_damper():
+    force = hand_force([0.1, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.1], 300.0, 30.0, 100.0)
+    np.testing.assert_allclose(force, [30.0, -3.0])
+    capped = hand_force([1.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], 300.0, 30.0, 20.0)
+    np.testing.assert_allclose(capped, [20.0, 0.0])
+    np.testing.assert_array_equal(
+        hand_force([0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], 300.0, 30.0, 20.0), 0.0)
+    with pytest.raises(ValueError, match='hand force inputs must be finite'):
+        hand_force([np.nan, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], 300.0, 30.0, 20.0)
+
+
+def test_tremor_is_seeded_band_limited_with_the_requested_rms():
+    rate = 200.0
+    first = np.array([Tremor(0.2, (8.0, 12.0), rate, seed=3).sample() for _ in range(3)])
+    again = np.array([Tremor(0.2, (8.0, 12.0), rate, seed=3).sample() for _ in range(3)])
+    np.testing.assert_array_equal(first, again)
+    tremor = Tremor(0.2, (8.0, 12.0), rate, seed=4)
+    samples = np.array([tremor.sample() for _ in range(12_000)])
+    np.testing.assert_allclose(np.sqrt(np.mean(samples[1000:] ** 2, axis=0)), 0.2, rtol=0.15)
+    frequency, power = signal.welch(samples[:, 0], fs=rate, nperseg=1024)
+    in_band = (frequency >= 8.0) & (frequency <= 12.0)
+    assert power[in_band].sum() > 0.7 * power.sum()
+
+
+def test_tremor_rejects_a_band_above_nyquist():
+    with pytest.raises(ValueError, match='tremor band must satisfy'):
+        Tremor(0.2, (8.0, 120.0), 200.0, seed=0)
+
+
+def test_velocity_estimator_converges_to_the_slope_and_skips_repeated_stamps():
+    estimator = VelocityEstimator(time_constant=0.01)
+    for k in range(200):
+        t = k * 1e-3
+        velocity = estimator.update([0.1 * t, -0.2 * t], t)
+    np.testing.assert_allclose(velocity, [0.1, -0.2], rtol=1e-6)
+    np.testing.assert_array_equal(estimator.update([5.0, 5.0], 0.199), velocity)
+
+
+def simulate_demonstration(mode, reference):
+    """The demonstrator's hand (200 Hz) on the default arm (1 kHz, no drive torque)."""
+    params = ScaraParameters()
+    sim = ScaraSimulator(params, np.array([0.0, np.pi / 2]), np.zeros(2), [-2.3, -2.46],
+                         [2.3, 2.46], 20.0, VelocityLoop([80.0, 20.0], [800.0, 200.0], 20.0))
+    start = forward_kinematics(sim.q, params.l1, params.l2)
+    goal = demonstration_goal(mode, start, reference, 0.041, 0.183)
+    demo = Demonstration(start, goal, PushSettings(), Tremor(0.2, (8.0, 12.0), 200.0, seed=0))
+    estimator = VelocityEstimator(0.01)
+    force, speeds, step = np.zeros(2), [], 0
+    while demo.phase != 'done' and step < 30_000:
+        tip = forward_kinematics(sim.q, params.l1, params.l2)
+        estimator.update(tip, step * 1e-3)
+        if step % 5 == 0:
+            force = demo.update(step * 1e-3, tip, estimator.velocity)
+        speeds.append(np.linalg.norm(jacobian(sim.q, params.l1, params.l2) @ sim.dq))
+        sim.step('idle', None, force)
+        step += 1
+    return demo, forward_kinematics(sim.q, params.l1, params.l2), max(speeds)
+
+
+@pytest.mark.parametrize(('mode', 'reference', 'distance'), [
+    ('follow', (0.45, 0.05), 0.041),
+    ('avoid', (0.355, 0.295), 0.183),
+])
+def test_demonstration_brings_the_arm_to_its_goal_at_a_human_speed(mode, reference, distance):
+    demo, tip, peak = simulate_demonstration(mode, np.array(reference))
+    assert demo.phase == 'done' and not demo.settle_timed_out
+    assert np.linalg.norm(tip - reference) == pytest.approx(distance, abs=0.002)
+    assert 0.1 <= peak <= 0.3
+
+
+def test_demonstration_phases_and_release():
+    settings = PushSettings(hold_time=1.0)
+    demo = Demonstration([0.0, 0.0], [0.1, 0.0], settings)
+    assert demo.duration == pytest.approx(1.875 * 0.1 / 0.15)
+    force = demo.update(0.5 * demo.duration, [0.0, 0.0], [0.0, 0.0])
+    assert demo.phase == 'pushing' and force[0] > 0.0
+    demo.update(demo.duration + 0.1, [0.05, 0.0], [0.0, 0.0])
+    assert demo.phase == 'settling'
+    force = demo.update(demo.duration + 0.2, [0.1005, 0.0], [0.001, 0.0])
+    assert demo.phase == 'holding' and np.all(force == 0.0)
+    demo.update(demo.duration + 1.3, [0.1005, 0.0], [0.0, 0.0])
+    assert demo.phase == 'done'
+    late = Demonstration([0.0, 0.0], [0.1, 0.0], settings)
+    late.update(late.duration + settings.settle_timeout + 0.01, [0.0, 0.0], [0.0, 0.0])
+    assert late.phase == 'holding' and late.settle_timed_out

@@ -1,0 +1,143 @@
+"""Unit tests of scara_sim.simulation: drive modes, limits, J^T f and real-time stepping."""
+
+import numpy as np
+import pytest
+
+from scara_sim.dynamics import ScaraParameters, forward_kinematics, jacobian, kinetic_energy
+from scara_sim.simulation import (
+    FixedStepClock,
+    ScaraSimulator,
+    VelocityLoop,
+    clamp_to_joint_limits,
+    clip_torque,
+    human_joint_torque,
+    joint_command_from_values,
+)
+
+LOWER, UPPER = np.array([-2.3, -2.5]), np.array([2.3, 2.5])
+
+
+def make_simulator(q=(0.0, 1.2), **kwargs) -> ScaraSimulator:
+    params = kwargs.pop('params', ScaraParameters())
+    limit = kwargs.pop('effort_limit', 20.0)
+    loop = VelocityLoop(kp=[80.0, 20.0], ki=[800.0, 200.0], effort_limit=limit)
+    return ScaraSimulator(params=params, q=np.array(q), dq=np.zeros(2), lower=LOWER,
+                          upper=UPPER, effort_limit=limit, velocity_loop=loop, **kwargs)
+
+
+@pytest.mark.parametrize(('values', 'message'), [
+    ([1.0], 'expected 2 values, got 1'),
+    ([1.0, 2.0, 3.0], 'expected 2 values, got 3'),
+    ([1.0, float('nan')], 'non-finite value'),
+    ([float('-inf'), 0.0], 'non-finite value'),
+])
+def test_malformed_joint_commands_are_rejected(values, message):
+    with pytest.raises(ValueError, match=message):
+        joint_command_from_values(values)
+
+
+def test_clip_torque_is_symmetric_and_validates_the_limit():
+    np.testing.assert_array_equal(clip_torque([30.0, -25.0], 20.0), [20.0, -20.0])
+    np.testing.assert_array_equal(clip_torque([3.0, -2.5], 20.0), [3.0, -2.5])
+    with pytest.raises(ValueError, match='effort_limit must be finite and > 0'):
+        clip_torque([1.0, 1.0], 0.0)
+
+
+def test_human_torque_does_the_same_work_as_the_force():
+    rng = np.random.default_rng(0)
+    q, dq = rng.uniform(-2, 2, (20, 2)), rng.uniform(-1, 1, (20, 2))
+    force = rng.uniform(-10, 10, (20, 2))
+    tau = human_joint_torque(q, force, 0.35, 0.30)
+    tip_velocity = np.einsum('...ij,...j->...i', jacobian(q, 0.35, 0.30), dq)
+    np.testing.assert_allclose(np.sum(tau * dq, -1), np.sum(force * tip_velocity, -1))
+
+
+def test_clamp_to_joint_limits_stops_only_motion_into_the_limit():
+    q, dq = clamp_to_joint_limits([2.4, -2.6], [1.0, -1.0], LOWER, UPPER)
+    np.testing.assert_array_equal(q, [2.3, -2.5])
+    np.testing.assert_array_equal(dq, [0.0, 0.0])
+    q, dq = clamp_to_joint_limits([2.3, -2.5], [-1.0, 1.0], LOWER, UPPER)
+    np.testing.assert_array_equal(dq, [-1.0, 1.0])
+    q, dq = clamp_to_joint_limits([0.1, 0.2], [3.0, -3.0], LOWER, UPPER)
+    np.testing.assert_array_equal(q, [0.1, 0.2])
+    np.testing.assert_array_equal(dq, [3.0, -3.0])
+
+
+def test_positive_effort_on_joint_one_turns_it_positive_and_is_clipped():
+    sim = make_simulator()
+    for _ in range(200):
+        sim.step('effort', [50.0, 0.0], [0.0, 0.0])
+    np.testing.assert_array_equal(sim.applied_effort, [20.0, 0.0])
+    assert sim.q[0] > 0.0 and sim.dq[0] > 0.0
+
+
+def test_idle_mode_applies_zero_torque_and_friction_stops_the_arm():
+    sim = make_simulator()
+    sim.dq = np.array([1.0, -1.0])
+    energy0 = kinetic_energy(sim.q, sim.dq, sim.params)
+    for _ in range(5000):
+        sim.step('idle', None, [0.0, 0.0])
+    np.testing.assert_array_equal(sim.applied_effort, [0.0, 0.0])
+    assert kinetic_energy(sim.q, sim.dq, sim.params) < 1e-4 * energy0
+
+
+def test_human_force_alone_moves_the_tip_along_the_force():
+    sim = make_simulator()
+    tip0 = forward_kinematics(sim.q, 0.35, 0.30)
+    for _ in range(300):
+        sim.step('idle', None, [5.0, 0.0])
+    displacement = forward_kinematics(sim.q, 0.35, 0.30) - tip0
+    # The tip accelerates along J M^-1 J^T f, which is within 90 degrees of f.
+    assert displacement[0] > 0.01
+
+
+def test_joint_limit_holds_against_a_constant_torque():
+    sim = make_simulator(q=(2.2, 1.2))
+    for _ in range(2000):
+        sim.step('effort', [10.0, 0.0], [0.0, 0.0])
+    assert sim.q[0] == pytest.approx(2.3)
+    assert sim.dq[0] == 0.0
+
+
+def test_velocity_loop_tracks_the_command_and_resists_the_human():
+    sim = make_simulator()
+    command = np.array([0.3, -0.2])
+    for _ in range(1000):
+        sim.step('velocity', command, [5.0, 5.0])
+    # The human's J^T f changes with q: a ramp disturbance, tracked with a small lag.
+    np.testing.assert_allclose(sim.dq, command, atol=5e-3)
+    assert np.all(np.abs(sim.applied_effort) < 20.0)
+
+
+def test_velocity_loop_integral_does_not_wind_up_in_saturation():
+    loop = VelocityLoop(kp=[80.0, 20.0], ki=[800.0, 200.0], effort_limit=5.0)
+    for _ in range(1000):
+        tau = loop.torque([10.0, 0.0], [0.0, 0.0], 1e-3)
+    assert tau[0] == 5.0
+    assert loop.integral[0] == 0.0
+    loop.reset()
+    np.testing.assert_array_equal(loop.integral, [0.0, 0.0])
+
+
+def test_simulator_rejects_an_initial_state_outside_the_limits():
+    with pytest.raises(ValueError, match='outside the joint limits'):
+        make_simulator(q=(2.5, 0.0))
+    with pytest.raises(ValueError, match="unknown command mode 'torque'"):
+        make_simulator().step('torque', [0.0, 0.0], [0.0, 0.0])
+
+
+def test_fixed_step_clock_counts_late_ticks_and_bounds_catch_up():
+    clock = FixedStepClock(dt=1e-3, max_catch_up=5, start=10.0)
+    assert clock.steps_due(10.0) == 0
+    assert clock.steps_due(10.0011) == 1          # slightly late: still one step
+    assert clock.steps_due(10.0019) == 1          # slightly early: one step
+    assert clock.steps_due(10.0040) == 2          # one tick dropped by the timer
+    assert clock.late_ticks == 1
+    assert clock.steps_due(10.0140) == 5          # ten owed, five run, five dropped
+    assert clock.dropped == 5
+    assert clock.integrated == 9
+    assert clock.sim_time == pytest.approx(0.014)
+    assert clock.steps_due(10.0141) == 0
+    assert clock.idle_ticks == 2
+    with pytest.raises(ValueError, match='max_catch_up must be >= 1'):
+        FixedStepClock(dt=1e-3, max_catch_up=0, start=0.0)

@@ -1,0 +1,206 @@
+"""Topic-level tests of the scara_sim node: state out, commands and the human's force in."""
+
+import math
+import signal
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PointStamped, WrenchStamped
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from scara_sim.dynamics import forward_kinematics
+from tests.common import wait_for
+
+pytestmark = pytest.mark.integration
+
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+START_TIMEOUT = 15.0  # s for `ros2 run` to bring the node up and discovery to match
+
+
+def stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+
+
+def start_sim(nodes, probe, **params):
+    """Start scara_sim, listen to its state topics, wait for the first message."""
+    params.setdefault('command_timeout', 0.3)
+    sim = nodes('scara_sim', 'scara_sim', params=params)
+    states = probe.collect('/joint_states', JointState, RELIABLE)
+    tips = probe.collect('/ee_position', PointStamped, RELIABLE)
+    assert wait_for(lambda: len(states) > 0 and len(tips) > 0, START_TIMEOUT), sim.log()
+    return sim, states, tips
+
+
+def publish_for(publisher, message, seconds: float, rate_hz: float = 100.0) -> None:
+    """Publish `message` repeatedly at `rate_hz` for `seconds`."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        publisher.publish(message)
+        time.sleep(1.0 / rate_hz)
+
+
+def command(values) -> Float64MultiArray:
+    return Float64MultiArray(data=[float(v) for v in values])
+
+
+def test_publishes_stamped_joint_states(nodes, probe):
+    sim, states, tips = start_sim(nodes, probe)
+    assert wait_for(lambda: len(states) >= 500, 10.0)
+    sample = list(states)
+    for msg in sample:
+        assert list(msg.name) == ['joint1', 'joint2']
+        assert len(msg.position) == len(msg.velocity) == len(msg.effort) == 2
+        assert all(math.isfinite(v) for v in [*msg.position, *msg.velocity, *msg.effort])
+    stamps = np.array([stamp_ns(m) for m in sample])
+    assert np.all(np.diff(stamps) > 0)
+    # Stamps follow real time: 500+ messages span about as long as they took to arrive.
+    span = (stamps[-1] - stamps[0]) / 1e9
+    assert 0.3 < span < 5.0
+    assert tips[0].header.frame_id == 'base'
+    np.testing.assert_allclose(sample[0].position, [0.0, math.pi / 2], atol=1e-6)
+    assert sim.alive()
+    assert sim.stop(sig=signal.SIGTERM) == 0
+    log = sim.log_path.read_text()
+    assert 'steps integrated in' in log and 'Traceback' not in log
+
+
+def test_parameters_change_at_run_time_only_when_valid(nodes, probe):
+    sim, states, _ = start_sim(nodes, probe)
+    client = probe.node.create_client(SetParameters, '/scara_sim/set_parameters')
+    assert client.wait_for_service(timeout_sec=5.0)
+
+    def set_parameter(name, value):
+        message = Parameter(name, value=value).to_parameter_msg()
+        request = SetParameters.Request(parameters=[message])
+        future = client.call_async(request)
+        assert wait_for(future.done, 5.0)
+        return future.result().results[0]
+
+    assert set_parameter('effort_limit', 3.0).successful
+    assert not set_parameter('effort_limit', -1.0).successful
+    rejected = set_parameter('joint_lower_limits', [0.0, 3.0])
+    assert not rejected.successful and 'must be below' in rejected.reason
+    assert not set_parameter('rate_hz', 2000.0).successful
+    publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    publish_for(publisher, command([10.0, 0.0]), 0.3)
+    assert list(states[-1].effort) == [3.0, 0.0]
+    assert sim.stop() == 0
+
+
+def test_positive_effort_on_joint_one_turns_it_positive(nodes, probe):
+    sim, states, _ = start_sim(nodes, probe)
+    publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    q_before = states[-1].position[0]
+    publish_for(publisher, command([2.0, 0.0]), 1.0)
+    last = states[-1]
+    assert last.position[0] > q_before + 0.05, (q_before, last.position[0])
+    assert last.velocity[0] > 0.0
+    assert list(last.effort) == [2.0, 0.0]
+
+
+def test_effort_is_clipped_at_the_effort_limit(nodes, probe):
+    sim, states, _ = start_sim(nodes, probe, effort_limit=5.0)
+    publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    publish_for(publisher, command([50.0, -50.0]), 0.5)
+    assert list(states[-1].effort) == [5.0, -5.0]
+
+
+def test_command_timeout_zeroes_the_torque_and_says_so(nodes, probe):
+    sim, states, _ = start_sim(nodes, probe, command_timeout=0.3)
+    publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    publish_for(publisher, command([1.0, 0.5]), 0.6)
+    assert list(states[-1].effort) == [1.0, 0.5]
+    stopped = time.monotonic()
+    assert wait_for(lambda: list(states[-1].effort) == [0.0, 0.0], 3.0)
+    assert time.monotonic() - stopped >= 0.2
+    publish_for(publisher, command([1.0, 0.5]), 0.3)
+    assert wait_for(lambda: 'commands resumed' in sim.log(), 3.0), sim.log()
+    log = sim.log()
+    assert 'no joint command for 0.3 s: applying zero torque' in log
+    assert 'effort commands resumed' in log
+
+
+def test_malformed_commands_are_rejected_and_the_last_good_one_kept(nodes, probe):
+    sim, states, _ = start_sim(nodes, probe, command_timeout=2.0)
+    effort = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    wrench = probe.publisher('/human/wrench', WrenchStamped, 10)
+    publish_for(effort, command([1.5, 0.0]), 0.3)
+    bad_wrench = WrenchStamped()
+    bad_wrench.header.frame_id = 'base'
+    bad_wrench.wrench.force.x = float('inf')
+    for bad in ([1.0], [float('nan'), 0.0], [1.0, 2.0, 3.0], [float('inf'), 0.0]):
+        effort.publish(command(bad))
+        wrench.publish(bad_wrench)
+        time.sleep(0.05)
+    time.sleep(0.3)
+    assert sim.alive()
+    last = states[-1]
+    assert list(last.effort) == [1.5, 0.0]
+    assert all(math.isfinite(v) for v in [*last.position, *last.velocity])
+    assert wait_for(lambda: 'rejected effort command' in sim.log(), 2.0), sim.log()
+    log = sim.log()
+    assert 'rejected /human/wrench' in log
+    assert 'Traceback' not in log
+
+
+def test_ee_position_is_the_forward_kinematics_of_the_joint_states(nodes, probe):
+    sim, states, tips = start_sim(nodes, probe)
+    publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    publish_for(publisher, command([1.0, -0.5]), 0.5)
+    by_stamp = {stamp_ns(m): m for m in list(states)}
+    pairs = [(by_stamp[stamp_ns(t)], t) for t in list(tips) if stamp_ns(t) in by_stamp]
+    assert len(pairs) > 100
+    q = np.array([s.position for s, _ in pairs])
+    tip = np.array([[t.point.x, t.point.y] for _, t in pairs])
+    np.testing.assert_allclose(tip, forward_kinematics(q, 0.35, 0.30), atol=1e-12)
+    assert np.ptp(tip[:, 0]) > 1e-3  # the arm moved while we compared
+
+
+def test_velocity_command_is_tracked_by_the_internal_loop(nodes, probe):
+    sim, states, _ = start_sim(nodes, probe)
+    publisher = probe.publisher('/velocity_controller/commands', Float64MultiArray, 10)
+    publish_for(publisher, command([0.3, -0.2]), 1.0)
+    np.testing.assert_allclose(states[-1].velocity, [0.3, -0.2], atol=0.02)
+    # The most recent interface wins: an effort command takes over from velocity.
+    effort = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    publish_for(effort, command([0.0, 0.0]), 0.3)
+    assert list(states[-1].effort) == [0.0, 0.0]
+
+
+def test_the_human_force_moves_the_end_effector(nodes, probe):
+    sim, _, tips = start_sim(nodes, probe)
+    publisher = probe.publisher('/human/wrench', WrenchStamped, 10)
+    push = WrenchStamped()
+    push.header.frame_id = 'base'
+    push.wrench.force.x = 5.0
+    x_before = tips[-1].point.x
+    publish_for(publisher, push, 0.5)
+    assert tips[-1].point.x > x_before + 0.01
+
+
+def test_out_of_range_parameter_exits_with_one_line(nodes):
+    sim = nodes('scara_sim', 'scara_sim', params={'rate_hz': 10.0})
+    assert sim.wait(15.0) == 1
+    log = sim.log()
+    assert 'bad parameter rate_hz' in log
+    assert 'Traceback' not in log
+
+
+def test_hand_sim_publishes_its_profile_on_target(nodes, probe):
+    hand = nodes('scara_sim', 'hand_sim',
+                 params={'profile': 'circle', 'start': [0.3, 0.2], 'radius': 0.05,
+                         'period': 2.0})
+    targets = probe.collect('/target', PointStamped, RELIABLE)
+    assert wait_for(lambda: len(targets) >= 100, START_TIMEOUT), hand.log()
+    sample = list(targets)
+    points = np.array([[t.point.x, t.point.y] for t in sample])
+    np.testing.assert_allclose(np.linalg.norm(points - [0.3, 0.2], axis=1), 0.05, atol=1e-9)
+    assert np.ptp(points[:, 0]) > 0.02  # it goes round
+    assert all(t.header.frame_id == 'base' for t in sample)
+    stamps = np.array([stamp_ns(t) for t in sample]) / 1e9
+    assert np.median(np.diff(stamps)) == pytest.approx(0.01, rel=0.2)

@@ -112,7 +112,9 @@ class NodeProcess:
         return self.process.returncode
 
     def log(self) -> str:
-        self._log_file.flush()
+        """Everything the process printed so far (also after stop())."""
+        if not self._log_file.closed:
+            self._log_file.flush()
         return self.log_path.read_text(errors='replace')
 
 

@@ -1,0 +1,572 @@
+"""Reading and writing rosbag2 bags (MCAP storage) of HRI demonstrations, without ROS.
+
+The recorder writes what it receives into a rosbag2 bag through `BagWriter` (the rosbags
+writer, rosbag2 format version 8 as ROS 2 Jazzy writes it, MCAP storage, the receive time of
+each message as its bag timestamp). `BagWriter.flush` closes the open MCAP chunk and hands it
+to the operating system, so a recorder killed with SIGKILL loses only what came after its last
+flush.
+
+The learner reads bags back with `read_bag` (messages per topic) and `read_demonstration`
+(the arrays of paper section II-B: receive times, end-effector positions x_i and the reference
+x_r). Three layouts are read:
+
+- a rosbag2 folder with metadata.yaml (closed cleanly): read with the rosbags reader; a storage
+  file that does not match its metadata is reported as truncated or corrupt;
+- a folder without metadata.yaml (the recorder was killed), or a bare .mcap file: when the
+  MCAP file has no footer, every message up to the last complete chunk is recovered with
+  mcap's `NonSeekingReader` (the rosbags reader cannot open such a file);
+- every failure is a `BagError` (a `ValueError`) with a one-line reason.
+
+Messages are deserialised with the rosbags typestore of ROS 2 Jazzy; types it lacks are
+registered from the bag's own message definitions.
+"""
+
+import os
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from mcap.exceptions import EndOfFile, McapError
+from mcap.reader import NonSeekingReader
+from rosbags.interfaces import Connection, Nodetype, Qos
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
+from rosbags.rosbag2.errors import ReaderError, WriterError
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from scara_sim.dynamics import forward_kinematics
+
+#: rosbag2 bag format version that ROS 2 Jazzy's rosbag2 writes.
+JAZZY_BAG_VERSION = 8
+#: The 8-byte magic that starts and ends every MCAP file.
+MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+#: Compression of the MCAP chunks that BagWriter offers ('none' or 'zstd').
+COMPRESSIONS = ('none', 'zstd')
+
+POSITION_TOPIC = '/ee_position'
+JOINT_STATE_TOPIC = '/joint_states'
+REFERENCE_TOPIC = '/demo/reference'
+POINT_STAMPED = 'geometry_msgs/msg/PointStamped'
+JOINT_STATE = 'sensor_msgs/msg/JointState'
+JOINT_NAMES = ('joint1', 'joint2')
+
+
+class BagError(ValueError):
+    """A bag cannot be written or read; the message is a one-line reason."""
+
+    def __init__(self, reason: str):
+        super().__init__(' '.join(str(reason).split()))
+
+
+def jazzy_typestore() -> Typestore:
+    """A fresh rosbags typestore with the message types of ROS 2 Jazzy."""
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _referenced_type_names(fielddef) -> Iterator[str]:
+    """Names of the message types that a rosbags field definition refers to (recursively)."""
+    if isinstance(fielddef, tuple):
+        if len(fielddef) == 2 and fielddef[0] == Nodetype.NAME and isinstance(fielddef[1], str):
+            yield fielddef[1]
+            return
+        for item in fielddef:
+            yield from _referenced_type_names(item)
+    elif isinstance(fielddef, list):
+        for item in fielddef:
+            yield from _referenced_type_names(item)
+
+
+def register_message_type(typestore: Typestore, msgtype: str,
+                          read_definition: Callable[[str], str]) -> None:
+    """Register `msgtype` and every type it refers to that `typestore` does not know yet.
+
+    `read_definition(name)` returns the .msg text of a type 'pkg/msg/Name' (the recorder reads
+    `<share of pkg>/msg/Name.msg`). Raises BagError when a definition cannot be found or parsed.
+    """
+    pending = [msgtype]
+    while pending:
+        name = pending.pop()
+        if name in typestore.fielddefs:
+            continue
+        try:
+            types = get_types_from_msg(read_definition(name), name)
+        except (OSError, LookupError, ValueError) as err:
+            raise BagError(f'no message definition for {name}: {err}') from None
+        except Exception as err:  # noqa: BLE001 - the rosbags parser raises its own types
+            raise BagError(f'cannot parse the message definition of {name}: {err}') from None
+        typestore.register(types)
+        for _consts, fields in types.values():
+            pending.extend(n for n in _referenced_type_names(fields)
+                           if n not in typestore.fielddefs)
+
+
+def _register_from_definition(typestore: Typestore, msgtype: str, encoding: str,
+                              text: str) -> None:
+    """Register a type from a bag's own definition ('ros2msg' or 'ros2idl') if unknown."""
+    if msgtype in typestore.fielddefs:
+        return
+    if not text:
+        raise BagError(f'the bag has no message definition for the unknown type {msgtype}')
+    try:
+        if encoding.endswith('idl') or text.startswith('=' * 80 + '\nIDL: '):
+            types = {}
+            for part in text.split('=' * 80 + '\n'):
+                if part.startswith('IDL: '):
+                    types.update(get_types_from_idl(part.split('\n', 1)[1]))
+        else:
+            types = get_types_from_msg(text, msgtype)
+        typestore.register(types)
+    except Exception as err:  # noqa: BLE001 - the rosbags parser raises its own types
+        raise BagError(f'cannot parse the message definition of {msgtype}: {err}') from None
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+
+
+class BagWriter:
+    """A rosbag2 bag (MCAP storage, format version 8) being written by the recorder.
+
+    Refuses to overwrite: `path` must not exist. Messages are written as raw CDR bytes with a
+    timestamp in ns (the receive time). `flush()` closes the open MCAP chunk and hands the bytes
+    to the operating system; `close()` writes the MCAP summary and metadata.yaml.
+    compression 'zstd' compresses each MCAP chunk (storage-level, as rosbag2's MCAP presets
+    do; every MCAP reader decodes it), 'none' writes them plain.
+    Use as a context manager or call `open()` / `close()`.
+    """
+
+    def __init__(self, path: str | os.PathLike, typestore: Typestore | None = None,
+                 read_definition: Callable[[str], str] | None = None,
+                 compression: str = 'none'):
+        if compression not in COMPRESSIONS:
+            raise BagError(f'compression must be one of {", ".join(COMPRESSIONS)}, '
+                           f'got {compression!r}')
+        self.compression = compression
+        self.path = Path(path)
+        self.typestore = typestore if typestore is not None else jazzy_typestore()
+        self._read_definition = read_definition
+        self._writer: Writer | None = None
+        self._connections: dict[str, Connection] = {}
+        self._counts: dict[str, int] = {}
+
+    def open(self) -> 'BagWriter':
+        """Create the bag folder and its .mcap file. Raises BagError if `path` exists."""
+        if self.path.exists() or self.path.is_symlink():
+            raise BagError(f'output bag {self.path} exists already; refusing to overwrite it')
+        if not self.path.parent.is_dir():
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as err:
+                raise BagError(f'cannot create {self.path.parent}: {err.strerror}') from None
+        writer = Writer(self.path, version=JAZZY_BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        if self.compression == 'zstd':
+            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        try:
+            writer.open()
+        except WriterError as err:
+            raise BagError(f'cannot open bag {self.path}: {err}') from None
+        except OSError as err:
+            raise BagError(f'cannot create bag {self.path}: {err.strerror}') from None
+        storage = writer.storage
+        if not all(hasattr(storage, name) for name in ('close_chunk', 'chunk', 'bio')):
+            writer.abort()
+            raise BagError('this rosbags version has no MCAP chunk control; flush is impossible')
+        self._writer = writer
+        return self
+
+    @property
+    def is_open(self) -> bool:
+        return self._writer is not None
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far, per topic."""
+        return dict(self._counts)
+
+    def add_topic(self, topic: str, msgtype: str, qos_profiles: Sequence[Qos] = ()) -> Connection:
+        """Add a topic of type 'pkg/msg/Name'; returns the connection to write it with.
+
+        Types missing from the typestore are registered through `read_definition`.
+        """
+        if self._writer is None:
+            raise BagError(f'bag {self.path} is not open')
+        if topic in self._connections:
+            raise BagError(f'topic {topic} was added to bag {self.path} already')
+        if msgtype not in self.typestore.fielddefs:
+            if self._read_definition is None:
+                raise BagError(f'unknown message type {msgtype} and no definition reader')
+            register_message_type(self.typestore, msgtype, self._read_definition)
+        try:
+            connection = self._writer.add_connection(
+                topic, msgtype, typestore=self.typestore, offered_qos_profiles=list(qos_profiles))
+        except Exception as err:  # noqa: BLE001 - rosbags raises TypesysError or WriterError
+            raise BagError(f'cannot add topic {topic} ({msgtype}): {err}') from None
+        self._connections[topic] = connection
+        self._counts[topic] = 0
+        return connection
+
+    def write(self, connection: Connection, timestamp_ns: int, data: bytes | memoryview) -> None:
+        """Write one message: raw CDR bytes stamped `timestamp_ns` (receive time, ns)."""
+        self._writer.write(connection, timestamp_ns, data)
+        self._counts[connection.topic] += 1
+
+    def flush(self) -> None:
+        """Close the open MCAP chunk (if it holds messages) and pass the bytes to the OS.
+
+        After flush() returns, a SIGKILL of this process loses nothing written before.
+        """
+        if self._writer is None:
+            return
+        storage = self._writer.storage
+        if storage.chunk.msgs:
+            storage.close_chunk()
+        storage.bio.flush()
+
+    def close(self) -> dict[str, int]:
+        """Write the MCAP summary and metadata.yaml; return the message count per topic."""
+        if self._writer is not None:
+            writer, self._writer = self._writer, None
+            writer.close()
+        return self.counts
+
+    def __enter__(self) -> 'BagWriter':
+        return self.open()
+
+    def __exit__(self, exc_type, exc, traceback) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+
+
+@dataclass
+class TopicMessages:
+    """The messages of one topic: type, bag timestamps (receive time, ns) and messages."""
+
+    msgtype: str
+    timestamps_ns: list[int] = field(default_factory=list)
+    messages: list = field(default_factory=list)
+
+    def times(self) -> np.ndarray:
+        """Bag timestamps as an array (N,) of seconds since the epoch."""
+        return np.asarray(self.timestamps_ns, dtype=np.int64) * 1e-9
+
+
+@dataclass
+class BagContents:
+    """What `read_bag` read: messages per topic, and whether a crashed bag was recovered."""
+
+    path: Path
+    topics: dict[str, TopicMessages]
+    recovered: bool = False
+    recovered_until_byte: int = 0
+    file_size: int = 0
+
+    @property
+    def message_count(self) -> int:
+        return sum(len(t.messages) for t in self.topics.values())
+
+    def counts(self) -> dict[str, int]:
+        return {name: len(t.messages) for name, t in self.topics.items()}
+
+
+def _one_line(err: BaseException) -> str:
+    text = ' '.join(str(err).split())
+    return f'{type(err).__name__}: {text}' if text else type(err).__name__
+
+
+def _has_mcap_end(path: Path) -> bool:
+    """Whether an MCAP file ends with the closing magic (its footer was written)."""
+    size = path.stat().st_size
+    if size < 2 * len(MCAP_MAGIC):
+        return False
+    with path.open('rb') as stream:
+        stream.seek(size - len(MCAP_MAGIC))
+        return stream.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+def _check_mcap_magic(path: Path) -> None:
+    with path.open('rb') as stream:
+        head = stream.read(len(MCAP_MAGIC))
+    if head != MCAP_MAGIC:
+        if not head:
+            raise BagError(f'{path} is an empty file, not a bag')
+        raise BagError(f'{path} is not a bag: not an MCAP file (bad magic bytes)')
+
+
+def _deserialize(typestore: Typestore, data: bytes | memoryview, msgtype: str,
+                 topic: str, index: int, path: Path):
+    try:
+        return typestore.deserialize_cdr(data, msgtype)
+    except Exception as err:  # noqa: BLE001 - any decoding failure means a corrupt message
+        raise BagError(f'bag {path} is corrupt: message {index} on {topic} does not decode '
+                       f'as {msgtype} ({_one_line(err)})') from None
+
+
+def _read_closed(path: Path, wanted: set[str] | None, typestore: Typestore) -> BagContents:
+    """Read a cleanly closed bag (folder with metadata.yaml, or a complete .mcap file)."""
+    topics: dict[str, TopicMessages] = {}
+    try:
+        reader = Reader(path)
+        reader.open()
+    except ReaderError as err:
+        if 'metadata' in str(err) or 'YAML' in str(err):
+            raise BagError(f'{path} is not a bag: invalid metadata.yaml ({_one_line(err)})'
+                           ) from None
+        raise BagError(f'bag {path} is truncated or corrupt: {_one_line(err)}') from None
+    except Exception as err:  # noqa: BLE001 - a garbage summary raises Overflow/struct errors
+        raise BagError(f'bag {path} is truncated or corrupt: {_one_line(err)}') from None
+    try:
+        connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        for connection in connections:
+            _register_from_definition(typestore, connection.msgtype,
+                                      connection.msgdef.format.name.lower(),
+                                      connection.msgdef.data)
+            topics.setdefault(connection.topic, TopicMessages(connection.msgtype))
+        if connections:
+            for index, (connection, stamp, data) in enumerate(reader.messages(connections)):
+                series = topics[connection.topic]
+                series.timestamps_ns.append(stamp)
+                series.messages.append(_deserialize(typestore, data, connection.msgtype,
+                                                    connection.topic, index, path))
+    except BagError:
+        raise
+    except Exception as err:  # noqa: BLE001 - rosbags/struct/zstd raise many types here
+        raise BagError(f'bag {path} is truncated or corrupt: {_one_line(err)}') from None
+    finally:
+        reader.close()
+    return BagContents(path, topics)
+
+
+def _recover_mcap(path: Path, wanted: set[str] | None, typestore: Typestore,
+                  topics: dict[str, TopicMessages]) -> int:
+    """Read an MCAP file without footer up to its last complete chunk; return bytes used."""
+    size = path.stat().st_size
+    used = 0
+    with path.open('rb') as stream:
+        reader = NonSeekingReader(stream, record_size_limit=max(size, 1))
+        try:
+            for index, (schema, channel, message) in enumerate(
+                    reader.iter_messages(log_time_order=False)):
+                used = stream.tell()
+                if wanted is not None and channel.topic not in wanted:
+                    continue
+                if schema is None:
+                    raise BagError(f'bag {path} is corrupt: channel {channel.topic} has no schema')
+                msgtype = schema.name
+                _register_from_definition(typestore, msgtype, schema.encoding,
+                                          schema.data.decode('utf-8', errors='replace'))
+                series = topics.setdefault(channel.topic, TopicMessages(msgtype))
+                series.timestamps_ns.append(message.log_time)
+                series.messages.append(_deserialize(typestore, message.data, msgtype,
+                                                    channel.topic, index, path))
+        except (EndOfFile, McapError):
+            # The normal end of a killed recording: the last record was cut short (a record
+            # longer than the whole file counts as cut short too).
+            pass
+        except BagError:
+            raise
+        except Exception as err:  # noqa: BLE001 - garbage records raise struct/Unicode errors
+            if stream.tell() < size:
+                raise BagError(f'bag {path} is corrupt: {_one_line(err)}') from None
+            # A record cut short at the end of the file: the same as EndOfFile.
+    return used
+
+
+def _sort_by_time(topics: dict[str, TopicMessages]) -> None:
+    for series in topics.values():
+        order = np.argsort(np.asarray(series.timestamps_ns, dtype=np.int64), kind='stable')
+        if np.any(order != np.arange(order.size)):
+            series.timestamps_ns = [series.timestamps_ns[i] for i in order]
+            series.messages = [series.messages[i] for i in order]
+
+
+def _read_unclosed(path: Path, mcap_files: list[Path], wanted: set[str] | None,
+                   typestore: Typestore) -> BagContents:
+    """Read .mcap files without metadata.yaml: complete ones normally, others recovered."""
+    topics: dict[str, TopicMessages] = {}
+    recovered = False
+    used_total = 0
+    size_total = 0
+    for mcap_file in mcap_files:
+        _check_mcap_magic(mcap_file)
+        size = mcap_file.stat().st_size
+        size_total += size
+        if _has_mcap_end(mcap_file):
+            part = _read_closed(mcap_file, wanted, typestore)
+            for name, series in part.topics.items():
+                merged = topics.setdefault(name, TopicMessages(series.msgtype))
+                merged.timestamps_ns.extend(series.timestamps_ns)
+                merged.messages.extend(series.messages)
+            used_total += size
+        else:
+            recovered = True
+            used_total += _recover_mcap(mcap_file, wanted, typestore, topics)
+    _sort_by_time(topics)
+    contents = BagContents(path, topics, recovered, used_total, size_total)
+    if recovered and contents.message_count == 0 and wanted is None:
+        raise BagError(f'bag {path} is truncated: no complete MCAP chunk '
+                       f'({size_total} bytes, the recording ended before its first flush)')
+    return contents
+
+
+def read_bag(path: str | os.PathLike, topics: Iterable[str] | None = None,
+             typestore: Typestore | None = None) -> BagContents:
+    """Read the messages of a bag (a rosbag2 folder or a bare .mcap file) per topic.
+
+    `topics` restricts the topics deserialised (None: all). Bag timestamps are kept in ns
+    (the recorder stores the receive time there). Raises BagError with a one-line reason for
+    a path that does not exist or cannot be read, something that is not a bag, a bag without
+    messages, and a truncated or corrupt bag (see the module docstring for crash recovery).
+    """
+    bag = Path(path)
+    typestore = typestore if typestore is not None else jazzy_typestore()
+    wanted = set(topics) if topics is not None else None
+    if not bag.exists():
+        raise BagError(f'bag path does not exist: {bag}')
+    if not os.access(bag, os.R_OK) or (bag.is_dir() and not os.access(bag, os.X_OK)):
+        raise BagError(f'bag path is not readable (permission denied): {bag}')
+    try:
+        if bag.is_file() and bag.name == 'metadata.yaml':
+            bag = bag.parent
+        if bag.is_dir():
+            mcap_files = sorted(bag.glob('*.mcap'))
+            unreadable = [f for f in mcap_files if not os.access(f, os.R_OK)]
+            if unreadable:
+                raise BagError(f'bag file is not readable (permission denied): {unreadable[0]}')
+            if (bag / 'metadata.yaml').is_file():
+                contents = _read_closed(bag, wanted, typestore)
+            elif mcap_files:
+                contents = _read_unclosed(bag, mcap_files, wanted, typestore)
+            else:
+                raise BagError(f'{bag} is not a bag: no metadata.yaml and no .mcap file in it')
+        elif bag.is_file():
+            if bag.suffix != '.mcap':
+                _check_mcap_magic(bag)
+                raise BagError(f'{bag} is not a bag: an MCAP file must end in .mcap')
+            contents = _read_unclosed(bag, [bag], wanted, typestore)
+        else:
+            raise BagError(f'{bag} is not a bag: neither a folder nor a file')
+    except PermissionError as err:
+        raise BagError(f'bag path is not readable (permission denied): {err.filename}') from None
+    except OSError as err:
+        raise BagError(f'cannot read bag {bag}: {err.strerror or _one_line(err)}') from None
+    if contents.message_count == 0 and wanted is None:
+        raise BagError(f'bag {bag} is empty: it holds no messages')
+    return contents
+
+
+# --------------------------------------------------------------------------------------------
+# Demonstrations
+
+
+@dataclass(frozen=True)
+class Demonstration:
+    """One demonstration as arrays (paper section II-B).
+
+    times: (N,) s, receive time since `start_time_ns`, increasing;
+    positions: (N, 2) m, end-effector position x_i in the base frame;
+    references: (N, 2) m, reference x_r in force at each sample;
+    position_source: the topic the positions came from.
+    """
+
+    path: Path
+    times: np.ndarray
+    positions: np.ndarray
+    references: np.ndarray
+    start_time_ns: int
+    position_source: str
+    recovered: bool = False
+
+
+def _point_array(series: TopicMessages) -> np.ndarray:
+    return np.array([[m.point.x, m.point.y] for m in series.messages], dtype=float)
+
+
+def _joint_positions(series: TopicMessages, path: Path) -> np.ndarray:
+    """(N, 2) joint angles [joint1, joint2] in rad from JointState messages."""
+    rows = []
+    for index, msg in enumerate(series.messages):
+        names = list(msg.name)
+        position = np.asarray(msg.position, dtype=float)
+        if all(n in names for n in JOINT_NAMES):
+            idx = [names.index(n) for n in JOINT_NAMES]
+        elif not names and position.size >= 2:
+            idx = [0, 1]
+        else:
+            raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has no '
+                           f'positions for {", ".join(JOINT_NAMES)} (names {names})')
+        if position.size <= max(idx):
+            raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has '
+                           f'{position.size} positions for {len(names)} names')
+        rows.append(position[idx])
+    return np.array(rows, dtype=float).reshape(-1, 2)
+
+
+def end_effector_positions(joint_angles: np.ndarray, l1: float, l2: float) -> np.ndarray:
+    """End-effector positions (N, 2) in m from joint angles (N, 2) in rad (forward kinematics).
+
+    Uses scara_sim.dynamics.forward_kinematics with link lengths l1, l2 in m.
+    """
+    joint_angles = np.asarray(joint_angles, dtype=float).reshape(-1, 2)
+    return np.asarray(forward_kinematics(joint_angles, l1, l2), dtype=float).reshape(-1, 2)
+
+
+def read_demonstration(path: str | os.PathLike, l1: float = 0.35, l2: float = 0.30,
+                       position_topic: str = POSITION_TOPIC,
+                       joint_state_topic: str = JOINT_STATE_TOPIC,
+                       reference_topic: str = REFERENCE_TOPIC) -> Demonstration:
+    """Read a demonstration bag into receive times, positions x_i and references x_r.
+
+    Positions come from `position_topic` (PointStamped) when the bag has it, else from
+    `joint_state_topic` through the forward kinematics with link lengths l1, l2 (m). x_r is
+    the last `reference_topic` message received at or before each sample; samples received
+    before the first reference take the first one. Raises BagError (one line) when the bag
+    cannot be read or lacks the topics, or when a value is not finite.
+    """
+    if not (np.isfinite(l1) and np.isfinite(l2) and l1 > 0.0 and l2 > 0.0):
+        raise BagError(f'link lengths must be finite and > 0 m, got l1={l1}, l2={l2}')
+    wanted = (position_topic, joint_state_topic, reference_topic)
+    contents = read_bag(path, topics=wanted)
+    bag = contents.path
+    present = {name: s for name, s in contents.topics.items() if s.messages}
+    if not present:
+        available = read_bag(path).topics
+        raise BagError(f'bag {bag} has none of the topics {", ".join(wanted)} '
+                       f'(it has {", ".join(sorted(available)) or "no topics"})')
+    reference = present.get(reference_topic)
+    if reference is None:
+        raise BagError(f'bag {bag} has no {reference_topic} messages (the reference x_r)')
+    if reference.msgtype != POINT_STAMPED:
+        raise BagError(f'bag {bag}: {reference_topic} is {reference.msgtype}, '
+                       f'not {POINT_STAMPED}')
+    if position_topic in present:
+        source = present[position_topic]
+        if source.msgtype != POINT_STAMPED:
+            raise BagError(f'bag {bag}: {position_topic} is {source.msgtype}, '
+                           f'not {POINT_STAMPED}')
+        positions = _point_array(source)
+        source_topic = position_topic
+    elif joint_state_topic in present:
+        source = present[joint_state_topic]
+        if source.msgtype != JOINT_STATE:
+            raise BagError(f'bag {bag}: {joint_state_topic} is {source.msgtype}, '
+                           f'not {JOINT_STATE}')
+        positions = end_effector_positions(_joint_positions(source, bag), l1, l2)
+        source_topic = joint_state_topic
+    else:
+        raise BagError(f'bag {bag} has no end-effector positions: neither {position_topic} '
+                       f'nor {joint_state_topic} messages')
+    stamps = np.asarray(source.timestamps_ns, dtype=np.int64)
+    reference_points = _point_array(reference)
+    if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(reference_points))):
+        raise BagError(f'bag {bag} is corrupt: non-finite positions or references')
+    reference_stamps = np.asarray(reference.timestamps_ns, dtype=np.int64)
+    held = np.clip(np.searchsorted(reference_stamps, stamps, side='right') - 1, 0, None)
+    start = int(stamps[0])
+    return Demonstration(path=bag, times=(stamps - start) * 1e-9, positions=positions,
+                         references=reference_points[held], start_time_ns=start,
+                         position_source=source_topic, recovered=contents.recovered)

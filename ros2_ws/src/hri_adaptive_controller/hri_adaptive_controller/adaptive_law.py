@@ -1,0 +1,385 @@
+"""Adaptive torque law with the event-based task variable (paper eq. 16-23).
+
+    s = qdot - qdot_r                                                        (eq. 17)
+    tau = -Ks s - J^T Kp a delta_eps + Y_d(q, qdot, qdot_r, qddot_r) theta_hat  (eq. 16, 20)
+    dtheta_hat/dt = -L Y_d^T s                                               (eq. 19)
+    V = 1/2 s^T M s + Kp a Q + 1/2 dtheta^T L^-1 dtheta,  dtheta = theta - theta_hat  (eq. 21)
+    dV/dt = -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q               (eq. 22)
+
+qdot_r, qddot_r, delta_eps and the shaped potential Q come from task_variable (eq. 12', 14);
+Y_d is scara_sim.dynamics.regressor (eq. 18). Two deliberate differences from the paper's
+text, both needed for eq. 22 to follow from eq. 16-21:
+
+- eq. 16 prints -Kp a delta_eps; the closed loop eq. 20 (and the units: delta_eps is a task
+  space quantity, tau a joint torque) needs -J^T Kp a delta_eps, used here.
+- With a scalar Kp (N s/m), the potential term of V must be Kp a Q (eq. 21 prints a P, which
+  is right only for Kp = 1). Q is the shaped potential of task_variable (equal to k P where the
+  task speed is below saturation), so eq. 22 holds in and out of speed saturation.
+  F = diag(b1, b2), the true viscous friction, only adds dissipation. eq. 22 is exact when J+ is
+  the exact inverse (manipulability above the damping threshold); the torque limit and the
+  projection of theta_hat are the other places where the argument is not used as is.
+
+Safety: the torque is limited by scaling the whole vector (direction kept) so that
+max |tau_i| <= effort_limit, and any non-finite intermediate result gives zero torque and a
+fault flag (theta_hat is then left unchanged). theta_hat is integrated with explicit Euler and
+projected onto a box of physically plausible values (pi1, pi3 >= 1e-3 kg m^2, pi2, b1, b2 >= 0);
+projection onto a convex set that contains the true parameters never increases V.
+
+Units: q rad, qdot rad/s, tau N m, x m; theta = [pi1, pi2, pi3 (kg m^2), b1, b2 (N m s/rad),
+mlc1, mlc2 (kg m)] as in scara_sim.dynamics.dynamic_parameters.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hri_adaptive_controller.task_variable import (
+    DampingSettings,
+    JointReference,
+    ShapedPotential,
+    joint_velocity_reference,
+    shaped_potential,
+    task_potential,
+)
+from hri_demo_learning.potential import TaskShape
+from scara_sim.dynamics import regressor
+
+PARAMETER_COUNT = 7
+PARAMETER_NAMES = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
+
+# Box for the projection of theta_hat: inertias positive, friction and pi2 = m2 l1 lc2 >= 0,
+# the gravity moments (unused by a horizontal arm) free.
+DEFAULT_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, -math.inf, -math.inf)
+DEFAULT_THETA_UPPER = (math.inf,) * PARAMETER_COUNT
+
+
+@dataclass(frozen=True)
+class ControllerGains:
+    """Gains of eq. 14-19 and the safety limits.
+
+    ks: diagonal of Ks (N m s/rad), > 0; kp: scalar Kp (N s/m), >= 0; adaptation: diagonal of
+    L (7 values, >= 0; units of theta^2 per N m s); task_gain: k of task_variable (m^2/s), or
+    None to pick k per task (task_variable.shaped_potential, from approach_distance, m);
+    region_margin (m, >= 0): how far inside the learned region the task aims;
+    max_task_speed: v_max (m/s); damping: pseudo-inverse damping; effort_limit (N m);
+    theta_lower, theta_upper: projection box for theta_hat (7 values each).
+    Raises ValueError with the reason for a value out of range.
+    """
+
+    ks: tuple[float, float]
+    kp: float
+    adaptation: tuple[float, ...]
+    task_gain: float | None
+    approach_distance: float
+    region_margin: float
+    max_task_speed: float
+    effort_limit: float
+    damping: DampingSettings = field(default_factory=DampingSettings)
+    theta_lower: tuple[float, ...] = DEFAULT_THETA_LOWER
+    theta_upper: tuple[float, ...] = DEFAULT_THETA_UPPER
+
+    def __post_init__(self):
+        ks = np.asarray(self.ks, dtype=float)
+        if ks.shape != (2,) or not np.all(np.isfinite(ks)) or np.any(ks <= 0.0):
+            raise ValueError(f'ks must be 2 finite values > 0 N m s/rad, got {self.ks}')
+        if not (math.isfinite(self.kp) and self.kp >= 0.0):
+            raise ValueError(f'kp must be finite and >= 0 N s/m, got {self.kp}')
+        gains = np.asarray(self.adaptation, dtype=float)
+        if (gains.shape != (PARAMETER_COUNT,) or not np.all(np.isfinite(gains))
+                or np.any(gains < 0.0)):
+            raise ValueError(
+                f'adaptation must be {PARAMETER_COUNT} finite values >= 0, got {self.adaptation}')
+        if self.task_gain is not None and not (
+                math.isfinite(self.task_gain) and self.task_gain > 0.0):
+            raise ValueError(f'task_gain must be None or finite and > 0, got {self.task_gain}')
+        for name in ('approach_distance', 'max_task_speed', 'effort_limit'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be finite and > 0, got {value}')
+        if not (math.isfinite(self.region_margin) and self.region_margin >= 0.0):
+            raise ValueError(f'region_margin must be finite and >= 0, got {self.region_margin}')
+        lower = np.asarray(self.theta_lower, dtype=float)
+        upper = np.asarray(self.theta_upper, dtype=float)
+        if lower.shape != (PARAMETER_COUNT,) or upper.shape != (PARAMETER_COUNT,):
+            raise ValueError(f'theta_lower and theta_upper must have {PARAMETER_COUNT} values')
+        if np.any(np.isnan(lower)) or np.any(np.isnan(upper)) or np.any(lower > upper):
+            raise ValueError('theta_lower must be <= theta_upper (no NaN)')
+
+
+# Default gains for the default SCARA of scara_sim (l1 = 0.35 m, l2 = 0.30 m, 4 kg + 3 kg,
+# M(q) about [[0.66, 0.13], [0.13, 0.13]] kg m^2 at q2 = 90 deg), tuned in the pure closed loop
+# (closed_loop.simulate) on Table I's three tasks. The paper's Ks = 0.01 I, Kp = 5 I were for
+# its own robot (and its own scaling of P) and do not transfer.
+DEFAULT_GAINS = ControllerGains(
+    # Ks: sliding-variable damping. With M above, ks1 / M11 ~ ks2 / M22 ~ 30 1/s: s decays in
+    # ~35 ms, fast against the task motion (hundreds of ms), slow against the 1 kHz loop.
+    ks=(20.0, 4.0),
+    # Kp (N s/m): weight of the task term J^T Kp a delta_eps. delta_eps is a velocity (m/s), so
+    # Kp v_max = 2.5 N at full speed (<= 1.6 N m). The term drives s, so the arm runs faster
+    # than the reference by about Kp |J|^2 / ks; with this Kp, at most 1.25 v_max (measured
+    # for a still target). It still adds the -Kp |a delta_eps|^2 term of eq. 22.
+    kp=10.0,
+    # L: adaptation rates, scaled to each column of Y_d (accelerations ~ 1-10 rad/s^2 for the
+    # inertias, velocities ~ 1 rad/s for the friction). Following a hand that circles (0.1 m,
+    # 3 s period) from a 30-100 % wrong theta_hat(0), the inertias and frictions come within
+    # 16 % in 20 s, with no torque peak above the start-up one; 10x smaller rates leave them
+    # 40-100 % off after 20 s, 2-2.5x larger ones bring them within 1 %. This middle ground
+    # keeps theta_hat from chasing every transient of s (and, on a real arm, sensor noise).
+    # The gravity moments (zero columns for the horizontal arm) keep a small rate.
+    adaptation=(5.0, 2.0, 1.0, 20.0, 10.0, 0.1, 0.1),
+    # k: per task (task_variable.shaped_potential): Table I's potentials differ by > 100 orders of
+    # magnitude in slope, so one k cannot serve them all; with the approach distance below
+    # every task commands >= 0.76 v_max until 1 cm from its region, then slows down.
+    task_gain=None,
+    approach_distance=0.01,
+    # Region margin: the task aims 2 mm inside the learned region (at most a quarter of its
+    # width), so that the arm enters the region in finite time instead of creeping towards its
+    # boundary (the zero set of a gradient field is only reached asymptotically).
+    region_margin=0.002,
+    # v_max: a speed that is safe near a person (ISO/TS 15066 reduced-speed practice).
+    max_task_speed=0.25,
+    # effort_limit: the simulated drives' limit (scara_sim effort_limit: 20 N m).
+    effort_limit=20.0,
+    # J+ damping from 28 deg of the stretched arm on, up to lambda = 0.15 m: joint speeds stay
+    # below 3 rad/s and torques below 10 N m when the target is out of reach (see
+    # DampingSettings); the task region of the demos lies well inside.
+    damping=DampingSettings(threshold=0.05, max_damping=0.15),
+)
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """Result of one controller step.
+
+    tau (2,) N m, the command (zeros on a fault); tau_requested (2,) N m, before the limit;
+    s (2,) rad/s (eq. 17); distance |x - x_d| (m); lyapunov V (eq. 21; J); task_potential Q
+    (m^2/s); lyapunov_rate: dV/dt of eq. 22 predicted from the current state (W), with the
+    friction passed to step (none by default); these three are None when not monitored, and
+    distance is None on a fault. theta_hat (7,) used for this step; reference: the
+    JointReference (None on a fault); task_gain k (m^2/s, 0 without a task); torque_limited,
+    fault (bool); fault_reason (str).
+    """
+
+    tau: np.ndarray
+    tau_requested: np.ndarray
+    s: np.ndarray
+    distance: float | None
+    lyapunov: float | None
+    task_potential: float | None
+    lyapunov_rate: float | None
+    theta_hat: np.ndarray
+    reference: JointReference | None
+    task_gain: float
+    torque_limited: bool
+    fault: bool
+    fault_reason: str = ''
+
+
+def limit_torque(tau, effort_limit: float) -> tuple[np.ndarray, bool]:
+    """Scale tau (n,) N m as a whole so that max |tau_i| <= effort_limit (N m).
+
+    Keeps the direction of the torque vector. Returns (limited torque, whether it was scaled).
+    """
+    tau = np.asarray(tau, dtype=float)
+    if not (math.isfinite(effort_limit) and effort_limit > 0.0):
+        raise ValueError(f'effort_limit must be finite and > 0 N m, got {effort_limit}')
+    peak = float(np.max(np.abs(tau)))
+    if peak <= effort_limit:
+        return tau.copy(), False
+    return tau * (effort_limit / peak), True
+
+
+def adaptive_torque(s, jac, weighted_task_variable, regressor_matrix, theta_hat, ks,
+                    kp: float) -> np.ndarray:
+    """tau = -Ks s - J^T Kp a delta_eps + Y_d theta_hat (eq. 16, with J^T as in eq. 20).
+
+    s (2,) rad/s; jac (2, 2) m/rad; weighted_task_variable a delta_eps (2,) m/s;
+    regressor_matrix Y_d (2, 7); theta_hat (7,); ks (2,) N m s/rad; kp N s/m. Returns (2,) N m.
+    """
+    return (-np.asarray(ks) * np.asarray(s) - kp * (np.asarray(jac).T @ weighted_task_variable)
+            + np.asarray(regressor_matrix) @ np.asarray(theta_hat))
+
+
+def parameter_update_rate(regressor_matrix, s, adaptation) -> np.ndarray:
+    """dtheta_hat/dt = -L Y_d^T s (eq. 19), shape (7,); L = diag(adaptation), s (2,) rad/s."""
+    return -np.asarray(adaptation) * (np.asarray(regressor_matrix).T @ np.asarray(s))
+
+
+def mass_matrix_from_parameters(q, theta, gravity: float = 0.0) -> np.ndarray:
+    """Inertia matrix M(q) (kg m^2), (2, 2), implied by a parameter vector theta (7,).
+
+    Column j is Y_d(q, 0, 0, e_j) theta minus the gravity term: the model of eq. 18 itself,
+    so an estimate theta_hat gives the controller's own M_hat(q).
+    """
+    theta = np.asarray(theta, dtype=float)
+    accelerations = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    torques = regressor(q, np.zeros(2), np.zeros(2), accelerations, gravity) @ theta
+    return (torques[1:] - torques[0]).T
+
+
+def lyapunov(s, q, weight: float, task_potential_value: float, kp: float, theta_hat,
+             adaptation, theta_true=None, gravity: float = 0.0) -> float:
+    """Lyapunov-like function V of eq. 21 (J), with Kp a Q as its potential term.
+
+    s (2,) rad/s; q (2,) rad; weight a in [0, 1]; task_potential_value Q (m^2/s, from
+    task_variable.task_potential); kp N s/m; theta_hat (7,); adaptation diag L (7,).
+    theta_true (7,) is known only in simulation: with it, V uses the true M(q) and adds
+    1/2 dtheta^T L^-1 dtheta (over parameters with L_i > 0); without it (a real robot), V is
+    1/2 s^T M_hat s + Kp a Q with M_hat from theta_hat (an estimate of V without its
+    parameter-error term).
+    """
+    theta_hat = np.asarray(theta_hat, dtype=float)
+    s = np.asarray(s, dtype=float)
+    theta_model = theta_hat if theta_true is None else np.asarray(theta_true, dtype=float)
+    inertia = mass_matrix_from_parameters(q, theta_model, gravity)
+    value = 0.5 * float(s @ inertia @ s) + kp * weight * task_potential_value
+    if theta_true is not None:
+        gains = np.asarray(adaptation, dtype=float)
+        active = gains > 0.0
+        error = theta_model - theta_hat
+        value += 0.5 * float(np.sum(error[active] ** 2 / gains[active]))
+    return value
+
+
+def predicted_lyapunov_rate(s, weighted_task_variable, weight_rate: float,
+                            task_potential_value: float, ks, kp: float,
+                            friction=(0.0, 0.0)) -> float:
+    """dV/dt of eq. 22 (W): -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q.
+
+    s (2,) rad/s; weighted_task_variable a delta_eps (2,) m/s; weight_rate da/dt (1/s);
+    task_potential_value Q (m^2/s); ks (2,) N m s/rad; kp N s/m; friction diag F (2,).
+    """
+    s = np.asarray(s, dtype=float)
+    damping = np.asarray(ks, dtype=float) + np.asarray(friction, dtype=float)
+    task = np.asarray(weighted_task_variable, dtype=float)
+    return float(-np.sum(damping * s * s) - kp * (task @ task)
+                 + kp * weight_rate * task_potential_value)
+
+
+class AdaptiveController:
+    """The adaptive controller of eq. 16-19 with its parameter estimate theta_hat.
+
+    gains: ControllerGains; theta_hat0 (7,): initial estimate (projected onto the gains' box);
+    l1, l2: link lengths (m); gravity (m/s^2, 0 for the horizontal SCARA).
+    """
+
+    def __init__(self, gains: ControllerGains = DEFAULT_GAINS, theta_hat0=None,
+                 l1: float = 0.35, l2: float = 0.30, gravity: float = 0.0) -> None:
+        if theta_hat0 is None:
+            raise ValueError('theta_hat0 (7 initial parameter estimates) is required')
+        for name, value in (('l1', l1), ('l2', l2)):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be finite and > 0 m, got {value}')
+        if not math.isfinite(gravity):
+            raise ValueError(f'gravity must be finite, got {gravity}')
+        self._gains = gains
+        self._l1, self._l2, self._gravity = float(l1), float(l2), float(gravity)
+        self._lower = np.asarray(gains.theta_lower, dtype=float)
+        self._upper = np.asarray(gains.theta_upper, dtype=float)
+        self._ks = np.asarray(gains.ks, dtype=float)
+        self._adaptation = np.asarray(gains.adaptation, dtype=float)
+        self._shaped: dict[TaskShape, ShapedPotential] = {}
+        self.reset(theta_hat0)
+
+    @property
+    def gains(self) -> ControllerGains:
+        """The controller's gains."""
+        return self._gains
+
+    @property
+    def theta_hat(self) -> np.ndarray:
+        """Current parameter estimate (7,), a copy."""
+        return self._theta_hat.copy()
+
+    def reset(self, theta_hat0) -> None:
+        """Restart the estimate at theta_hat0 (7,), projected onto the box."""
+        theta = np.asarray(theta_hat0, dtype=float)
+        if theta.shape != (PARAMETER_COUNT,) or not np.all(np.isfinite(theta)):
+            raise ValueError(f'theta_hat0 must be {PARAMETER_COUNT} finite values, got {theta}')
+        self._theta_hat = np.clip(theta, self._lower, self._upper)
+
+    def shaped(self, shape: TaskShape | None) -> ShapedPotential | None:
+        """The shaped potential Q (eq. 12') the controller uses for `shape` (cached)."""
+        if shape is None:
+            return None
+        if shape not in self._shaped:
+            gains = self._gains
+            self._shaped[shape] = shaped_potential(
+                shape, gains.max_task_speed, gains.approach_distance, gains.region_margin,
+                gains.task_gain)
+        return self._shaped[shape]
+
+    def task_gain(self, shape: TaskShape | None) -> float:
+        """Task gain k (m^2/s) for `shape` (0 for no task)."""
+        shaped = self.shaped(shape)
+        return 0.0 if shaped is None else shaped.task_gain
+
+    def step(self, q, dq, x_d, xdot_d, xddot_d, a: float, da: float,
+             shape: TaskShape | None, dt: float, theta_true=None,
+             friction=None, monitor: bool = True) -> ControlOutput:
+        """Torque for the state (q, dq) and advance theta_hat by dt (eq. 16-19).
+
+        q, dq (2,) rad, rad/s; x_d, xdot_d, xddot_d (2,) m, m/s, m/s^2: the target; a, da:
+        a(E, t) and da/dt (1/s); shape: active task or None; dt (s) > 0: time to the next
+        step (for the Euler step of eq. 19). theta_true (7,) and friction diag F (2,) are for
+        simulation monitoring only (V with its parameter term; eq. 22's prediction).
+        monitor=False skips V and Q (saves the radial integral). Non-finite measurements or
+        results give zero torque and fault=True; bad arguments raise ValueError.
+        """
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f'dt must be finite and > 0 s, got {dt}')
+        if not (math.isfinite(a) and 0.0 <= a <= 1.0):
+            raise ValueError(f'a(E, t) must be in [0, 1], got {a}')
+        theta_hat = self._theta_hat.copy()
+        shaped = self.shaped(shape)
+        k = 0.0 if shaped is None else shaped.task_gain
+        measurements = [np.asarray(v, dtype=float) for v in (q, dq, x_d, xdot_d, xddot_d)]
+        if any(m.shape != (2,) for m in measurements):
+            raise ValueError('q, dq, x_d, xdot_d, xddot_d must each have shape (2,)')
+        if not all(np.all(np.isfinite(m)) for m in measurements) or not math.isfinite(da):
+            return self._fault(theta_hat, k, 'non-finite joint state, target or da/dt')
+        q, dq, x_d, xdot_d, xddot_d = measurements
+        gains = self._gains
+        try:
+            with np.errstate(all='ignore'):
+                reference = joint_velocity_reference(
+                    q, dq, x_d, xdot_d, xddot_d, a, da, shaped, self._l1, self._l2,
+                    gains.damping)
+        except ValueError as error:
+            return self._fault(theta_hat, k, str(error))
+        with np.errstate(all='ignore'):
+            s = dq - reference.qdot_r
+            y_d = regressor(q, dq, reference.qdot_r, reference.qddot_r, self._gravity)
+            tau_requested = adaptive_torque(s, reference.jacobian,
+                                            reference.weighted_task_variable, y_d, theta_hat,
+                                            self._ks, gains.kp)
+            theta_next = np.clip(
+                theta_hat + dt * parameter_update_rate(y_d, s, self._adaptation),
+                self._lower, self._upper)
+        if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(theta_next))
+                and np.all(np.isfinite(reference.qddot_r))):
+            return self._fault(theta_hat, k, 'non-finite torque or parameter update')
+        tau, limited = limit_torque(tau_requested, gains.effort_limit)
+        self._theta_hat = theta_next
+        q_value = v_value = v_rate = None
+        if monitor:
+            q_value = 0.0 if shaped is None else task_potential(reference.distance, shaped)
+            v_value = lyapunov(s, q, a, q_value, gains.kp, theta_hat, self._adaptation,
+                               theta_true, self._gravity)
+            v_rate = predicted_lyapunov_rate(
+                s, reference.weighted_task_variable, da, q_value, self._ks, gains.kp,
+                (0.0, 0.0) if friction is None else friction)
+        return ControlOutput(
+            tau=tau, tau_requested=tau_requested, s=s, distance=reference.distance,
+            lyapunov=v_value, task_potential=q_value, lyapunov_rate=v_rate,
+            theta_hat=theta_hat, reference=reference, task_gain=k, torque_limited=limited,
+            fault=False)
+
+    def _fault(self, theta_hat, k: float, reason: str) -> ControlOutput:
+        zero = np.zeros(2)
+        return ControlOutput(
+            tau=zero, tau_requested=zero.copy(), s=zero.copy(), distance=None,
+            lyapunov=None, task_potential=None, lyapunov_rate=None,
+            theta_hat=theta_hat, reference=None, task_gain=k, torque_limited=False,
+            fault=True, fault_reason=reason)

@@ -1,0 +1,183 @@
+"""Pure-Python closed loop: event weight + adaptive controller + SCARA dynamics, no ROS.
+
+Each control period dt (s) the loop takes the events due, evaluates a(E, t) (event_weight,
+eq. 13), samples the target trajectory, computes the torque of eq. 16 (adaptive_law, which also
+advances theta_hat by eq. 19) and integrates the true dynamics (scara_sim.dynamics.rk4_step,
+eq. 15, torque held over the step). It is what the unit tests and the benchmarks run; the ROS
+nodes run the same library against topics.
+
+Targets are callables t -> (x_d, xdot_d, xddot_d) in m, m/s, m/s^2 (shapes (2,)); events are
+(time in s, task name or None) pairs, the task names keys of `tasks`.
+"""
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from hri_adaptive_controller.adaptive_law import (
+    DEFAULT_GAINS,
+    AdaptiveController,
+    ControllerGains,
+)
+from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
+from hri_demo_learning.potential import TaskShape
+from scara_sim.dynamics import ScaraParameters, dynamic_parameters, rk4_step
+
+TargetSample = tuple[np.ndarray, np.ndarray, np.ndarray]
+TargetTrajectory = Callable[[float], TargetSample]
+
+DEFAULT_INITIAL_Q = (0.0, math.pi / 2.0)  # rad: end-effector at (0.35, 0.30) m
+
+
+def _point(value, name: str) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    if array.shape != (2,) or not np.all(np.isfinite(array)):
+        raise ValueError(f'{name} must be 2 finite values, got {np.ravel(value)}')
+    return array
+
+
+def still_target(point) -> TargetTrajectory:
+    """A target that stays at `point` (2,) m: zero velocity and acceleration."""
+    point = _point(point, 'point')
+    zero = np.zeros(2)
+    return lambda t: (point.copy(), zero.copy(), zero.copy())
+
+
+def minimum_jerk_target(start, end, start_time: float, duration: float) -> TargetTrajectory:
+    """A target at `start` (2,) m until start_time (s), then a minimum-jerk move to `end`.
+
+    x_d = start + (end - start) s(u), u = (t - start_time) / duration, s the quintic
+    smoothstep: x_d, xdot_d and xddot_d are continuous; peak speed 15/8 |end - start| /
+    duration (m/s).
+    """
+    start, end = _point(start, 'start'), _point(end, 'end')
+    if not (math.isfinite(duration) and duration > 0.0):
+        raise ValueError(f'duration must be finite and > 0 s, got {duration}')
+    if not math.isfinite(start_time):
+        raise ValueError(f'start_time must be finite, got {start_time}')
+    step = end - start
+
+    def sample(t: float) -> TargetSample:
+        s, ds, dds = quintic_smoothstep((t - start_time) / duration)
+        return start + s * step, (ds / duration) * step, (dds / duration ** 2) * step
+
+    return sample
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Time series of one closed-loop run, one row per control period.
+
+    time (N,) s; q, dq (N, 2) rad, rad/s; position, target (N, 2) m; tau (N, 2) N m (applied);
+    s (N, 2) rad/s; distance (N,) m; lyapunov V (N,) J (eq. 21 with the true parameters);
+    lyapunov_rate (N,) W, eq. 22's prediction; task_potential Q (N,) m^2/s (these three are
+    NaN when the run was not monitored, and distance is NaN on a fault); weight a and
+    weight_rate da/dt (N,); phase (N,) str; active_task (N,) object (name or None);
+    theta_hat (N, 7); torque_limited, fault (N,) bool; damping lambda^2 (N,);
+    theta_true (7,); task_gains: k (m^2/s) per task name.
+    """
+
+    time: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    position: np.ndarray
+    target: np.ndarray
+    tau: np.ndarray
+    s: np.ndarray
+    distance: np.ndarray
+    lyapunov: np.ndarray
+    lyapunov_rate: np.ndarray
+    task_potential: np.ndarray
+    weight: np.ndarray
+    weight_rate: np.ndarray
+    phase: np.ndarray
+    active_task: np.ndarray
+    theta_hat: np.ndarray
+    torque_limited: np.ndarray
+    fault: np.ndarray
+    damping: np.ndarray
+    theta_true: np.ndarray
+    task_gains: dict
+
+
+def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str | None]],
+             target: TargetTrajectory, duration: float,
+             params: ScaraParameters | None = None, theta_hat0=None,
+             gains: ControllerGains = DEFAULT_GAINS, q0=DEFAULT_INITIAL_Q, dq0=(0.0, 0.0),
+             initial_task: str | None = None, ramp_time: float = 1.0, dt: float = 1e-3,
+             monitor: bool = True) -> SimulationResult:
+    """Run the closed loop for `duration` s with control period and integration step dt (s).
+
+    tasks: task name -> TaskShape; events: (time s, task name or None) that switch tasks
+    through a(E, t) (eq. 13); target: t -> (x_d, xdot_d, xddot_d); params: the true arm
+    (default ScaraParameters()); theta_hat0 (7,): the controller's initial estimate (default:
+    the true parameters); gains; q0, dq0 (2,): initial joint state; initial_task: active at
+    t = 0 with a = 1 (or None: idle); ramp_time (s) of a full fade; monitor: compute V and Q
+    (the radial integral costs about as much as the rest of the step).
+    Raises ValueError for unknown task names or bad values.
+    """
+    if not (math.isfinite(duration) and duration > 0.0):
+        raise ValueError(f'duration must be finite and > 0 s, got {duration}')
+    if not (math.isfinite(dt) and 0.0 < dt <= duration):
+        raise ValueError(f'dt must be finite and in (0, duration] s, got {dt}')
+    params = ScaraParameters() if params is None else params
+    theta_true = dynamic_parameters(params)
+    if theta_hat0 is None:
+        theta_hat0 = theta_true
+    for _, name in events:
+        if name is not None and name not in tasks:
+            raise ValueError(f'event names unknown task {name!r}; known: {sorted(tasks)}')
+    if initial_task is not None and initial_task not in tasks:
+        raise ValueError(f'initial_task {initial_task!r} is not one of {sorted(tasks)}')
+    pending_events = sorted(events, key=lambda event: event[0])
+    schedule = EventWeightSchedule(ramp_time, initial_task)
+    controller = AdaptiveController(gains, theta_hat0, params.l1, params.l2, params.gravity)
+    friction = (params.b1, params.b2)
+    q, dq = _point(q0, 'q0'), _point(dq0, 'dq0')
+
+    steps = int(round(duration / dt))
+    time = np.arange(steps) * dt
+    rows = {name: np.zeros((steps, 2)) for name in
+            ('q', 'dq', 'position', 'target', 'tau', 's')}
+    scalars = {name: np.zeros(steps) for name in
+               ('distance', 'lyapunov', 'lyapunov_rate', 'task_potential', 'weight',
+                'weight_rate', 'damping')}
+    theta_hat = np.zeros((steps, theta_true.size))
+    torque_limited = np.zeros(steps, dtype=bool)
+    fault = np.zeros(steps, dtype=bool)
+    phase = np.empty(steps, dtype=object)
+    active_task = np.empty(steps, dtype=object)
+
+    event_index = 0
+    for i, t in enumerate(time):
+        while event_index < len(pending_events) and pending_events[event_index][0] <= t:
+            event_time, name = pending_events[event_index]
+            schedule.request(name, max(event_time, 0.0))
+            event_index += 1
+        weight = schedule.evaluate(t)
+        shape = None if weight.active_task is None else tasks[weight.active_task]
+        x_d, xdot_d, xddot_d = target(t)
+        out = controller.step(q, dq, x_d, xdot_d, xddot_d, weight.weight, weight.rate, shape,
+                              dt, theta_true=theta_true, friction=friction, monitor=monitor)
+        rows['q'][i], rows['dq'][i], rows['target'][i] = q, dq, x_d
+        rows['tau'][i], rows['s'][i] = out.tau, out.s
+        if out.reference is not None:
+            rows['position'][i] = out.reference.position
+            scalars['damping'][i] = out.reference.damping
+        scalars['distance'][i] = np.nan if out.distance is None else out.distance
+        for name, value in (('lyapunov', out.lyapunov), ('lyapunov_rate', out.lyapunov_rate),
+                            ('task_potential', out.task_potential)):
+            scalars[name][i] = np.nan if value is None else value
+        scalars['weight'][i], scalars['weight_rate'][i] = weight.weight, weight.rate
+        theta_hat[i] = out.theta_hat
+        torque_limited[i], fault[i] = out.torque_limited, out.fault
+        phase[i], active_task[i] = weight.phase, weight.active_task
+        q, dq = rk4_step(q, dq, out.tau, dt, params)
+
+    return SimulationResult(
+        time=time, **rows, **scalars, phase=phase, active_task=active_task,
+        theta_hat=theta_hat, torque_limited=torque_limited, fault=fault,
+        theta_true=theta_true,
+        task_gains={name: controller.task_gain(shape) for name, shape in tasks.items()})

@@ -1,0 +1,375 @@
+"""The `controller` node: the adaptive HRI controller of paper eq. 14-19 on topics.
+
+Every 1/`rate_hz` s it takes the latest /joint_states, /target (the hand: the centre x_d of
+the desired region) and /hri/task_state (active task, a(E, t), da/dt), runs
+`AdaptiveController.step` (eq. 16-19, which also adapts theta_hat) and publishes the torque,
+limited to `effort_limit` with its direction kept, on /effort_controller/commands (the
+interface of ros2_control's JointGroupEffortController). With `mode: velocity` it publishes
+the joint-velocity reference qdot_r of eq. 14 on /velocity_controller/commands instead.
+ControllerState (distance, V, |s|, a, theta_hat, effort, deadline misses) goes out at
+`state_rate_hz`.
+
+Safety (choices where DESIGN.md is silent):
+- zero torque, with a throttled warning, while joint states are missing, older than
+  `joint_state_timeout`, or invalid (non-finite, wrong length, unknown joint names: joints
+  are mapped by name; stamps going backwards are dropped), and while there is no valid
+  target yet (non-finite targets, or farther than `max_target_distance` from the base, are
+  dropped);
+- no TaskState yet, or none for `task_state_timeout` s (event_manager gone: it publishes a
+  heartbeat), means a = 0: the controller keeps the arm damped (Ks s with qdot_r = J+ xdot_d)
+  but no task force acts, until a TaskState arrives again;
+- the hand's velocity xdot_d is estimated from the /target stamps with a first-order filter
+  (`target_filter_time`); its acceleration is taken as 0.
+"""
+
+import math
+import sys
+import time
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PointStamped
+from hri_interfaces.msg import ControllerState, TaskState
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from hri_adaptive_controller.adaptive_law import (
+    DEFAULT_GAINS,
+    PARAMETER_NAMES,
+    AdaptiveController,
+    ControllerGains,
+)
+from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
+from hri_demo_learning.potential import TaskShape
+from scara_sim.dynamics import ScaraParameters, dynamic_parameters, forward_kinematics
+from scara_sim.node_common import (
+    ParameterSpec,
+    StartupError,
+    declare_parameters,
+    init_ros,
+    spin_until_stopped,
+)
+
+NODE_NAME = 'controller'
+JOINT_NAMES = ('joint1', 'joint2')
+# Sensor streams as scara_sim offers them (reliable); only the latest sample matters.
+JOINT_STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+TARGET_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+STATE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+WARNING_THROTTLE = 2.0  # s between repeats of one warning
+LATE_FACTOR = 1.5  # a tick later than 1.5 periods counts as a deadline miss
+
+# The true parameters of scara_sim's default arm, scaled: the controller starts wrong on
+# purpose (DESIGN.md) and adapts (eq. 19).
+_DEFAULT_THETA_HAT0 = [float(round(v, 4)) for v in 0.6 * dynamic_parameters(ScaraParameters())]
+
+PARAMETERS = {
+    'rate_hz': ParameterSpec(1000.0, 'control rate (Hz)', low=10.0, high=2000.0,
+                             read_only=True),
+    'state_rate_hz': ParameterSpec(100.0, 'ControllerState rate (Hz)', low=1.0, high=1000.0,
+                                   read_only=True),
+    'mode': ParameterSpec('effort', 'effort: torques (eq. 16); velocity: qdot_r (eq. 14)',
+                          choices=('effort', 'velocity'), read_only=True),
+    'ks': ParameterSpec(list(DEFAULT_GAINS.ks), 'diagonal of Ks (N m s/rad)', size=2),
+    'kp': ParameterSpec(DEFAULT_GAINS.kp, 'task gain Kp (N s/m)', low=0.0, high=1000.0),
+    'adaptation_gain': ParameterSpec(list(DEFAULT_GAINS.adaptation),
+                                     'diagonal of L, one per theta (eq. 19)', size=7),
+    'theta_hat0': ParameterSpec(_DEFAULT_THETA_HAT0, 'initial theta_hat: '
+                                + ', '.join(PARAMETER_NAMES), size=7, read_only=True),
+    'max_task_speed': ParameterSpec(DEFAULT_GAINS.max_task_speed,
+                                    'largest task-space reference speed (m/s)',
+                                    low=0.01, high=2.0),
+    'approach_distance': ParameterSpec(DEFAULT_GAINS.approach_distance,
+                                       'distance from the region where the reference slows '
+                                       'down (m)', low=0.001, high=0.5),
+    'region_margin': ParameterSpec(DEFAULT_GAINS.region_margin,
+                                   'how far inside the learned region the task aims (m)',
+                                   low=0.0, high=0.1),
+    'effort_limit': ParameterSpec(DEFAULT_GAINS.effort_limit, 'torque limit per joint (N m)',
+                                  low=0.1, high=500.0),
+    'joint_state_timeout': ParameterSpec(0.05, 'joint states older than this: zero torque (s)',
+                                         low=0.002, high=10.0),
+    'task_state_timeout': ParameterSpec(2.0, 'no TaskState for this long: a = 0 (s)',
+                                        low=0.1, high=3600.0),
+    'target_filter_time': ParameterSpec(0.05, 'time constant of the hand velocity estimate (s)',
+                                        low=0.001, high=5.0),
+    'max_target_distance': ParameterSpec(2.0, 'targets farther than this from the base are '
+                                         'dropped (m)', low=0.1, high=100.0),
+    'l1': ParameterSpec(0.35, 'link 1 length (m)', low=0.01, high=5.0, read_only=True),
+    'l2': ParameterSpec(0.30, 'link 2 length (m)', low=0.01, high=5.0, read_only=True),
+    'gravity': ParameterSpec(0.0, 'gravity in the arm plane (m/s^2; 0 horizontal)',
+                             low=0.0, high=20.0, read_only=True),
+}
+GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_distance',
+                   'region_margin', 'effort_limit')
+
+
+def gains_from(values: dict) -> ControllerGains:
+    """ControllerGains from parameter values; ValueError with the reason if invalid."""
+    return ControllerGains(
+        ks=tuple(values['ks']), kp=values['kp'], adaptation=tuple(values['adaptation_gain']),
+        task_gain=None, approach_distance=values['approach_distance'],
+        region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
+        effort_limit=values['effort_limit'], damping=DEFAULT_GAINS.damping)
+
+
+def stamp_seconds(stamp) -> float:
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+class Controller(Node):
+    """Adaptive torque controller between joint states, target, task state and commands."""
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        self._values = declare_parameters(self, PARAMETERS)
+        values = self._values
+        try:
+            self._law = AdaptiveController(gains_from(values), values['theta_hat0'],
+                                           values['l1'], values['l2'], values['gravity'])
+        except ValueError as error:
+            raise StartupError(f'bad controller parameters: {error}') from None
+        self._period = 1.0 / values['rate_hz']
+        self._state_every = max(1, round(values['rate_hz'] / values['state_rate_hz']))
+        self._velocity_mode = values['mode'] == 'velocity'
+        self._q = self._dq = None
+        self._joint_time = -math.inf  # monotonic receive time of the latest joint state
+        self._joint_stamp = -math.inf
+        self._target = self._target_velocity = None
+        self._target_stamp = None
+        self._task_state: TaskState | None = None
+        self._task_time = -math.inf
+        self._shape_key = None
+        self._shape: TaskShape | None = None
+        self._ticks = 0
+        self._misses = 0
+        self._last_tick = None
+        self._window = (time.monotonic(), 0)
+        self._rate = 0.0
+        self._status = 'starting'
+        self._weight = 0.0
+        self._warned: dict[str, float] = {}
+        self._input_age = 0.0
+
+        topic = '/velocity_controller/commands' if self._velocity_mode \
+            else '/effort_controller/commands'
+        self._command_pub = self.create_publisher(Float64MultiArray, topic, COMMAND_QOS)
+        self._state_pub = self.create_publisher(ControllerState, '/hri/controller_state',
+                                                STATE_QOS)
+        self.create_subscription(JointState, '/joint_states', self._on_joint_state,
+                                 JOINT_STATE_QOS)
+        self.create_subscription(PointStamped, '/target', self._on_target, TARGET_QOS)
+        self.create_subscription(TaskState, '/hri/task_state', self._on_task_state,
+                                 TASK_STATE_QOS)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.create_timer(self._period, self._control)
+        self.get_logger().info(
+            f'{values["mode"]} control at {values["rate_hz"]:g} Hz on {topic}; ks={values["ks"]}'
+            f' kp={values["kp"]:g} effort_limit={values["effort_limit"]:g} N m; theta_hat0='
+            f'{values["theta_hat0"]}')
+
+    # -- inputs ----------------------------------------------------------------------------
+    def _warn(self, kind: str, text: str) -> None:
+        """Log `text`, at most once per WARNING_THROTTLE s for each `kind` of problem."""
+        now = time.monotonic()
+        if now - self._warned.get(kind, -math.inf) >= WARNING_THROTTLE:
+            self._warned[kind] = now
+            self.get_logger().warning(text)
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        names = list(msg.name)
+        if len(msg.position) != len(names) or len(msg.velocity) != len(names):
+            self._warn('joint_state_size',
+                       f'joint state dropped: {len(names)} names, {len(msg.position)} '
+                       f'positions, {len(msg.velocity)} velocities')
+            return
+        try:
+            index = [names.index(joint) for joint in JOINT_NAMES]
+        except ValueError:
+            self._warn('joint_state_names',
+                       f'joint state dropped: names {names} lack {", ".join(JOINT_NAMES)}')
+            return
+        q = np.array([msg.position[i] for i in index])
+        dq = np.array([msg.velocity[i] for i in index])
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
+            self._warn('joint_state_non_finite',
+                       'joint state dropped: non-finite position or velocity')
+            return
+        stamp = stamp_seconds(msg.header.stamp)
+        if stamp < self._joint_stamp:
+            self._warn('joint_state_stamp', 'joint state dropped: stamp went back '
+                       f'{self._joint_stamp - stamp:.4f} s')
+            return
+        self._q, self._dq = q, dq
+        self._joint_stamp = stamp
+        self._joint_time = time.monotonic()
+
+    def _on_target(self, msg: PointStamped) -> None:
+        position = np.array([msg.point.x, msg.point.y])
+        if not np.all(np.isfinite(position)):
+            self._warn('target_non_finite', 'target dropped: non-finite position')
+            return
+        if np.linalg.norm(position) > self._values['max_target_distance']:
+            self._warn('target_far',
+                       f'target dropped: {position.round(3).tolist()} is farther than '
+                       f'max_target_distance {self._values["max_target_distance"]:g} m')
+            return
+        stamp = stamp_seconds(msg.header.stamp)
+        if self._target is None:
+            self._target_velocity = np.zeros(2)
+        else:
+            dt = stamp - self._target_stamp
+            if dt <= 0.0:
+                self._warn('target_stamp', 'target dropped: stamp did not advance')
+                return
+            blend = dt / (dt + self._values['target_filter_time'])
+            measured = (position - self._target) / dt
+            self._target_velocity = self._target_velocity + blend * (
+                measured - self._target_velocity)
+        self._target, self._target_stamp = position, stamp
+
+    def _on_task_state(self, msg: TaskState) -> None:
+        if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
+                and math.isfinite(msg.weight_rate)):
+            self._warn('task_state_weight',
+                       f'task state dropped: weight {msg.weight}, rate {msg.weight_rate}')
+            return
+        key = (msg.task.name, msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1, msg.task.d2,
+               msg.task.n)
+        if key != self._shape_key:
+            shape = None
+            if msg.task.name:
+                try:
+                    shape = TaskShape(msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1,
+                                      msg.task.d2, msg.task.n)
+                except ValueError as error:
+                    self._warn('task_state_task',
+                               f'task state dropped: task {msg.task.name!r}: {error}')
+                    return
+            self._shape_key, self._shape = key, shape
+        self._task_state = msg
+        self._task_time = time.monotonic()
+
+    def _validate_parameters(self, parameters) -> SetParametersResult:
+        changed = {p.name: p.value for p in parameters if p.name in GAIN_PARAMETERS}
+        if not changed:
+            return SetParametersResult(successful=True)
+        values = {**self._values, **changed}
+        try:
+            gains = gains_from(values)
+            law = AdaptiveController(gains, self._law.theta_hat, values['l1'], values['l2'],
+                                     values['gravity'])
+        except (ValueError, TypeError) as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        self._values, self._law = values, law
+        self.get_logger().info(f'gains changed: {changed}')
+        return SetParametersResult(successful=True)
+
+    # -- control loop ------------------------------------------------------------------------
+    def _control(self) -> None:
+        now = time.monotonic()
+        dt = self._period if self._last_tick is None else now - self._last_tick
+        if self._last_tick is not None and dt > LATE_FACTOR * self._period:
+            self._misses += 1
+        self._last_tick = now
+        self._ticks += 1
+        monitor = self._ticks % self._state_every == 0
+        output = self._step(now, min(max(dt, 1e-6), 10 * self._period), monitor)
+        command = np.zeros(2) if output is None else (
+            output.reference.qdot_r if self._velocity_mode else output.tau)
+        if not np.all(np.isfinite(command)):
+            command, self._status = np.zeros(2), 'fault: non-finite command'
+        self._command_pub.publish(Float64MultiArray(data=[float(v) for v in command]))
+        if output is not None:
+            self._input_age = stamp_seconds(self.get_clock().now().to_msg()) - self._joint_stamp
+        if monitor:
+            self._publish_state(now, output, command)
+
+    def _step(self, now: float, dt: float, monitor: bool):
+        self._weight = 0.0  # no task force acts unless the step below runs
+        if self._q is None or now - self._joint_time > self._values['joint_state_timeout']:
+            self._status = 'no_joint_states' if self._q is None else 'stale_joint_states'
+            self._warn(self._status, f'zero torque: {self._status.replace("_", " ")}')
+            return None
+        if self._target is None:
+            self._status = 'no_target'
+            return None
+        task = self._task_state
+        if task is None or now - self._task_time > self._values['task_state_timeout']:
+            weight, rate, shape = 0.0, 0.0, None
+            self._status = 'no_task_state'
+        else:
+            weight, rate, shape = task.weight, task.weight_rate, self._shape
+            if shape is None:
+                weight, rate = 0.0, 0.0
+            self._status = 'ok'
+        self._weight = weight
+        try:
+            output = self._law.step(self._q, self._dq, self._target, self._target_velocity,
+                                    np.zeros(2), weight, rate, shape, dt, monitor=monitor)
+        except Exception as error:  # noqa: BLE001 a robot command must stay safe
+            self._status = f'fault: {type(error).__name__}'
+            self._warn('internal', f'zero torque: control step failed: {error!r}')
+            return None
+        if output.fault:
+            self._status = f'fault: {output.fault_reason}'
+            self._warn('fault', f'zero torque: {output.fault_reason}')
+            return None
+        return output
+
+    def _publish_state(self, now: float, output, command) -> None:
+        started, ticks = self._window
+        if now - started >= 1.0:
+            self._rate = (self._ticks - ticks) / (now - started)
+            self._window = (now, self._ticks)
+        msg = ControllerState(deadline_misses=self._misses, rate_hz=self._rate,
+                              input_age=self._input_age,
+                              status=self._status, effort=[float(v) for v in command],
+                              theta_hat=[float(v) for v in self._law.theta_hat])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        if self._task_state is not None:
+            msg.task = self._task_state.task.name
+        if output is not None:
+            msg.distance = float(output.distance)
+            msg.lyapunov = float(output.lyapunov) if output.lyapunov is not None else 0.0
+            msg.sliding_norm = float(np.linalg.norm(output.s))
+            msg.weight = self._weight
+            msg.saturated = bool(output.torque_limited)
+        elif self._q is not None and self._target is not None:
+            x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
+            msg.distance = float(np.linalg.norm(x - self._target))
+        self._state_pub.publish(msg)
+
+
+def main(args=None):
+    stop = init_ros(args)
+    node = None
+    executor = None
+    code = 0
+    try:
+        node = Controller()
+        executor = EventsExecutor()
+        executor.add_node(node)
+        spin_until_stopped(executor, stop)
+    except StartupError as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
+        code = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

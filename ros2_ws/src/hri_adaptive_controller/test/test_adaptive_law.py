@@ -1,0 +1,213 @@
+"""Unit tests of hri_adaptive_controller.adaptive_law: eq. 16-22, limits and the controller."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from hri_adaptive_controller.adaptive_law import (
+    DEFAULT_GAINS,
+    AdaptiveController,
+    adaptive_torque,
+    limit_torque,
+    lyapunov,
+    mass_matrix_from_parameters,
+    parameter_update_rate,
+    predicted_lyapunov_rate,
+)
+from hri_adaptive_controller.task_variable import DampingSettings
+from hri_demo_learning.potential import TaskShape
+from scara_sim.dynamics import (
+    ScaraParameters,
+    dynamic_parameters,
+    jacobian,
+    mass_matrix,
+    regressor,
+)
+
+PARAMS = ScaraParameters()
+THETA = dynamic_parameters(PARAMS)
+FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)
+AVOID = TaskShape(1, 0.056, 25.46, 0.183, 2.0)
+
+
+def controller(theta_hat0=THETA, **changes):
+    gains = dataclasses.replace(DEFAULT_GAINS, **changes)
+    return AdaptiveController(gains, theta_hat0, PARAMS.l1, PARAMS.l2)
+
+
+def state(rng):
+    q = np.array([rng.uniform(-1.0, 1.0), rng.uniform(0.7, 2.2)])
+    return q, rng.normal(0.0, 0.5, 2)
+
+
+def test_limit_torque_keeps_the_direction():
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        tau = rng.normal(0.0, 30.0, 2)
+        limited, scaled = limit_torque(tau, 20.0)
+        assert np.max(np.abs(limited)) <= 20.0 + 1e-12
+        assert scaled == (np.max(np.abs(tau)) > 20.0)
+        assert limited @ tau == pytest.approx(np.linalg.norm(limited) * np.linalg.norm(tau))
+    unchanged, scaled = limit_torque(np.array([3.0, -4.0]), 20.0)
+    np.testing.assert_array_equal(unchanged, [3.0, -4.0])
+    assert not scaled
+    with pytest.raises(ValueError, match='effort_limit'):
+        limit_torque(np.zeros(2), 0.0)
+
+
+def test_torque_law_is_eq_16_with_the_transposed_jacobian():
+    rng = np.random.default_rng(4)
+    q, dq = state(rng)
+    s, task = rng.normal(size=2), rng.normal(size=2)
+    y_d = regressor(q, dq, rng.normal(size=2), rng.normal(size=2))
+    jac = jacobian(q, PARAMS.l1, PARAMS.l2)
+    tau = adaptive_torque(s, jac, task, y_d, THETA, np.array([20.0, 4.0]), 10.0)
+    expected = -np.diag([20.0, 4.0]) @ s - jac.T @ (10.0 * task) + y_d @ THETA
+    np.testing.assert_allclose(tau, expected)
+
+
+def test_update_law_is_eq_19():
+    rng = np.random.default_rng(5)
+    q, dq = state(rng)
+    y_d = regressor(q, dq, rng.normal(size=2), rng.normal(size=2))
+    s = rng.normal(size=2)
+    gains = np.arange(1.0, 8.0)
+    np.testing.assert_allclose(parameter_update_rate(y_d, s, gains), -np.diag(gains) @ y_d.T @ s)
+
+
+def test_mass_matrix_from_parameters_is_the_model_inertia():
+    rng = np.random.default_rng(6)
+    vertical = ScaraParameters(gravity=9.81)
+    for _ in range(10):
+        q, _ = state(rng)
+        np.testing.assert_allclose(mass_matrix_from_parameters(q, THETA), mass_matrix(q, PARAMS),
+                                   atol=1e-12)
+        np.testing.assert_allclose(
+            mass_matrix_from_parameters(q, dynamic_parameters(vertical), 9.81),
+            mass_matrix(q, vertical), atol=1e-12)
+
+
+def test_lyapunov_function_terms():
+    q, s = np.array([0.2, 1.0]), np.array([0.3, -0.2])
+    gains = np.array(DEFAULT_GAINS.adaptation)
+    kinetic = 0.5 * s @ mass_matrix(q, PARAMS) @ s
+    assert lyapunov(s, q, 0.5, 0.2, 10.0, THETA, gains) == pytest.approx(kinetic + 1.0)
+    theta_hat = THETA * 1.1
+    error = THETA - theta_hat
+    expected = kinetic + 1.0 + 0.5 * np.sum(error ** 2 / gains)
+    assert lyapunov(s, q, 0.5, 0.2, 10.0, theta_hat, gains, theta_true=THETA) == pytest.approx(
+        expected)
+    # Unknown true parameters: the inertia comes from theta_hat.
+    estimate = 0.5 * s @ mass_matrix_from_parameters(q, theta_hat) @ s + 1.0
+    assert lyapunov(s, q, 0.5, 0.2, 10.0, theta_hat, gains) == pytest.approx(estimate)
+
+
+def test_predicted_rate_is_eq_22():
+    s, task = np.array([0.1, -0.3]), np.array([0.05, 0.02])
+    rate = predicted_lyapunov_rate(s, task, 0.7, 0.4, (20.0, 4.0), 10.0, (1.0, 0.5))
+    expected = -(21.0 * 0.01 + 4.5 * 0.09) - 10.0 * (0.05 ** 2 + 0.02 ** 2) + 10.0 * 0.7 * 0.4
+    assert rate == pytest.approx(expected)
+
+
+def test_step_at_rest_in_the_region_commands_nothing():
+    ctrl = controller()
+    q = np.array([0.0, math.pi / 2])
+    x = np.array([0.35, 0.30])
+    out = ctrl.step(q, np.zeros(2), x + [0.01, 0.0], np.zeros(2), np.zeros(2), 1.0, 0.0, FOLLOW,
+                    1e-3)
+    assert not out.fault and out.distance == pytest.approx(0.01)
+    np.testing.assert_allclose(out.tau, 0.0, atol=1e-12)
+    assert out.lyapunov == pytest.approx(0.0, abs=1e-12)
+
+
+def test_step_moves_towards_the_target_and_adapts():
+    ctrl = controller(theta_hat0=THETA * 0.7)
+    q = np.array([0.0, math.pi / 2])
+    target = np.array([0.45, 0.05])
+    out = ctrl.step(q, np.zeros(2), target, np.zeros(2), np.zeros(2), 1.0, 0.0, FOLLOW, 1e-3)
+    reference = out.reference
+    # The task velocity points from the end-effector to the target, at the speed limit.
+    direction = -reference.dx / np.linalg.norm(reference.dx)
+    assert reference.task_velocity @ direction == pytest.approx(
+        DEFAULT_GAINS.max_task_speed, rel=1e-6)
+    assert not np.allclose(ctrl.theta_hat, THETA * 0.7)
+    assert out.task_gain == ctrl.task_gain(FOLLOW) > 0.0
+
+
+def test_huge_avoidance_gradient_gives_bounded_torque():
+    ctrl = controller()
+    q = np.array([0.0, math.pi / 2])
+    out = ctrl.step(q, np.zeros(2), np.array([0.35, 0.30]) + [1e-9, 0.0], np.zeros(2),
+                    np.zeros(2), 1.0, 0.0, AVOID, 1e-3)
+    assert not out.fault
+    assert np.all(np.isfinite(out.tau)) and np.max(np.abs(out.tau)) <= 20.0
+    assert np.linalg.norm(out.reference.task_velocity) == pytest.approx(0.25)
+
+
+def test_non_finite_measurement_gives_zero_torque_and_a_fault():
+    ctrl = controller(theta_hat0=THETA * 0.7)
+    before = ctrl.theta_hat
+    out = ctrl.step(np.array([np.nan, 1.0]), np.zeros(2), np.zeros(2), np.zeros(2),
+                    np.zeros(2), 1.0, 0.0, FOLLOW, 1e-3)
+    assert out.fault and 'non-finite' in out.fault_reason
+    np.testing.assert_array_equal(out.tau, 0.0)
+    np.testing.assert_array_equal(ctrl.theta_hat, before)
+
+
+def test_singular_jacobian_without_damping_is_a_fault_not_a_crash():
+    ctrl = controller(damping=DampingSettings(threshold=0.05, max_damping=0.0))
+    out = ctrl.step(np.array([0.0, 0.0]), np.zeros(2), np.array([0.3, 0.0]), np.zeros(2),
+                    np.zeros(2), 1.0, 0.0, FOLLOW, 1e-3)
+    assert out.fault and 'singular' in out.fault_reason
+    np.testing.assert_array_equal(out.tau, 0.0)
+
+
+def test_projection_keeps_theta_hat_in_the_box():
+    lower = np.array(DEFAULT_GAINS.theta_lower)
+    ctrl = controller(theta_hat0=np.where(np.isfinite(lower), lower, 0.0))
+    rng = np.random.default_rng(8)
+    for _ in range(200):
+        q, dq = state(rng)
+        ctrl.step(q, dq * 4.0, rng.uniform(0.2, 0.5, 2), rng.normal(size=2), np.zeros(2),
+                  1.0, 0.0, FOLLOW, 1e-2)
+        assert np.all(ctrl.theta_hat >= lower)
+
+
+def test_without_task_the_arm_tracks_the_target_velocity_only():
+    ctrl = controller()
+    q = np.array([0.2, 1.2])
+    out = ctrl.step(q, np.zeros(2), np.array([5.0, 5.0]), np.array([0.1, 0.0]), np.zeros(2),
+                    0.0, 0.0, None, 1e-3)
+    np.testing.assert_allclose(out.reference.qdot_r,
+                               np.linalg.solve(jacobian(q, PARAMS.l1, PARAMS.l2), [0.1, 0.0]))
+    assert out.task_gain == 0.0 and out.task_potential == 0.0
+
+
+@pytest.mark.parametrize(('changes', 'match'), [
+    ({'ks': (0.0, 4.0)}, 'ks'),
+    ({'kp': -1.0}, 'kp'),
+    ({'adaptation': (1.0,) * 6}, 'adaptation'),
+    ({'task_gain': 0.0}, 'task_gain'),
+    ({'max_task_speed': 0.0}, 'max_task_speed'),
+    ({'effort_limit': float('inf')}, 'effort_limit'),
+    ({'region_margin': -0.001}, 'region_margin'),
+    ({'theta_lower': (1.0,) * 7, 'theta_upper': (0.0,) * 7}, 'theta_lower'),
+])
+def test_bad_gains_are_rejected(changes, match):
+    with pytest.raises(ValueError, match=match):
+        dataclasses.replace(DEFAULT_GAINS, **changes)
+
+
+def test_bad_step_arguments_are_rejected():
+    ctrl = controller()
+    args = (np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
+    with pytest.raises(ValueError, match='dt'):
+        ctrl.step(*args, 1.0, 0.0, FOLLOW, 0.0)
+    with pytest.raises(ValueError, match='a\\(E, t\\)'):
+        ctrl.step(*args, 1.2, 0.0, FOLLOW, 1e-3)
+    with pytest.raises(ValueError, match='shape'):
+        ctrl.step(np.zeros(3), *args[1:], 1.0, 0.0, FOLLOW, 1e-3)
+    with pytest.raises(ValueError, match='theta_hat0'):
+        AdaptiveController(DEFAULT_GAINS, np.zeros(6))

@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# The main job: sets the project up if needed, then runs paper Section IV in simulation
+# (record demonstrations, learn, run the behaviours closed-loop, write report/).
+# Options: --quick (shorter runs), --out DIR (default report/).
+set -euo pipefail
+
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+# shellcheck disable=SC1091
+source "$root/scripts/env.sh"
+exec python "$root/scripts/demo.py" "$@"

@@ -1,0 +1,57 @@
+"""The README's main job, `scripts/demo.sh --quick`, end to end: report, figures and metrics."""
+
+import json
+import os
+import subprocess
+
+import psutil
+import pytest
+
+from tests.common import REPO_ROOT, next_domain_id, node_environment
+
+pytestmark = pytest.mark.integration
+
+FIGURES = ('fit_follow', 'fit_avoid', 'fit_follow_safe', 'behaviour_follow',
+           'behaviour_avoid', 'behaviour_follow_safe', 'sequence')
+
+
+def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_path):
+    env = node_environment(next_domain_id())
+    env['HRI_DEMO_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
+    result = subprocess.run([str(REPO_ROOT / 'scripts/demo.sh'), '--quick', '--out',
+                             str(tmp_path)], env=env, capture_output=True, text=True,
+                            timeout=600)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert (tmp_path / 'report.md').is_file()
+    for name in FIGURES:
+        figure = tmp_path / 'figures' / f'{name}.png'
+        assert figure.is_file() and figure.stat().st_size > 10_000, name
+    metrics = json.loads((tmp_path / 'metrics.json').read_text())
+    learned = metrics['learning']
+    assert learned['follow']['s'] == 1 and learned['follow']['d1'] == 0.0
+    assert learned['avoid']['d2'] == pytest.approx(2.0)
+    assert learned['follow_safe']['d1'] == pytest.approx(0.183, abs=0.01)
+    assert learned['follow_safe']['d2'] == pytest.approx(0.271, abs=0.01)
+    assert all(task['iterations'] <= 50 for task in learned.values())
+    for name, behaviour in metrics['behaviours'].items():
+        assert behaviour['in_region_at_end'], (name, behaviour)
+        assert behaviour['time_to_region'] is not None, (name, behaviour)
+        assert behaviour['peak_torque'] <= 20.0 + 1e-9
+    sequence = metrics['sequence']
+    assert 0.0 <= sequence['weight_min'] and sequence['weight_max'] <= 1.0
+    assert sequence['tasks_seen'] == ['avoid', 'follow', 'follow_safe']
+    assert sequence['final']['in_region_at_end']
+    assert not processes_on_domain(env['ROS_DOMAIN_ID']), 'the demo left processes running'
+
+
+def processes_on_domain(domain: str) -> list[int]:
+    """PIDs of processes (other than this one) whose environment has ROS_DOMAIN_ID=domain."""
+    found = []
+    for process in psutil.process_iter():
+        try:
+            if process.pid != os.getpid() and \
+                    process.environ().get('ROS_DOMAIN_ID') == domain:
+                found.append(process.pid)
+        except (psutil.AccessDenied, psutil.NoSuchProcess, psutil.ZombieProcess):
+            continue
+    return found

@@ -61,12 +61,16 @@ def period_statistics(times_ns: np.ndarray) -> dict:
             'max_ms': round(float(periods.max()), 4)}
 
 
-def node_process(root: psutil.Process) -> psutil.Process:
-    """The python process that runs the node: `root` itself or one of its descendants."""
-    candidates = [root, *root.children(recursive=True)]
+def node_process(root: psutil.Process, executable: str = 'scara_sim') -> psutil.Process:
+    """The python process that runs the node `executable`: `root` or one of its descendants.
+
+    Descendants are tried first: a real ros2cli's `ros2 run` is itself a python process that
+    names the executable on its command line and runs the node as a child.
+    """
+    candidates = [*root.children(recursive=True), root]
     for process in candidates:
         try:
-            if any('scara_sim' in part for part in process.cmdline()[1:]):
+            if any(executable in part for part in process.cmdline()[1:]):
                 if 'python' in os.path.basename(process.cmdline()[0]) or process is root:
                     return process
         except psutil.Error:
@@ -93,10 +97,12 @@ class Listener:
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
-    def _on_message(self, msg: JointState, info=None) -> None:
+    def _on_message(self, msg: JointState, info) -> None:
+        # `info` must not have a default: rclpy passes the MessageInfo (with the middleware
+        # receive timestamp) only to callbacks that cannot be called with the message alone.
         self.first.set()
         if self.recording:
-            received = (info or {}).get('received_timestamp') or time.time_ns()
+            received = info.get('received_timestamp') or time.time_ns()
             self.stamps.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
             self.received.append(received)
 

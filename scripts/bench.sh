@@ -1,0 +1,236 @@
+#!/usr/bin/env bash
+# Benchmarks (measurements, not tests): sets the project up if needed, then runs, one after
+# another so that they do not disturb each other,
+#   learning  bench/bench_learning.py   fits on the fixtures (Gauss-Newton vs trf), fit time vs
+#                                       samples, learning from a replayed 1M-message bag
+#   loop      bench/bench_loop.py       scara_sim + event_manager + controller + hand_sim, 20 s
+#   recorder  bench/bench_recorder.py   60 s of JointState at 1 kHz: published vs recorded
+#   sim       bench/bench_sim.py        scara_sim alone, 10 s
+# and writes their figures with the machine's description into bench/results.json and a
+# table on stdout. `scripts/bench.sh --quick` shortens every piece (a smoke run).
+# Each piece ends the processes it started; a piece that fails is reported and the others
+# still run; the exit code is non-zero if any piece failed (the recorder's also if it lost a
+# message). ROS domains: BENCH_DOMAIN_BASE (default 90) .. +2.
+set -euo pipefail
+
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+usage() { echo "usage: scripts/bench.sh [--quick]"; }
+quick=0
+case "${1:-}" in
+  --quick) quick=1 ;;
+  "") ;;
+  -h | --help) usage; exit 0 ;;
+  *) usage >&2; exit 2 ;;
+esac
+
+# Set up as scripts/test.sh does; the build step under the colcon lock when flock exists, so
+# that it never runs at the same time as another build of this checkout.
+if command -v flock >/dev/null 2>&1; then
+  flock /tmp/colcon.lock "$root/scripts/setup.sh"
+  export HRI_SKIP_SETUP=1
+fi
+# shellcheck disable=SC1091
+source "$root/scripts/env.sh"
+
+domain=${BENCH_DOMAIN_BASE:-90}
+if [ "$quick" = 1 ]; then
+  learning_args=(--repeats 1 --sizes 10000 100000 --replay-seconds 20)
+  loop_seconds=5; recorder_seconds=5; sim_seconds=3
+else
+  learning_args=(--repeats 3)
+  loop_seconds=20; recorder_seconds=60; sim_seconds=10
+fi
+
+work=$(mktemp -d -t hri-bench-XXXXXX)
+failed=()
+
+# run_piece NAME TIME_LIMIT COMMAND...: stdout (JSON) to $work/NAME.json, stderr to NAME.log.
+# At the time limit the piece gets SIGINT (its `finally` ends its nodes), SIGKILL 30 s later.
+run_piece() {
+  local name=$1 limit=$2 started code=0
+  shift 2
+  cut -d' ' -f1-3 /proc/loadavg > "$work/$name.load"
+  printf '[bench] %s: %s\n' "$name" "$*" >&2
+  started=$(date +%s)
+  timeout --signal=INT --kill-after=30 "$limit" "$@" > "$work/$name.json" \
+    2> "$work/$name.log" || code=$?
+  echo "$code" > "$work/$name.code"
+  printf '[bench] %s: exit %s after %s s\n' "$name" "$code" "$(( $(date +%s) - started ))" >&2
+  if [ "$code" != 0 ]; then
+    failed+=("$name")
+    tail -n 15 "$work/$name.log" >&2 || true
+  fi
+}
+
+run_piece learning 1800 python bench/bench_learning.py --json "${learning_args[@]}"
+run_piece loop $((loop_seconds + 120)) python bench/bench_loop.py --json \
+  --duration "$loop_seconds" --domain-id "$domain"
+run_piece recorder $((recorder_seconds + 180)) python bench/bench_recorder.py --json \
+  --seconds "$recorder_seconds" --domain-id $((domain + 1))
+run_piece sim $((sim_seconds + 120)) python bench/bench_sim.py --json \
+  --duration "$sim_seconds" --domain-id $((domain + 2))
+
+python - "$work" "$root/bench/results.json" "$quick" <<'PY'
+"""Collect the pieces' JSON with the machine's description; print one table."""
+import datetime
+import json
+import platform
+import subprocess
+import sys
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+work, output, quick = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3] == '1'
+PIECES = ('learning', 'loop', 'recorder', 'sim')
+
+
+def package_version(name):
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return None
+
+
+def cpu_model():
+    for line in Path('/proc/cpuinfo').read_text().splitlines():
+        if line.startswith('model name'):
+            return line.split(':', 1)[1].strip()
+    return platform.processor() or None
+
+
+results = {
+    'machine': {
+        'nproc': int(subprocess.run(['nproc'], capture_output=True, text=True).stdout),
+        'cpu_model': cpu_model(),
+        'python': platform.python_version(),
+        'rclpy': package_version('rclpy'),
+        'rclpy_wheel': package_version('ros-rclpy'),
+        'date': datetime.datetime.now().astimezone().isoformat(timespec='seconds'),
+        'note': 'shared machine: other sessions may run tests at the same time; '
+                'load_average_before is /proc/loadavg before each piece',
+    },
+    'quick': quick,
+}
+for name in PIECES:
+    code = int((work / f'{name}.code').read_text())
+    text = (work / f'{name}.json').read_text()
+    try:
+        piece = json.loads(text)
+    except json.JSONDecodeError:
+        log = (work / f'{name}.log').read_text(errors='replace').strip().splitlines()
+        piece = {'error': 'no JSON output', 'log_tail': log[-10:]}
+    piece['exit_code'] = code
+    piece['load_average_before'] = (work / f'{name}.load').read_text().split()
+    results[name] = piece
+output.write_text(json.dumps(results, indent=2) + '\n')
+
+rows = []
+
+
+def row(section, item, value):
+    rows.append((section, item, value))
+
+
+def fmt(value, unit=''):
+    return 'n/a' if value is None else f'{value:g}{unit}'
+
+
+def spread(stats, unit='ms'):
+    return (f"median {fmt(stats['median_ms'])} / p99 {fmt(stats['p99_ms'])} / "
+            f"max {fmt(stats['max_ms'])} {unit}")
+
+
+def min_med(stats, unit='s'):
+    return f"{stats['min']:g} / {stats['median']:g} {unit}"
+
+
+m = results['machine']
+row('machine', 'cpu', f"{m['nproc']} x {m['cpu_model']}")
+row('machine', 'software', f"Python {m['python']}, rclpy {m['rclpy']} "
+    f"(wheel ros-rclpy {m['rclpy_wheel']})")
+row('machine', 'date', f"{m['date']}{' (--quick)' if quick else ''}")
+row('machine', 'note', 'shared with other sessions running tests: compare within one run')
+
+for name in PIECES:
+    piece = results[name]
+    load = ' '.join(piece['load_average_before'])
+    if 'error' in piece:
+        row(name, 'FAILED', f"exit {piece['exit_code']}: {piece['error']}")
+        continue
+    row(name, 'load average before', load)
+    if piece['exit_code'] != 0:
+        row(name, 'exit code', str(piece['exit_code']))
+    if name == 'learning':
+        row(name, 'rounds', f"{piece['repeats']} (times min / median)")
+        for task, by_method in piece['fixtures'].items():
+            for method, r in by_method.items():
+                row(name, f'{task} {method}',
+                    f"{r['iterations']} it, C {r['cost']:.4g}, "
+                    f"{'converged' if r['converged'] else 'NOT converged'}, "
+                    f"a1 {r['a1']:.4g} a2 {r['a2']:.4g}; fit {min_med(r['fit_s'])}, "
+                    f"read+learn {min_med(r['total_s'])}")
+        s = piece['scaling']
+        for size, by_method in s['sizes'].items():
+            row(name, f'fit {int(size):,} samples',
+                '; '.join(f"{meth} {min_med(r['fit_s'])} ({r['iterations']} it)"
+                          for meth, r in by_method.items()))
+        if 'replay' in piece:
+            r = piece['replay']
+            row(name, f"replay {r['joint_states']:,} joint states",
+                f"read {r['read_s']} s, learn_from_bags {r['learn_total_s']} s "
+                f"(read + energy + identification + fit; fit {r['fit_s']} s, "
+                f"{r['iterations']} it, {r['method']}); bag {r['bag_mb']} MB written in "
+                f"{r['write_s']} s; d2 {r['d2']} m")
+    elif name == 'loop':
+        j, c = piece['joint_states'], piece['controller']
+        row(name, 'window', f"{piece['duration_s']} s")
+        row(name, '/joint_states rate', f"{j['achieved_rate_hz']} Hz received; sim time / "
+            f"wall {fmt(j['sim_realtime_factor'])}")
+        row(name, '/joint_states period (stamps)', spread(j['stamp_period']))
+        row(name, '/joint_states period (receive)', spread(j['receive_period']))
+        row(name, 'controller rate', f"median {fmt(c['rate_hz_median'])} Hz, "
+            f"min {fmt(c['rate_hz_min'])} Hz")
+        row(name, 'controller deadline misses', f"{c['deadline_misses']} "
+            f"({fmt(c['deadline_miss_percent'])} % of ticks); status ok "
+            f"{fmt(c['ok_fraction'])}")
+        row(name, 'input_age (stamp -> command)', spread(c['input_age']))
+        row(name, 'CPU % of one core', ', '.join(f'{k} {v}' for k, v in
+                                                 piece['cpu_percent'].items()))
+        if 'sim_summary' in piece:
+            s = piece['sim_summary']
+            row(name, 'sim timing (whole run)', f"{s['late_ticks']} late ticks, "
+                f"{s['dropped_steps']} dropped steps in {s['ticks']} ticks")
+    elif name == 'recorder':
+        row(name, 'published / recorded', f"{piece['published']:,} / {piece['recorded']:,} "
+            f"in {piece['seconds']:g} s at {piece['achieved_rate_hz']:.1f} Hz")
+        row(name, 'lost', f"{piece['lost']} ({piece['loss_percent']:.3f} %), duplicates "
+            f"{piece['duplicates']}")
+        row(name, 'recorder CPU', f"{piece['recorder_cpu_percent']:.1f} % of one core")
+        row(name, 'bag', f"{piece['bag_bytes'] / 1e6:.2f} MB "
+            f"({piece['bag_bytes_per_message']:.0f} B/message)")
+    elif name == 'sim':
+        row(name, 'rate', f"{piece['achieved_rate_hz']} Hz in {piece['duration_s']} s")
+        row(name, 'period (stamps)', spread(piece['stamp_period']))
+        row(name, 'period (receive)', spread(piece['receive_period']))
+        row(name, 'sim CPU', f"{piece['sim_cpu_percent']} % of one core")
+        if 'sim_summary' in piece:
+            s = piece['sim_summary']
+            row(name, 'sim timing (whole run)', f"{s['late_ticks']} late ticks, "
+                f"{s['dropped_steps']} dropped steps in {s['ticks']} ticks")
+
+width = max(len(item) for _, item, _ in rows)
+previous = None
+for section, item, value in rows:
+    if section != previous:
+        print(f'\n{section.upper()}')
+        previous = section
+    print(f'  {item:<{width}}  {value}')
+print(f'\nwritten: {output}')
+PY
+
+if [ "${#failed[@]}" -gt 0 ]; then
+  echo "[bench] failed: ${failed[*]}; their output is in $work" >&2
+  exit 1
+fi
+rm -rf "$work"

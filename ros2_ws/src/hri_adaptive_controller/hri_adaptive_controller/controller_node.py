@@ -10,11 +10,11 @@ ControllerState (distance, V, |s|, a, theta_hat, effort, deadline misses) goes o
 `state_rate_hz`.
 
 Safety (choices where DESIGN.md is silent):
-- zero torque, with a throttled warning, while joint states are missing, older than
-  `joint_state_timeout`, or invalid (non-finite, wrong length, unknown joint names: joints
-  are mapped by name; stamps going backwards are dropped), and while there is no valid
-  target yet (non-finite targets, or farther than `max_target_distance` from the base, are
-  dropped);
+- zero torque while joint states are missing or older than `joint_state_timeout` (one
+  warning per outage, one info line when they resume), or invalid (throttled warning:
+  non-finite, wrong length, unknown joint names: joints are mapped by name; stamps going
+  backwards are dropped), and while there is no valid target yet (non-finite targets, or
+  farther than `max_target_distance` from the base, are dropped);
 - no TaskState yet, or none for `task_state_timeout` s (event_manager gone: it publishes a
   heartbeat), means a = 0: the controller keeps the arm damped (Ks s with qdot_r = J+ xdot_d)
   but no task force acts, until a TaskState arrives again;
@@ -27,11 +27,9 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState, TaskState
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -51,8 +49,7 @@ from scara_sim.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
-    init_ros,
-    spin_until_stopped,
+    run_node,
 )
 
 NODE_NAME = 'controller'
@@ -294,9 +291,13 @@ class Controller(Node):
     def _step(self, now: float, dt: float, monitor: bool):
         self._weight = 0.0  # no task force acts unless the step below runs
         if self._q is None or now - self._joint_time > self._values['joint_state_timeout']:
-            self._status = 'no_joint_states' if self._q is None else 'stale_joint_states'
-            self._warn(self._status, f'zero torque: {self._status.replace("_", " ")}')
+            status = 'no_joint_states' if self._q is None else 'stale_joint_states'
+            if status != self._status:  # once per outage, as scara_sim's command timeout
+                self.get_logger().warning(f'zero torque: {status.replace("_", " ")}')
+            self._status = status
             return None
+        if self._status == 'stale_joint_states':
+            self.get_logger().info('joint states resumed')
         if self._target is None:
             self._status = 'no_target'
             return None
@@ -348,27 +349,8 @@ class Controller(Node):
 
 
 def main(args=None):
-    stop = init_ros(args)
-    node = None
-    executor = None
-    code = 0
-    try:
-        node = Controller()
-        executor = EventsExecutor()
-        executor.add_node(node)
-        spin_until_stopped(executor, stop)
-    except StartupError as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
-        code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    # The 1 kHz loop and its 1 kHz input: the EventsExecutor at a fraction of the CPU.
+    return run_node(Controller, NODE_NAME, EventsExecutor, args)
 
 
 if __name__ == '__main__':

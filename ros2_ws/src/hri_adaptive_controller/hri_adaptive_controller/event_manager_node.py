@@ -7,8 +7,11 @@ out, swaps the task while a = 0, and fades it in again. The node publishes TaskS
 change, at `publish_rate_hz` (>= 100 Hz) during a ramp, and every `heartbeat_period` otherwise.
 
 Choices where DESIGN.md is silent:
-- `initial_task` fades in from a = 0 at start (a ramp of `ramp_time`), like any other switch,
-  so a robot never starts with the full task force at once.
+- `initial_task` fades in from a = 0 (a ramp of `ramp_time`), like any other switch, so a
+  robot never starts with the full task force at once. The ramp starts when /hri/task_state
+  has its first subscriber (a = 0 until then): started at once, it would be over before a
+  controller that matches later hears of it (discovery takes 1-2 s) and the controller would
+  jump from a = 0 to 1, e.g. when the event_manager is restarted under a running controller.
 - A task that arrives on /hri/task under the active task's name goes through a full switch
   (fade out, swap, fade in): its parameters never change under a nonzero weight.
 - An event whose `task` is empty fades out to 'idle' (a = 0: the controller holds still).
@@ -19,11 +22,11 @@ Choices where DESIGN.md is silent:
 import sys
 import time
 from itertools import count
+from pathlib import Path
 
-import rclpy
 from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -39,8 +42,7 @@ from scara_sim.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
-    init_ros,
-    spin_until_stopped,
+    run_node,
 )
 
 NODE_NAME = 'event_manager'
@@ -75,6 +77,9 @@ class EventManager(Node):
         # Schedule keys are (name, revision): a new revision of the active task is a switch.
         self._tasks: dict[str, tuple[str, int]] = {}
         self._records: dict[tuple[str, int], TaskRecord] = {}
+        if not Path(values['tasks_dir']).is_dir():
+            self.get_logger().warning(f'tasks_dir {values["tasks_dir"]!r} is not a folder: no '
+                                      'task loaded at start (tasks can still come on /hri/task)')
         loaded, rejected = load_task_directory(values['tasks_dir'])
         for path, reason in rejected:
             self.get_logger().warning(f'task file {path} rejected: {reason}')
@@ -86,10 +91,8 @@ class EventManager(Node):
             raise StartupError(f'initial_task {initial!r} is not a known task '
                                f'(loaded from {values["tasks_dir"]}: {known})')
         self._schedule = EventWeightSchedule(values['ramp_time'])
-        self._event_name = ''
-        if initial:
-            self._event_name = 'initial_task'
-            self._schedule.request(self._tasks[initial], time.monotonic())
+        self._event_name = 'initial_task' if initial else ''
+        self._initial_task = initial  # requested once /hri/task_state has a subscriber
         self._last_published = None
         self._last_publish_time = -float('inf')
 
@@ -138,6 +141,7 @@ class EventManager(Node):
         self._switch(self._tasks[msg.task] if msg.task else None, msg.name)
 
     def _switch(self, key, event_name: str) -> None:
+        self._initial_task = ''  # an event before any subscriber overrides initial_task
         before = self._schedule.evaluate(time.monotonic())
         after = self._schedule.request(key, time.monotonic())
         if (after.phase, after.pending_task) != (before.phase, before.pending_task):
@@ -162,6 +166,9 @@ class EventManager(Node):
 
     def _publish(self) -> None:
         now = time.monotonic()
+        if self._initial_task and self._state_publisher.get_subscription_count() > 0:
+            self._schedule.request(self._tasks[self._initial_task], now)
+            self._initial_task = ''
         state = self._schedule.evaluate(now)
         ramping = state.phase in (PHASE_FADING_IN, PHASE_FADING_OUT)
         summary = (state.phase, state.active_task, state.pending_task)
@@ -185,27 +192,7 @@ def _name(key) -> str:
 
 
 def main(args=None):
-    stop = init_ros(args)
-    node = None
-    executor = None
-    code = 0
-    try:
-        node = EventManager()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_stopped(executor, stop)
-    except StartupError as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
-        code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(EventManager, NODE_NAME, SingleThreadedExecutor, args)
 
 
 if __name__ == '__main__':

@@ -22,9 +22,7 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PointStamped, WrenchStamped
-from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -33,8 +31,7 @@ from scara_sim.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
-    init_ros,
-    spin_until_stopped,
+    run_node,
 )
 from scara_sim.profiles import (
     DEMONSTRATION_MODES,
@@ -225,30 +222,9 @@ class Demonstrator(Node):
 
 
 def main(args=None):
-    stop = init_ros(args)
-    node = None
-    executor = None
-    code = 0
-    try:
-        node = Demonstrator()
-        # /ee_position comes at 1 kHz: the EventsExecutor takes it at a fraction of the CPU;
-        # driven by spin_once because its spin() ignores shutdown (measured-limits.md).
-        executor = EventsExecutor()
-        executor.add_node(node)
-        spin_until_stopped(executor, stop, lambda: node.exit_code is not None)
-        code = node.exit_code if node.exit_code is not None else 0
-    except StartupError as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
-        code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    # /ee_position comes at 1 kHz: the EventsExecutor takes it at a fraction of the CPU.
+    return run_node(Demonstrator, NODE_NAME, EventsExecutor, args,
+                    exit_code=lambda node: node.exit_code)
 
 
 if __name__ == '__main__':

@@ -10,10 +10,9 @@ does; changing any profile parameter at run time (validated) restarts it.
 import sys
 import time
 
-import rclpy
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -21,8 +20,7 @@ from scara_sim.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
-    init_ros,
-    spin_until_stopped,
+    run_node,
 )
 from scara_sim.profiles import HAND_PROFILES, HandProfile, hand_position
 
@@ -111,27 +109,7 @@ class HandSim(Node):
 
 
 def main(args=None):
-    stop = init_ros(args)
-    node = None
-    executor = None
-    code = 0
-    try:
-        node = HandSim()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_stopped(executor, stop)
-    except StartupError as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
-        code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(HandSim, NODE_NAME, SingleThreadedExecutor, args)
 
 
 if __name__ == '__main__':

@@ -1,4 +1,4 @@
-"""What the scara_sim package's nodes share (ROS side, not pure): parameters and spinning.
+"""What the suite's nodes share (ROS side, not pure): parameters, spinning, a node's life.
 
 Parameters: each node lists its parameters as a table of `ParameterSpec` (default,
 description, range); `declare_parameters` declares them all with descriptors and turns
@@ -27,6 +27,7 @@ from rcl_interfaces.msg import (
     ParameterType,
 )
 from rclpy.exceptions import InvalidParameterTypeException, ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -163,3 +164,43 @@ def spin_until_stopped(executor, stop: threading.Event,
     """Run `executor`'s callbacks until `stop` is set, `finished()` or the context ends."""
     while not stop.is_set() and not finished() and rclpy.ok():
         executor.spin_once(timeout_sec=0.1)
+
+
+def run_node(create_node: Callable[[], Node], node_name: str, executor_class=None,
+             args=None, exit_code: Callable[[Node], int | None] | None = None,
+             on_stop: Callable[[Node], None] | None = None) -> int:
+    """A node's whole life: rclpy up, create the node, spin until SIGINT/SIGTERM (or until
+    `exit_code(node)` is not None), clean up; return the process exit code.
+
+    A StartupError is logged as its one-line reason and gives exit code 1. `on_stop(node)`
+    runs before the node is destroyed (a summary line, closing a file). `executor_class`
+    defaults to SingleThreadedExecutor; the EventsExecutor is driven with spin_once here,
+    because its spin() ignores shutdown (notes/measured-limits.md).
+    """
+    stop = init_ros(args)
+    node = None
+    executor = None
+    code = 0
+    try:
+        node = create_node()
+        executor = (executor_class or SingleThreadedExecutor)()
+        executor.add_node(node)
+        spin_until_stopped(executor, stop,
+                           (lambda: exit_code(node) is not None) if exit_code else
+                           (lambda: False))
+        if exit_code is not None and exit_code(node) is not None:
+            code = exit_code(node)
+    except StartupError as error:
+        rclpy.logging.get_logger(node_name).fatal(str(error))
+        code = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            if on_stop is not None:
+                on_stop(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

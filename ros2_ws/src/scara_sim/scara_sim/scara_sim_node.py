@@ -29,10 +29,8 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -46,8 +44,7 @@ from scara_sim.node_common import (
     StartupError,
     declare_parameters,
     float_array_problem,
-    init_ros,
-    spin_until_stopped,
+    run_node,
 )
 from scara_sim.simulation import (
     FixedStepClock,
@@ -309,30 +306,9 @@ class ScaraSim(Node):
 
 
 def main(args=None):
-    stop = init_ros(args)
-    node = None
-    executor = None
-    code = 0
-    try:
-        node = ScaraSim()
-        # EventsExecutor halves the CPU of the 1 kHz loop (bench/bench_sim.py); its spin()
-        # ignores shutdown (notes/measured-limits.md), spin_once() in this loop does not.
-        executor = EventsExecutor()
-        executor.add_node(node)
-        spin_until_stopped(executor, stop)
-    except StartupError as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
-        code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.get_logger().info(node.summary())
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    # EventsExecutor halves the CPU of the 1 kHz loop (bench/bench_sim.py).
+    return run_node(ScaraSim, NODE_NAME, EventsExecutor, args,
+                    on_stop=lambda node: node.get_logger().info(node.summary()))
 
 
 if __name__ == '__main__':

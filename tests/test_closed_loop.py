@@ -136,9 +136,11 @@ def test_bad_joint_states_give_zero_torque_without_crash(nodes, probe):
                          velocity=[0.0, 0.0])
         bad.header.stamp = probe.now()
         joints.publish(bad)
+        # The controller keeps only the latest joint state (depth 1): one bad kind at a time.
+        time.sleep(0.025)
         short = JointState(name=['joint1'], position=[0.1], velocity=[0.0])
         joints.publish(short)
-        time.sleep(0.05)
+        time.sleep(0.025)
     assert wait_for(lambda: len(states) > 20, 10.0)
     assert controller.alive()
     assert all(s.status in ('no_joint_states', 'stale_joint_states', 'no_target')

@@ -247,7 +247,9 @@ class Demo:
                              f'{sorted({m.status for m in states.messages})}')
         messages = states.messages[first:]
         t = states.times()[first:]
+        ok = np.array([m.status == 'ok' for m in messages])
         return {
+            'ok': ok,
             't': t - float(t[0]),
             'distance': np.array([m.distance for m in messages]),
             'effort': np.array([list(m.effort) or [0.0, 0.0] for m in messages]),
@@ -265,6 +267,7 @@ class Demo:
                               record.d2, window=2.0)
         self.metrics['behaviours'][task] = {
             **asdict(metrics), 'd1': record.d1, 'd2': record.d2,
+            'control_dropout_fraction': float(1.0 - np.mean(series['ok'])),
             'controller_rate_hz': series['rate_hz'],
             'deadline_misses': series['deadline_misses'],
         }
@@ -294,7 +297,9 @@ class Demo:
     def sequence_report(self, bag: Path, events) -> None:
         series = self.controller_series(bag)
         figure, axes = plt.subplots(3, 1, sharex=True, figsize=(7, 6.5))
-        axes[0].plot(series['t'], series['weight'], color='tab:purple')
+        # Cycles without control (stale input under load) are gaps, not a = 0.
+        axes[0].plot(series['t'], np.where(series['ok'], series['weight'], np.nan),
+                     color='tab:purple')
         axes[0].set_ylabel('a(E, t)')
         axes[0].set_title('follow -> avoid -> follow_safe: event weight, distance, V')
         regions = {name: load_task_file(self.tasks / f'{name}.yaml')
@@ -315,7 +320,7 @@ class Demo:
         figure.tight_layout()
         figure.savefig(self.figures / 'sequence.png', dpi=110)
         plt.close(figure)
-        weight = series['weight']
+        weight = series['weight'][series['ok']]
         jumps = float(np.max(np.abs(np.diff(weight)))) if weight.size > 1 else 0.0
         final = load_task_file(self.tasks / 'follow_safe.yaml')
         metrics = run_metrics(series['t'], series['distance'], series['effort'], final.d1,
@@ -325,6 +330,7 @@ class Demo:
             'weight_min': float(np.min(weight)), 'weight_max': float(np.max(weight)),
             'largest_weight_step': jumps, 'final': asdict(metrics),
             'deadline_misses': series['deadline_misses'],
+            'control_dropout_fraction': float(1.0 - np.mean(series['ok'])),
             'tasks_seen': sorted(set(series['task']) - {''}),
         }
         print(f'    a(E,t) in [{np.min(weight):.3f}, {np.max(weight):.3f}], largest step '
@@ -355,15 +361,19 @@ class Demo:
         lines += ['', '## Behaviours, closed loop on the simulated SCARA', '',
                   '| task | region (m) | reached | time to region (s) | steady distance (m) '
                   '| peak torque (N m) | final torque (N m) | controller rate (Hz) '
-                  '| deadline misses |', '|---|---|---|---|---|---|---|---|---|']
+                  '| deadline misses | cycles without control |',
+                  '|---|---|---|---|---|---|---|---|---|---|']
         for name, m in self.metrics['behaviours'].items():
             ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
             lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
                          f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
                          f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
                          f'{m["final_peak_torque"]:.3f} | {m["controller_rate_hz"]:.0f} | '
-                         f'{m["deadline_misses"]} |')
-        lines += ['', 'Times count from the first control cycle with joint states, hand and '
+                         f'{m["deadline_misses"]} | {100 * m["control_dropout_fraction"]:.1f} % |')
+        lines += ['', 'Cycles without control: controller states whose status was not ok '
+                  '(joint states older than joint_state_timeout when the machine is loaded); '
+                  'the torque is zero in them.', '',
+                  'Times count from the first control cycle with joint states, hand and '
                   'task known; the hand starts moving a few seconds later (scripts/demo.py, '
                   'BEHAVIOURS).', '']
         lines += [f'![{n}](figures/behaviour_{n}.png)' for n in self.metrics['behaviours']]
@@ -374,7 +384,7 @@ class Demo:
                           f"{e['event']} -> {e['task']} at {e['time_s']:.0f} s"
                           for e in seq['events']) + '.',
                       f'a(E, t) stayed in [{seq["weight_min"]:.3f}, {seq["weight_max"]:.3f}]; '
-                      f'largest change between two controller states: '
+                      f'largest change between two controlled cycles: '
                       f'{seq["largest_weight_step"]:.4f}. Final distance '
                       f'{seq["final"]["steady_distance"]:.3f} m.', '',
                       '![sequence](figures/sequence.png)']

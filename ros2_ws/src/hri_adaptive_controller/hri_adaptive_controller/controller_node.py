@@ -90,7 +90,7 @@ PARAMETERS = {
                                    low=0.0, high=0.1),
     'effort_limit': ParameterSpec(DEFAULT_GAINS.effort_limit, 'torque limit per joint (N m)',
                                   low=0.1, high=500.0),
-    'joint_state_timeout': ParameterSpec(0.05, 'joint states older than this: zero torque (s)',
+    'joint_state_timeout': ParameterSpec(0.1, 'joint states older than this: zero torque (s)',
                                          low=0.002, high=10.0),
     'task_state_timeout': ParameterSpec(2.0, 'no TaskState for this long: a = 0 (s)',
                                         low=0.1, high=3600.0),

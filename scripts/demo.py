@@ -88,6 +88,7 @@ class Demo:
         self.figures = out / 'figures'
         self.running: list[NodeProcess] = []
         self.metrics: dict = {'quick': quick, 'learning': {}, 'behaviours': {}}
+        self._last_progress = ('', -1)
 
     # -- processes ---------------------------------------------------------------------
     def start(self, package: str, executable: str, **params) -> NodeProcess:
@@ -107,12 +108,17 @@ class Demo:
             process.stop(timeout=3.0)
         self.running.clear()
 
-    @staticmethod
-    def progress(label: str, fraction: float) -> None:
+    def progress(self, label: str, fraction: float) -> None:
+        """A bar redrawn in place on a terminal; a line per 10 % into a log or a pipe."""
+        fraction = min(max(fraction, 0.0), 1.0)
         width = 30
-        filled = int(round(width * min(max(fraction, 0.0), 1.0)))
-        print(f'\r    {label:<28} [{"#" * filled}{"." * (width - filled)}] '
-              f'{100 * fraction:5.1f} %', end='', flush=True)
+        filled = int(round(width * fraction))
+        line = f'    {label:<28} [{"#" * filled}{"." * (width - filled)}] {100 * fraction:5.1f} %'
+        if sys.stdout.isatty():
+            print(f'\r{line}', end='', flush=True)
+        elif (label, int(10 * fraction)) != self._last_progress:
+            self._last_progress = (label, int(10 * fraction))
+            print(line, flush=True)
 
     def run_for(self, seconds: float, label: str, watch: list[NodeProcess],
                 on_tick=None) -> None:
@@ -128,7 +134,8 @@ class Demo:
             self.progress(label, elapsed / seconds)
             time.sleep(0.1)
         self.progress(label, 1.0)
-        print()
+        if sys.stdout.isatty():
+            print()
 
     # -- stage 1 -----------------------------------------------------------------------
     def record_demonstrations(self) -> None:
@@ -149,7 +156,8 @@ class Demo:
                                                             0.99))
                 time.sleep(0.2)
             self.progress(f'{name}: demonstrating', 1.0)
-            print()
+            if sys.stdout.isatty():
+                print()
             if human.process.returncode != 0:
                 raise StageError(f'demonstrator {name} exited {human.process.returncode}; '
                                  f'log {human.log_path}')

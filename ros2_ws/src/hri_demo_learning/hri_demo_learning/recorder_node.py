@@ -25,7 +25,7 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.exceptions import InvalidTopicNameException, ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -44,6 +44,7 @@ from rosbags.interfaces import (
 )
 
 from hri_demo_learning.bag_io import BagError, BagWriter
+from scara_sim.node_common import init_ros, spin_until_stopped
 
 NODE_NAME = 'recorder'
 DEFAULT_TOPICS = ['/joint_states', '/ee_position', '/demo/reference', '/target',
@@ -239,12 +240,16 @@ class Recorder(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
+    # SIGINT/SIGTERM become a stop request handled between callbacks (node_common): rclpy's own
+    # handlers shut the context down under a running callback, a traceback and exit 1.
+    stop = init_ros(args)
     node = None
     code = 0
     try:
         node = Recorder()
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin_until_stopped(executor, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (StartupError, BagError, OSError) as err:

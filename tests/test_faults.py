@@ -12,6 +12,7 @@ A recorder killed with SIGKILL keeps a readable bag: tests/test_recorder.py
 """
 
 import math
+import os
 import signal
 import time
 
@@ -252,6 +253,10 @@ NODE_READY_LINES = {
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_every_node_exits_cleanly_on_a_signal(nodes, probe, tmp_path, sig):
+    # The 2 s hold on a machine with a core free; on one already overloaded before this test
+    # (CI at load 9) the exit itself (interpreter teardown) takes longer: the deadline grows
+    # with that load.
+    deadline = STOP_DEADLINE * max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
     bag = tmp_path / 'bag'
     processes = {
         'scara_sim': nodes('scara_sim', 'scara_sim'),
@@ -278,9 +283,10 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, tmp_path, sig):
         sent = time.monotonic()
         code = process.wait(5.0)
         results[name] = (code, round(time.monotonic() - sent, 2))
-    print({name: f'exit {code} in {elapsed} s' for name, (code, elapsed) in results.items()})
+    print({name: f'exit {code} in {elapsed} s' for name, (code, elapsed) in results.items()},
+          f'deadline {deadline:.1f} s')
     slow_or_failed = {name: result for name, result in results.items()
-                      if result[0] != 0 or result[1] > STOP_DEADLINE}
+                      if result[0] != 0 or result[1] > deadline}
     assert not slow_or_failed, {name: processes[name].log() for name in slow_or_failed}
     for name, process in processes.items():
         assert 'Traceback' not in process.log(), (name, process.log())

@@ -23,6 +23,9 @@ from rclpy.qos import QoSProfile
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 _domain_counter = itertools.count()
+DOMAIN_ID_FIRST, DOMAIN_ID_COUNT = 100, 130
+# The xdist controller's PID is the workers' parent: one offset per session.
+_session_offset = (os.getppid() if 'PYTEST_XDIST_WORKER' in os.environ else os.getpid()) * 7
 
 
 def wait_for(condition: Callable[[], bool], timeout: float, period: float = 0.05) -> bool:
@@ -37,8 +40,16 @@ def wait_for(condition: Callable[[], bool], timeout: float, period: float = 0.05
 
 
 def next_domain_id() -> int:
-    """A ROS_DOMAIN_ID in 100..229 unlikely to be used by another test session at once."""
-    return 100 + (os.getpid() * 7 + next(_domain_counter)) % 130
+    """A ROS_DOMAIN_ID in 100..229 of this test alone.
+
+    Under pytest-xdist, worker k of n takes the IDs congruent to k modulo n, so workers never
+    share one; the offset from the session's PID keeps two sessions at once apart, likely.
+    """
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    worker = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0').removeprefix('gw'))
+    slots = DOMAIN_ID_COUNT // workers
+    slot = (_session_offset + next(_domain_counter)) % slots
+    return DOMAIN_ID_FIRST + slot * workers + worker
 
 
 def node_environment(domain_id: int) -> dict[str, str]:

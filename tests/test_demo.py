@@ -9,7 +9,8 @@ import pytest
 
 from tests.common import REPO_ROOT, next_domain_id, node_environment
 
-pytestmark = pytest.mark.integration
+# The closed loop runs at 1 kHz: one such test at a time (see pytest.ini, xdist_group).
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group('closed_loop')]
 
 FIGURES = ('fit_follow', 'fit_avoid', 'fit_follow_safe', 'behaviour_follow',
            'behaviour_avoid', 'behaviour_follow_safe', 'sequence')

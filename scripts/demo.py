@@ -168,10 +168,12 @@ class Demo:
 
     # -- stage 2 -----------------------------------------------------------------------
     def learn(self) -> None:
-        for name, (bags, shifts) in LEARNING.items():
-            learner = self.start('hri_demo_learning', 'learner',
-                                 bags=[str(self.bags / b) for b in bags], shifts=shifts,
-                                 task_name=name, output_dir=str(self.tasks), once=True)
+        # The learners are independent: they run side by side.
+        learners = {name: self.start('hri_demo_learning', 'learner',
+                                     bags=[str(self.bags / b) for b in bags], shifts=shifts,
+                                     task_name=name, output_dir=str(self.tasks), once=True)
+                    for name, (bags, shifts) in LEARNING.items()}
+        for name, learner in learners.items():
             code = learner.wait(120.0)
             self.running.remove(learner)
             if code != 0:

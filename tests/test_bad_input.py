@@ -290,7 +290,7 @@ def test_event_manager_rejects_invalid_tasks_and_events_for_unknown_tasks(nodes,
     assert wait_for(lambda: "task 's_two' added" in manager.log(), 5.0), manager.log()
 
 
-@pytest.mark.xdist_group('closed_loop')
+@pytest.mark.exclusive
 def test_a_burst_of_1000_events_in_one_second_under_the_closed_loop(nodes, probe):
     task_states = probe.collect('/hri/task_state', TaskState, TASK_STATE_QOS)
     states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)

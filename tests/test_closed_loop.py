@@ -23,8 +23,8 @@ PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 EFFORT_LIMIT = 20.0  # N m, the controller's default
 TOLERANCE = 0.005  # m around the region boundaries
 
-# The closed loop runs at 1 kHz: one such test at a time (see pytest.ini, xdist_group).
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group('closed_loop')]
+# The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
+pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
 
 
 @pytest.fixture

@@ -9,8 +9,8 @@ import pytest
 
 from tests.common import REPO_ROOT, next_domain_id, node_environment
 
-# The closed loop runs at 1 kHz: one such test at a time (see pytest.ini, xdist_group).
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group('closed_loop')]
+# The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
+pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
 
 FIGURES = ('fit_follow', 'fit_avoid', 'fit_follow_safe', 'behaviour_follow',
            'behaviour_avoid', 'behaviour_follow_safe', 'sequence')

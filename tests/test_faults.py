@@ -31,8 +31,8 @@ from scara_sim.scara_sim_node import PARAMETERS as SIM_PARAMETERS
 from tests.common import REPO_ROOT, wait_for
 from tests.fault_tools import RELIABLE, RawListener, lines_after, seconds
 
-# The closed loop runs at 1 kHz: one such test at a time (see pytest.ini, xdist_group).
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group('closed_loop')]
+# The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
+pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
 
 PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 FOLLOW_BAG = REPO_ROOT / 'bags/fixtures/follow'

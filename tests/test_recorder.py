@@ -68,6 +68,7 @@ def publish_at(rate_hz: float, seconds: float, step) -> int:
 # test's own KEEP_LAST/best-effort publishers dropped 2 % once (seen 2026-11-23); alone, and
 # in bench.sh's 60 s run, nothing was lost. Runs with scripts/test.sh --all.
 @pytest.mark.slow
+@pytest.mark.exclusive
 def test_records_every_topic_at_1khz_for_10s_without_loss(nodes, probe, tmp_path):
     bag = tmp_path / 'demo'
     reference = probe.publisher('/demo/reference', PointStamped, LATCHED)

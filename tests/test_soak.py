@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 from hri_adaptive_controller.controller_node import STATE_QOS
 from tests.common import REPO_ROOT, wait_for
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.xdist_group('closed_loop')]
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.exclusive]
 
 PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 SOAK_SECONDS = float(os.environ.get('HRI_SOAK_SECONDS', '600'))

@@ -28,7 +28,7 @@ import pytest
 
 from tests.common import REPO_ROOT, NodeProcess, format_parameter, node_environment, wait_for
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.xdist_group('closed_loop')]
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.exclusive]
 
 PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 ROBOT_ADDRESS = '10.231.0.1'

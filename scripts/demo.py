@@ -34,6 +34,7 @@ from hri_interfaces.msg import TaskEvent  # noqa: E402
 from hri_adaptive_controller.run_metrics import run_metrics  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from hri_demo_learning.task_file import load_task_file  # noqa: E402
+from scara_sim.profiles import minimum_jerk_duration  # noqa: E402
 from tests.common import NodeProcess, RosProbe, start_node, wait_for  # noqa: E402
 
 PAPER_TABLE_I = {
@@ -65,10 +66,22 @@ BEHAVIOURS = {
     'follow_safe': {'profile': 'waypoints', 'start_delay': 5.0, 'speed': 0.06,
                     'waypoints': [0.55, 0.0, 0.47, 0.12, 0.60, -0.05]},
 }
+# --quick: the same paths, the hands start sooner and move faster, and each run ends
+# QUICK_SETTLE s after its hand stops (time to settle plus the 2 s window of the metrics).
+QUICK_TIME_SCALE = 0.6
+QUICK_SETTLE = 4.0  # s
 SEQUENCE_HAND = {'profile': 'hold', 'start': [0.45, 0.10]}
 SEQUENCE_EVENTS = (('hand_too_close', 'avoid'), ('keep_company', 'follow_safe'))
 RUN_TOPICS = ['/hri/controller_state', '/hri/task_state', '/target', '/ee_position',
               '/effort_controller/commands']
+
+
+def hand_stops_at(hand: dict) -> float:
+    """Time (s from hand_sim's start) at which a waypoints hand reaches its last point."""
+    points = np.reshape(np.asarray(hand['waypoints'], dtype=float), (-1, 2))
+    return hand['start_delay'] + sum(
+        minimum_jerk_duration(float(np.linalg.norm(b - a)), hand['speed'])
+        for a, b in zip(points[:-1], points[1:], strict=True))
 
 
 class StageError(Exception):
@@ -229,14 +242,19 @@ class Demo:
         return bag
 
     def run_behaviours(self) -> None:
-        seconds = 16.0 if self.quick else 25.0
         for task, hand in BEHAVIOURS.items():
-            print(f'  behaviour {task!r}: hand {hand["profile"]} {hand["waypoints"]}')
+            seconds = 25.0
+            if self.quick:
+                hand = {**hand, 'start_delay': hand['start_delay'] * QUICK_TIME_SCALE,
+                        'speed': hand['speed'] / QUICK_TIME_SCALE}
+                seconds = hand_stops_at(hand) + QUICK_SETTLE
+            print(f'  behaviour {task!r}: hand {hand["profile"]} {hand["waypoints"]} at '
+                  f'{hand["speed"]:.3f} m/s after {hand["start_delay"]:.1f} s; {seconds:.0f} s')
             bag = self.closed_loop(task, task, hand, seconds)
             self.behaviour_report(task, bag)
 
     def run_sequence(self) -> None:
-        step = 8.0 if self.quick else 12.0
+        step = 6.0 if self.quick else 12.0
         events = [(step * (i + 1), event, task) for i, (event, task)
                   in enumerate(SEQUENCE_EVENTS)]
         print(f'  sequence follow -> avoid -> follow_safe, events at '

@@ -33,7 +33,9 @@ if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; 
   say "creating the virtual environment in $venv with $python"
   "$python" -m venv "$venv"
   say "installing the pinned packages of requirements.lock (about a minute on first run)"
-  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --require-virtualenv \
+  # --no-compile: modules are byte-compiled when first imported, most never are.
+  "$venv/bin/python" -m pip install --quiet --no-compile --disable-pip-version-check \
+    --require-virtualenv \
     -r "$lock"
   "$venv/bin/python" "$root/scripts/fix_wheel_cmake_paths.py" >&2
   echo "$want" > "$stamp"

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # colcon build of ros2_ws/src against the wheels in .venv (build/, install/, log/ at the root).
-# Symlink install: edits to Python sources take effect without a rebuild.
+# Symlink install: edits to Python sources take effect without a rebuild. Skipped when neither
+# the sources nor the installed lock changed since the last successful build.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -10,6 +11,13 @@ mkdir -p "$root/log"
 export PATH="$venv/bin:$PATH"
 export AMENT_PREFIX_PATH="$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 export CMAKE_PREFIX_PATH="$venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+stamp="$root/build/.sources.sha256"
+sources=$( { cat "$venv/.requirements.sha256" 2>/dev/null
+             find ros2_ws/src -type f -not -path '*/__pycache__/*' -print0 | sort -z \
+               | xargs -0 sha256sum; } | sha256sum | cut -d' ' -f1)
+if [ -f "$root/install/setup.bash" ] && [ "$(cat "$stamp" 2>/dev/null)" = "$sources" ]; then
+  exit 0
+fi
 printf '[setup] colcon build of ros2_ws/src\n' >&2
 # The wheels' prefix has no local_setup files; colcon's warning about it is expected noise.
 colcon --log-level error build --symlink-install --base-paths ros2_ws/src \
@@ -20,3 +28,4 @@ colcon --log-level error build --symlink-install --base-paths ros2_ws/src \
     cat "$root/log/build.out" >&2
     exit 1
   }
+echo "$sources" > "$stamp"

@@ -7,6 +7,7 @@ links those targets while the directories do not exist. This rewrites the two pa
 running interpreter's headers and the virtual environment's numpy headers. It is idempotent.
 """
 
+import os
 import sys
 import sysconfig
 from pathlib import Path
@@ -36,7 +37,11 @@ def main() -> int:
         # Numpy's path contains the Python prefix, so it is replaced first.
         for old, new in replacements.items():
             text = text.replace(old, new)
-        export.write_text(text)
+        # A new file, not an edit in place: the installed file may be a hard link into an
+        # installer's cache, which must keep the original.
+        rewritten_export = export.with_suffix('.cmake.new')
+        rewritten_export.write_text(text)
+        os.replace(rewritten_export, export)
         rewritten += 1
     print(f'fix_wheel_cmake_paths: rewrote {rewritten} exported CMake file(s) under {prefix}')
     return 0

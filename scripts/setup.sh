@@ -32,14 +32,22 @@ if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; 
   }
   say "creating the virtual environment in $venv with $python"
   "$python" -m venv "$venv"
-  say "installing the pinned packages of requirements.lock with uv (seconds; a minute with pip)"
+  say "installing the pinned packages of requirements.lock"
+  pip_install() {
+    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --require-virtualenv "$@"
+  }
   # uv (pinned in the lock, bootstrapped with pip) installs the ~180 wheels in parallel and
-  # byte-compiles them; the lock is the whole resolved set, so no resolution (--no-deps), and
-  # `uv pip check` proves it complete. uv reads UV_INDEX_URL / UV_DEFAULT_INDEX, not pip.conf.
-  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --require-virtualenv \
-    "$(grep -E '^uv==' "$lock")"
-  "$venv/bin/uv" pip install --quiet --python "$venv/bin/python" --no-deps --compile-bytecode \
-    -r "$lock"
+  # byte-compiles them: seconds instead of pip's minute. It copies rather than hard-links from
+  # its cache, since fix_wheel_cmake_paths.py edits installed files. The lock is the whole
+  # resolved set, so no resolution (--no-deps); `uv pip check` proves it complete. uv does not
+  # read pip.conf: it takes the system's CA store and UV_INDEX_URL; where that is not enough
+  # (a proxy or mirror configured for pip only), pip installs the same pins.
+  pip_install "$(grep -E '^uv==' "$lock")"
+  if ! "$venv/bin/uv" pip install --quiet --system-certs --python "$venv/bin/python" \
+      --no-deps --compile-bytecode --link-mode copy -r "$lock"; then
+    say "uv could not install the lock (above); installing it with pip instead"
+    pip_install -r "$lock"
+  fi
   "$venv/bin/uv" pip check --quiet --python "$venv/bin/python"
   "$venv/bin/python" "$root/scripts/fix_wheel_cmake_paths.py" >&2
   echo "$want" > "$stamp"

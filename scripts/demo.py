@@ -213,8 +213,12 @@ class Demo:
         controller = self.start('hri_adaptive_controller', 'controller')
         recorder = self.start('hri_demo_learning', 'recorder', output=str(bag),
                               topics=RUN_TOPICS)
-        # The hand starts last so its script begins with everything listening.
-        time.sleep(2.0)
+        # The hand starts last so its script begins with everything up.
+        ready = {sim: 'simulating at', manager: 'task(s) loaded', controller: 'control at',
+                 recorder: 'recording into'}
+        if not wait_for(lambda: all(line in p.log() for p, line in ready.items()), 30.0):
+            late = [p.name for p, line in ready.items() if line not in p.log()]
+            raise StageError(f'{", ".join(late)} did not start within 30 s; logs in {self.logs}')
         hand_sim = self.start('scara_sim', 'hand_sim', **hand)
         probe = RosProbe(self.domain_id, name='demo_events') if events else None
         try:

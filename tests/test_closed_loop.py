@@ -60,8 +60,8 @@ def assert_commands_safe(states: list) -> None:
 
 
 def test_follow_reaches_a_still_hand_and_tracks_a_moving_one(loop):
-    # Hand 0.21 m from the end-effector at (0.35, 0.30), still for 6 s, then moving away.
-    states = loop('follow', {'profile': 'waypoints', 'start_delay': 6.0, 'speed': 0.05,
+    # Hand 0.21 m from the end-effector at (0.35, 0.30), still for 4 s, then moving away.
+    states = loop('follow', {'profile': 'waypoints', 'start_delay': 4.0, 'speed': 0.05,
                              'waypoints': [0.45, 0.12, 0.30, 0.42]})
     assert wait_for(lambda: settled_in(states, 0.0, 0.041), 15.0), states[-1]
     moving_from = len(states)
@@ -86,7 +86,7 @@ def test_avoid_keeps_an_approaching_hand_at_a_safe_distance(loop):
 
 def test_follow_with_safe_distance_settles_in_the_band(loop):
     # A far hand (0.42 m): the robot follows until it is inside [0.183, 0.271] m.
-    states = loop('follow_safe', {'profile': 'waypoints', 'start_delay': 6.0, 'speed': 0.06,
+    states = loop('follow_safe', {'profile': 'waypoints', 'start_delay': 4.0, 'speed': 0.06,
                                   'waypoints': [0.55, 0.0, 0.42, 0.22]})
     assert wait_for(lambda: settled_in(states, 0.183, 0.271), 15.0), states[-1]
     moving_from = len(states)

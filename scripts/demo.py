@@ -70,6 +70,9 @@ BEHAVIOURS = {
 # QUICK_SETTLE s after its hand stops (time to settle plus the 2 s window of the metrics).
 QUICK_TIME_SCALE = 0.6
 QUICK_SETTLE = 4.0  # s
+# --quick demonstrations: the human pushes sooner and holds still 1.5 s (the learner needs the
+# final rest, not its length).
+QUICK_DEMONSTRATION = {'start_delay': 0.5, 'hold_time': 1.5}
 SEQUENCE_HAND = {'profile': 'hold', 'start': [0.45, 0.10]}
 SEQUENCE_EVENTS = (('hand_too_close', 'avoid'), ('keep_company', 'follow_safe'))
 RUN_TOPICS = ['/hri/controller_state', '/hri/task_state', '/target', '/ee_position',
@@ -159,8 +162,9 @@ class Demo:
                   f'x_r = {demo["reference"]}')
             sim = self.start('scara_sim', 'scara_sim')
             recorder = self.start('hri_demo_learning', 'recorder', output=str(bag))
+            timing = QUICK_DEMONSTRATION if self.quick else {}
             human = self.start('scara_sim', 'demonstrator', mode=demo['mode'],
-                               reference=demo['reference'])
+                               reference=demo['reference'], **timing)
             started = time.monotonic()
             while human.alive():
                 if time.monotonic() - started > 90.0:
@@ -258,7 +262,7 @@ class Demo:
             self.behaviour_report(task, bag)
 
     def run_sequence(self) -> None:
-        step = 6.0 if self.quick else 12.0
+        step = 5.0 if self.quick else 12.0
         events = [(step * (i + 1), event, task) for i, (event, task)
                   in enumerate(SEQUENCE_EVENTS)]
         print(f'  sequence follow -> avoid -> follow_safe, events at '

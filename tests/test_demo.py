@@ -29,10 +29,17 @@ def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_pat
         assert figure.is_file() and figure.stat().st_size > 10_000, name
     metrics = json.loads((tmp_path / 'metrics.json').read_text())
     learned = metrics['learning']
+    # Table I's task types. The demonstrator stops 0.041 m from x_r (follow) and 0.183 m
+    # (avoid); on a loaded machine the arm may creep the last centimetre slower than
+    # stationary_speed, which the learner rightly counts as at rest, so follow's d2 may grow.
     assert learned['follow']['s'] == 1 and learned['follow']['d1'] == 0.0
+    assert 0.035 <= learned['follow']['d2'] <= 0.07
+    assert learned['avoid']['d1'] == pytest.approx(0.183, abs=0.01)
     assert learned['avoid']['d2'] == pytest.approx(2.0)
-    assert learned['follow_safe']['d1'] == pytest.approx(0.183, abs=0.01)
-    assert learned['follow_safe']['d2'] == pytest.approx(0.271, abs=0.01)
+    # eq. 4: the combination is follow shifted out by 0.23 m, bounded inside by avoid.
+    assert learned['follow_safe']['d1'] == pytest.approx(learned['avoid']['d1'], abs=0.002)
+    assert learned['follow_safe']['d2'] == pytest.approx(0.23 + learned['follow']['d2'],
+                                                         abs=0.002)
     assert all(task['iterations'] <= 50 for task in learned.values())
     for name, behaviour in metrics['behaviours'].items():
         assert behaviour['in_region_at_end'], (name, behaviour)

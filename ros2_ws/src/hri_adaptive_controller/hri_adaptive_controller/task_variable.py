@@ -47,7 +47,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from hri_demo_learning.potential import TaskShape, potential_gradient, potential_hessian
 from scara_sim.dynamics import forward_kinematics, jacobian, jacobian_derivative
@@ -338,6 +337,9 @@ def _potential_peak(shaped: ShapedPotential) -> float:
     change = np.flatnonzero((slopes[:-1] > 0.0) & (slopes[1:] <= 0.0))
     if change.size == 0:
         return d2
+    # Imported here: scipy.optimize costs the controller half a second at start-up, and only
+    # S = -1 tasks need it.
+    from scipy.optimize import brentq
     return float(brentq(lambda r: float(_shaped_slope(np.array([r]), shaped, tanh=False)[0]),
                         radii[change[0]], radii[change[0] + 1]))
 

@@ -15,7 +15,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
 
 HAND_PROFILES = ('hold', 'approach', 'retreat', 'back_and_forth', 'circle', 'waypoints')
 DEMONSTRATION_MODES = ('follow', 'avoid')
@@ -233,17 +232,21 @@ class Tremor:
         if not (0.0 < low < high < 0.5 * rate_hz):
             raise ValueError(f'tremor band must satisfy 0 < low < high < rate/2 = '
                              f'{0.5 * rate_hz} Hz, got [{low}, {high}]')
+        # Imported here: scipy.signal costs about a second at start-up, and of the nodes
+        # using this module only the demonstrator has a tremor.
+        from scipy import signal
+        self._sosfilt = signal.sosfilt
         self._sos = signal.butter(2, [low, high], btype='bandpass', fs=rate_hz, output='sos')
         impulse = np.zeros(int(20 * rate_hz))
         impulse[0] = 1.0
-        noise_gain = float(np.sqrt(np.sum(signal.sosfilt(self._sos, impulse) ** 2)))
+        noise_gain = float(np.sqrt(np.sum(self._sosfilt(self._sos, impulse) ** 2)))
         self._scale = amplitude / noise_gain
         self._rng = np.random.default_rng(seed)
         self._state = np.zeros((self._sos.shape[0], 2, 2))  # (sections, 2, axes)
 
     def sample(self) -> np.ndarray:
         """The next tremor force (2,) in N."""
-        out, self._state = signal.sosfilt(self._sos, self._rng.standard_normal((1, 2)),
+        out, self._state = self._sosfilt(self._sos, self._rng.standard_normal((1, 2)),
                                           axis=0, zi=self._state)
         return self._scale * out[0]
 

@@ -66,9 +66,10 @@ BEHAVIOURS = {
     'follow_safe': {'profile': 'waypoints', 'start_delay': 5.0, 'speed': 0.06,
                     'waypoints': [0.55, 0.0, 0.47, 0.12, 0.60, -0.05]},
 }
-# --quick: the same paths, the hands start sooner and move faster, and each run ends
-# QUICK_SETTLE s after its hand stops (time to settle plus the 2 s window of the metrics).
-QUICK_TIME_SCALE = 0.6
+# --quick: the same paths at QUICK_SPEED_UP times the speed (the same start delays: the robot
+# first meets a still hand), and each run ends QUICK_SETTLE s after its hand stops (time to
+# settle plus the 2 s window of the metrics).
+QUICK_SPEED_UP = 1.6
 QUICK_SETTLE = 4.0  # s
 # --quick demonstrations: the human pushes sooner and holds still 1.5 s (the learner needs the
 # final rest, not its length).
@@ -253,8 +254,7 @@ class Demo:
         for task, hand in BEHAVIOURS.items():
             seconds = 25.0
             if self.quick:
-                hand = {**hand, 'start_delay': hand['start_delay'] * QUICK_TIME_SCALE,
-                        'speed': hand['speed'] / QUICK_TIME_SCALE}
+                hand = {**hand, 'speed': hand['speed'] * QUICK_SPEED_UP}
                 seconds = hand_stops_at(hand) + QUICK_SETTLE
             print(f'  behaviour {task!r}: hand {hand["profile"]} {hand["waypoints"]} at '
                   f'{hand["speed"]:.3f} m/s after {hand["start_delay"]:.1f} s; {seconds:.0f} s')

@@ -42,8 +42,8 @@ def wait_for(condition: Callable[[], bool], timeout: float, period: float = 0.05
 def next_domain_id() -> int:
     """A ROS_DOMAIN_ID in 100..229 of this test alone.
 
-    Under pytest-xdist, worker k of n takes the IDs congruent to k modulo n, so workers never
-    share one; the offset from the session's PID keeps two sessions at once apart, likely.
+    Under pytest-xdist, worker k of n takes the IDs 100 + k + n j, so workers never share one;
+    the offset from the session's PID makes two sessions at once unlikely to meet.
     """
     workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
     worker = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0').removeprefix('gw'))

@@ -22,19 +22,27 @@ source "$root/scripts/env.sh"
 echo "[test] ruff check" >&2
 ruff check .
 
-# pytest exits 5 when a phase selects no test (e.g. arguments naming one test): not a failure.
+# pytest exits 5 when a phase selects no test (e.g. arguments naming one test): not a failure
+# of that phase, but a run in which neither phase selects a test exits 5 like pytest.
+status=0
+empty=0
 phase() {
   local code=0
   python -m pytest "$@" || code=$?
-  [ "$code" -eq 5 ] && code=0
-  return "$code"
+  if [ "$code" -eq 5 ]; then
+    empty=$((empty + 1))
+  elif [ "$code" -ne 0 ]; then
+    status=1
+  fi
 }
-status=0
 echo "[test] pytest, phase 1: tests not marked exclusive, ${HRI_TEST_WORKERS:-2} workers" >&2
-phase -n "${HRI_TEST_WORKERS:-2}" -m "${selection:+$selection and }not exclusive" "$@" || status=1
+phase -n "${HRI_TEST_WORKERS:-2}" -m "${selection:+$selection and }not exclusive" "$@"
 echo "[test] pytest, phase 2: exclusive tests, one at a time" >&2
-phase -m "${selection:+$selection and }exclusive" "$@" || status=1
+phase -m "${selection:+$selection and }exclusive" "$@"
 if [ "$status" -ne 0 ]; then
   echo "[test] FAILED (see the phase summaries above)" >&2
+elif [ "$empty" -eq 2 ]; then
+  echo "[test] no test selected" >&2
+  exit 5
 fi
 exit "$status"

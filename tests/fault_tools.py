@@ -1,4 +1,4 @@
-"""Helpers of the fault and bad-input tests: fast raw listening, stamps, log lines, floats.
+"""Helpers of the fault and bad-input tests: fast raw listening, log lines, floats.
 
 The test's RosProbe spins one Python thread. Deserialising a 1 kHz stream or two there can
 put it a second behind on a loaded 2-core machine, which would make every "received within"
@@ -30,18 +30,12 @@ class RawListener:
 
     def messages(self, since: float = -math.inf) -> list:
         """The messages that arrived after `since` (monotonic s), decoded, in arrival order."""
-        return [deserialize_message(data, self.msg_type)
-                for arrived, data in list(self.arrivals) if arrived > since]
+        return [message for _, message in self.timed(since)]
 
     def timed(self, since: float = -math.inf) -> list[tuple[float, object]]:
         """(arrival time, message) for the messages that arrived after `since`."""
         return [(arrived, deserialize_message(data, self.msg_type))
                 for arrived, data in list(self.arrivals) if arrived > since]
-
-
-def seconds(stamp) -> float:
-    """A builtin_interfaces/Time as float seconds."""
-    return stamp.sec + 1e-9 * stamp.nanosec
 
 
 def log_time(line: str) -> float:

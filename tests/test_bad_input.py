@@ -30,12 +30,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
-from hri_adaptive_controller.controller_node import STATE_QOS
+from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
 from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
 from hri_demo_learning.task_message import TASK_QOS
 from scara_sim.dynamics import forward_kinematics
 from tests.common import REPO_ROOT, wait_for
-from tests.fault_tools import RELIABLE, RawListener, assert_all_finite, seconds
+from tests.fault_tools import RELIABLE, RawListener, assert_all_finite
 
 pytestmark = pytest.mark.integration
 
@@ -330,7 +330,7 @@ def test_a_burst_of_1000_events_in_one_second_under_the_closed_loop(nodes, probe
     assert burst_seconds < 2.5  # 1 s when the test process is not starved
     burst = task_states[first_task_state:]
     assert all(0.0 <= s.weight <= 1.0 for s in burst)
-    stamps = np.array([seconds(s.header.stamp) for s in burst])
+    stamps = np.array([stamp_seconds(s.header.stamp) for s in burst])
     weights = np.array([s.weight for s in burst])
     # Overlapping ramps add their rates (event_weight's bound: 2 x 15/8 per ramp_time/2).
     assert np.all(np.abs(np.diff(weights)) <= 2 * 15 / 8 / (ramp_time / 2) * np.diff(stamps)

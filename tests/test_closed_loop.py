@@ -16,7 +16,7 @@ from hri_interfaces.msg import ControllerState, TaskEvent
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_adaptive_controller.controller_node import STATE_QOS
+from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
 from tests.common import REPO_ROOT, wait_for
 
 PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
@@ -110,7 +110,7 @@ def test_event_switch_follow_to_avoid_has_no_torque_jump(loop, probe):
     switch = [s for s in states[switch_from:] if s.status == 'ok']
     weights = np.array([s.weight for s in switch])
     assert weights.min() < 0.05 and weights.max() > 0.95
-    stamps = np.array([s.header.stamp.sec + 1e-9 * s.header.stamp.nanosec for s in switch])
+    stamps = np.array([stamp_seconds(s.header.stamp) for s in switch])
     # eq. 13: a C2 ramp of 1 s changes by at most 15/8 per second (plus the controller's
     # first-order hold between TaskStates: <= 1/2 max|a''| (50 ms)^2 ~ 0.01).
     assert np.all(np.abs(np.diff(weights)) <= 15.0 / 8.0 * np.diff(stamps) + 0.02)

@@ -24,12 +24,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
-from hri_adaptive_controller.controller_node import STATE_QOS
+from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
 from hri_demo_learning.bag_io import read_bag
 from scara_sim.dynamics import ScaraParameters, kinetic_energy
 from scara_sim.scara_sim_node import PARAMETERS as SIM_PARAMETERS
 from tests.common import REPO_ROOT, wait_for
-from tests.fault_tools import RELIABLE, RawListener, lines_after, seconds
+from tests.fault_tools import RELIABLE, RawListener, assert_all_finite, lines_after
 
 # The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
@@ -58,7 +58,7 @@ STOP_DEADLINE = 2.0  # s from the signal to the process's exit
 
 def probe_time(probe) -> float:
     """The test's ROS time (system clock, the one the nodes stamp with), s."""
-    return seconds(probe.now())
+    return stamp_seconds(probe.now())
 
 
 def start_loop(nodes, probe, controller_params=None, manager_params=None):
@@ -85,8 +85,8 @@ def zero_for_good(states: list, killed_at: float, safe) -> tuple[float, float, i
     kill time, s; stall: the longest the controller published nothing after the kill, s;
     held: how many states are safe at the end).
     """
-    after = [s for s in list(states) if seconds(s.header.stamp) > killed_at]
-    stamps = [killed_at] + [seconds(s.header.stamp) for s in after]
+    after = [s for s in list(states) if stamp_seconds(s.header.stamp) > killed_at]
+    stamps = [killed_at] + [stamp_seconds(s.header.stamp) for s in after]
     unsafe = [i for i, s in enumerate(after) if not safe(s)]
     first_safe = unsafe[-1] + 1 if unsafe else 0
     assert first_safe < len(after), [(round(t - killed_at, 3), s.status)
@@ -101,12 +101,6 @@ def allowed_delay(timeout: float, stall: float) -> float:
     the last message still queued for it as new (a stall of about 1 s happens now and then
     right after a peer is killed; see the report)."""
     return timeout + SLACK + (stall + timeout if stall > STALL else 0.0)
-
-
-def assert_finite(states: list) -> None:
-    for s in states:
-        values = [s.distance, s.lyapunov, s.sliding_norm, s.weight, *s.theta_hat, *s.effort]
-        assert all(math.isfinite(v) for v in values), s
 
 
 # Kept out of the default run: on a loaded 2-core machine the controller sometimes stalls for
@@ -155,7 +149,7 @@ def test_sim_killed_gives_zero_torque_then_control_resumes_with_a_new_sim(nodes,
     print(f'outage {outage_seconds:.1f} s (sim restarted after '
           f'{restarted_mono - killed_mono:.1f} s): one warning, then resumed')
     assert 'Traceback' not in log
-    assert_finite(states)
+    assert_all_finite(states, '/hri/controller_state')
 
 
 def test_controller_killed_sim_applies_zero_torque_after_command_timeout(nodes, probe):
@@ -187,10 +181,10 @@ def test_controller_killed_sim_applies_zero_torque_after_command_timeout(nodes, 
     # sim neither moves the arm nor ages the command; wall time would count the stall): the
     # kill on that clock from the stamps and arrival times in the 3 s before it, the least
     # transport delay being the best estimate (over 3 s: this process may itself stall).
-    before = [(killed_at + arrived - killed_mono - seconds(m.header.stamp))
+    before = [(killed_at + arrived - killed_mono - stamp_seconds(m.header.stamp))
               for arrived, m in joints.timed(since=killed_mono - 3.0) if arrived <= killed_mono]
     killed_on_sim_clock = killed_at - min(before)
-    delay = seconds(after[first_zero].header.stamp) - killed_on_sim_clock
+    delay = stamp_seconds(after[first_zero].header.stamp) - killed_on_sim_clock
     print(f'zero torque {delay:.3f} s after the kill (sim clock)')
     assert COMMAND_TIMEOUT - SLACK < delay < COMMAND_TIMEOUT + MAX_CATCH_UP + SLACK, delay
     assert lines_after(sim, killed_at, f'no joint command for {COMMAND_TIMEOUT:g} s: '
@@ -209,17 +203,17 @@ def test_event_manager_killed_means_zero_weight_until_a_task_state_comes_again(n
     assert processes['event_manager'].wait(5.0) == -signal.SIGKILL
     assert wait_for(lambda: states[-1].status == 'no_task_state', 10.0), states[-1]
     time.sleep(1.0)
-    after = [s for s in list(states) if seconds(s.header.stamp) > killed_at]
+    after = [s for s in list(states) if stamp_seconds(s.header.stamp) > killed_at]
     delay, stall, held = zero_for_good(
         states, killed_at, lambda s: s.status == 'no_task_state' and s.weight == 0.0)
     assert delay <= allowed_delay(TASK_STATE_TIMEOUT, stall), (delay, stall)
     assert delay >= TASK_STATE_TIMEOUT - HEARTBEAT_PERIOD - SLACK, (delay, stall)
     assert held > 50
     # Until the timeout the last TaskState stays in force (a = 1, follow).
-    before_timeout = [s for s in after if seconds(s.header.stamp)
+    before_timeout = [s for s in after if stamp_seconds(s.header.stamp)
                       < killed_at + TASK_STATE_TIMEOUT - HEARTBEAT_PERIOD - SLACK]
     assert all(s.status == 'ok' and s.weight > 0.99 for s in before_timeout), [
-        (round(seconds(s.header.stamp) - killed_at, 3), s.status, s.weight) for s in after]
+        (round(stamp_seconds(s.header.stamp) - killed_at, 3), s.status, s.weight) for s in after]
 
     restart_from = len(states)
     manager = nodes('hri_adaptive_controller', 'event_manager', params={
@@ -238,7 +232,7 @@ def test_event_manager_killed_means_zero_weight_until_a_task_state_comes_again(n
           f'the fade-in seen in '
           f'{np.count_nonzero(np.diff(weights))} steps, the largest '
           f'{np.max(np.abs(np.diff(weights))):.3f}')
-    assert_finite(states)
+    assert_all_finite(states, '/hri/controller_state')
     assert processes['controller'].alive()
 
 

@@ -30,6 +30,7 @@ from sensor_msgs.msg import JointState
 
 from hri_adaptive_controller.controller_node import STATE_QOS
 from tests.common import REPO_ROOT, wait_for
+from tests.fault_tools import floats_of
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.exclusive]
 
@@ -76,10 +77,8 @@ def test_closed_loop_soak(nodes, probe, tmp_path):
     states = []  # (status, task, weight, deadline_misses, every float finite)
 
     def on_state(msg: ControllerState) -> None:
-        values = [msg.distance, msg.lyapunov, msg.sliding_norm, msg.weight, msg.rate_hz,
-                  msg.input_age, *msg.theta_hat, *msg.effort]
         states.append((msg.status, msg.task, msg.weight, msg.deadline_misses,
-                       all(math.isfinite(v) for v in values)))
+                       all(math.isfinite(v) for v in floats_of(msg))))
 
     probe.node.create_subscription(ControllerState, '/hri/controller_state', on_state,
                                    STATE_QOS)

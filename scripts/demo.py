@@ -137,6 +137,12 @@ class Demo:
             self._last_progress = (label, int(10 * fraction))
             print(line, flush=True)
 
+    def progress_done(self, label: str) -> None:
+        """The bar at 100 %, and the terminal's line ended."""
+        self.progress(label, 1.0)
+        if sys.stdout.isatty():
+            print()
+
     def run_for(self, seconds: float, label: str, watch: list[NodeProcess],
                 on_tick=None) -> None:
         started = time.monotonic()
@@ -150,9 +156,7 @@ class Demo:
                 on_tick(elapsed)
             self.progress(label, elapsed / seconds)
             time.sleep(0.1)
-        self.progress(label, 1.0)
-        if sys.stdout.isatty():
-            print()
+        self.progress_done(label)
 
     # -- stage 1 -----------------------------------------------------------------------
     def record_demonstrations(self) -> None:
@@ -173,9 +177,7 @@ class Demo:
                 self.progress(f'{name}: demonstrating', min((time.monotonic() - started) / 15,
                                                             0.99))
                 time.sleep(0.2)
-            self.progress(f'{name}: demonstrating', 1.0)
-            if sys.stdout.isatty():
-                print()
+            self.progress_done(f'{name}: demonstrating')
             if human.process.returncode != 0:
                 raise StageError(f'demonstrator {name} exited {human.process.returncode}; '
                                  f'log {human.log_path}')
@@ -286,6 +288,7 @@ class Demo:
         ok = np.array([m.status == 'ok' for m in messages])
         return {
             'ok': ok,
+            'control_dropout_fraction': float(1.0 - np.mean(ok)),
             't': t - float(t[0]),
             'distance': np.array([m.distance for m in messages]),
             'effort': np.array([list(m.effort) or [0.0, 0.0] for m in messages]),
@@ -303,7 +306,7 @@ class Demo:
                               record.d2, window=2.0)
         self.metrics['behaviours'][task] = {
             **asdict(metrics), 'd1': record.d1, 'd2': record.d2,
-            'control_dropout_fraction': float(1.0 - np.mean(series['ok'])),
+            'control_dropout_fraction': series['control_dropout_fraction'],
             'controller_rate_hz': series['rate_hz'],
             'deadline_misses': series['deadline_misses'],
         }
@@ -366,7 +369,7 @@ class Demo:
             'weight_min': float(np.min(weight)), 'weight_max': float(np.max(weight)),
             'largest_weight_step': jumps, 'final': asdict(metrics),
             'deadline_misses': series['deadline_misses'],
-            'control_dropout_fraction': float(1.0 - np.mean(series['ok'])),
+            'control_dropout_fraction': series['control_dropout_fraction'],
             'tasks_seen': sorted(set(series['task']) - {''}),
         }
         print(f'    a(E,t) in [{np.min(weight):.3f}, {np.max(weight):.3f}], largest step '

@@ -36,7 +36,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from hri_demo_learning.bag_io import BagError, read_demonstration
-from hri_demo_learning.figures import plot_task_fit
 from hri_demo_learning.identification import identify_task_region
 from hri_demo_learning.performance_learning import (
     DEFAULT_MAX_ITERATIONS,
@@ -199,6 +198,9 @@ class Learner(Node):
         output_dir = Path(p['output_dir'])
         try:
             output_dir.mkdir(parents=True, exist_ok=True)
+            # Imported here: matplotlib costs 0.4 s at start-up, wasted on a bad parameter
+            # or bag.
+            from hri_demo_learning.figures import plot_task_fit
             figure = plot_task_fit(learned.profile.distance, learned.profile.energy,
                                    learned.record.shape, output_dir / f'{name}.png',
                                    title=figure_title(name, bags))

@@ -41,7 +41,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from hri_demo_learning.identification import DEFAULT_INITIAL_STEEPNESS
 from hri_demo_learning.potential import TaskShape, log_potential, normalised_potential
@@ -146,6 +145,9 @@ def _fit_trust_region(d, target, s, d1, d2, n, tolerance, max_iterations, a0):
     def jacobian(a):
         return -normalised_potential_jacobian(d, TaskShape(s, a[0], a[1], d1, d2, n))[1]
 
+    # Imported here: scipy.optimize costs the learner 0.4 s at start-up, wasted on a bad
+    # parameter or bag.
+    from scipy.optimize import least_squares
     result = least_squares(residual, a0, jac=jacobian, bounds=STEEPNESS_BOUNDS, method='trf',
                            xtol=tolerance, ftol=tolerance, gtol=tolerance,
                            max_nfev=max_iterations)

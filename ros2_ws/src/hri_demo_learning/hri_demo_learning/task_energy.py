@@ -31,7 +31,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 DEFAULT_STATIONARY_SPEED = 0.01
 """m/s: a sample slower than this is at rest (eq. 3's ||dx/dt|| = 0)."""
@@ -130,6 +129,9 @@ def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
     if window <= _SAVGOL_ORDER:
         raise ValueError(f'too few samples on a uniform grid: {grid.size} '
                          f'(need at least {_SAVGOL_ORDER + 1})')
+    # Imported here: scipy.signal costs the learner 0.4 s at start-up, wasted on a bad
+    # parameter or bag.
+    from scipy.signal import savgol_filter
     velocity = savgol_filter(resampled, window, _SAVGOL_ORDER, deriv=1, delta=step, axis=0,
                              mode='interp')
     speed = np.hypot(velocity[:, 0], velocity[:, 1])

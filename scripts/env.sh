@@ -12,6 +12,8 @@ export PATH="$_hri_root/.venv/bin:$PATH"
 export VIRTUAL_ENV="$_hri_root/.venv"
 export AMENT_PREFIX_PATH="$_hri_root/.venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+# Nodes find each other 0.1 s after start instead of 2.3 s (config/fastdds.xml says why).
+export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_hri_root/config/fastdds.xml}"
 export PYTHONUNBUFFERED=1
 # colcon's setup scripts refer to unset variables; they must not trip a caller's `set -u`.
 case $- in *u*) _hri_nounset=1; set +u ;; *) _hri_nounset= ;; esac

@@ -66,10 +66,11 @@ BEHAVIOURS = {
     'follow_safe': {'profile': 'waypoints', 'start_delay': 5.0, 'speed': 0.06,
                     'waypoints': [0.55, 0.0, 0.47, 0.12, 0.60, -0.05]},
 }
-# --quick: the same paths at QUICK_SPEED_UP times the speed (the same start delays: the robot
-# first meets a still hand), and each run ends QUICK_SETTLE s after its hand stops (time to
-# settle plus the 2 s window of the metrics).
+# --quick: the same paths at QUICK_SPEED_UP times the speed, the hand still for at most
+# QUICK_START_DELAY s first (the robot reaches a still hand in about 0.5 s), and each run ends
+# QUICK_SETTLE s after its hand stops (time to settle plus the 2 s window of the metrics).
 QUICK_SPEED_UP = 1.6
+QUICK_START_DELAY = 2.0  # s
 QUICK_SETTLE = 4.0  # s
 # --quick demonstrations: the human pushes sooner and holds still 1.5 s (the learner needs the
 # final rest, not its length).
@@ -256,7 +257,8 @@ class Demo:
         for task, hand in BEHAVIOURS.items():
             seconds = 25.0
             if self.quick:
-                hand = {**hand, 'speed': hand['speed'] * QUICK_SPEED_UP}
+                hand = {**hand, 'speed': hand['speed'] * QUICK_SPEED_UP,
+                        'start_delay': min(hand['start_delay'], QUICK_START_DELAY)}
                 seconds = hand_stops_at(hand) + QUICK_SETTLE
             print(f'  behaviour {task!r}: hand {hand["profile"]} {hand["waypoints"]} at '
                   f'{hand["speed"]:.3f} m/s after {hand["start_delay"]:.1f} s; {seconds:.0f} s')
@@ -264,7 +266,7 @@ class Demo:
             self.behaviour_report(task, bag)
 
     def run_sequence(self) -> None:
-        step = 5.0 if self.quick else 12.0
+        step = 4.0 if self.quick else 12.0
         events = [(step * (i + 1), event, task) for i, (event, task)
                   in enumerate(SEQUENCE_EVENTS)]
         print(f'  sequence follow -> avoid -> follow_safe, events at '

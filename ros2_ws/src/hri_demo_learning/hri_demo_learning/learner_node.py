@@ -55,7 +55,7 @@ from hri_demo_learning.task_message import TASK_QOS, task_message
 NODE_NAME = 'learner'
 REFERENCE_TOLERANCE = 1e-3  # m: how far x_r may wander during one demonstration
 DISCOVERY_WINDOW = 4.0  # s from node start: with `once`, time for running subscribers to match
-# (measured here: 0.9-2.4 s with Fast DDS on loopback)
+# (measured here on loopback: 0.9-2.4 s with Fast DDS's defaults, 0.1 s with config/fastdds.xml)
 ACK_TIMEOUT = 5.0  # s: with `once`, longest wait for matched subscribers to acknowledge
 
 

@@ -44,17 +44,13 @@ from rosbags.interfaces import (
 )
 
 from hri_demo_learning.bag_io import BagError, BagWriter
-from scara_sim.node_common import init_ros, spin_until_stopped
+from scara_sim.node_common import StartupError, init_ros, spin_until_stopped
 
 NODE_NAME = 'recorder'
 DEFAULT_TOPICS = ['/joint_states', '/ee_position', '/demo/reference', '/target',
                   '/human/wrench']
 FLUSH_PERIOD_RANGE = (0.05, 1.0)  # s
 DISCOVERY_PERIOD = 0.1  # s between looks at the graph for topics not recorded yet
-
-
-class StartupError(Exception):
-    """The node cannot start; the message is a one-line reason."""
 
 
 def message_class(msgtype: str):

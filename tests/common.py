@@ -72,6 +72,20 @@ def format_parameter(value) -> str:
     return repr(value)
 
 
+def ros2_run_command(package: str, executable: str, params: dict | None = None,
+                     remaps: dict | None = None, extra_args: Iterable[str] = ()) -> list[str]:
+    """`ros2 run package executable ...` with parameters and remappings as --ros-args."""
+    command = ['ros2', 'run', package, executable, *extra_args]
+    ros_args = []
+    for key, value in (params or {}).items():
+        ros_args += ['-p', f'{key}:={format_parameter(value)}']
+    for old, new in (remaps or {}).items():
+        ros_args += ['-r', f'{old}:={new}']
+    if ros_args:
+        command += ['--ros-args', *ros_args]
+    return command
+
+
 class NodeProcess:
     """One `ros2 run` process; output goes to a log file; ended by PID, never by name."""
 
@@ -79,14 +93,7 @@ class NodeProcess:
                  params: dict | None = None, remaps: dict | None = None,
                  extra_args: Iterable[str] = (), log_dir: Path | None = None):
         self.name = f'{package}/{executable}'
-        command = ['ros2', 'run', package, executable, *extra_args]
-        ros_args = []
-        for key, value in (params or {}).items():
-            ros_args += ['-p', f'{key}:={format_parameter(value)}']
-        for old, new in (remaps or {}).items():
-            ros_args += ['-r', f'{old}:={new}']
-        if ros_args:
-            command += ['--ros-args', *ros_args]
+        command = ros2_run_command(package, executable, params, remaps, extra_args)
         log_dir = Path(log_dir or tempfile.mkdtemp(prefix='hri-test-'))
         self.log_path = log_dir / f'{executable}-{next(_domain_counter)}.log'
         self._log_file = open(self.log_path, 'wb')  # closed in stop()

@@ -15,12 +15,12 @@ import rclpy
 from hri_interfaces.msg import ControllerState
 from rclpy.executors import ExternalShutdownException
 
-from hri_adaptive_controller.controller_node import STATE_QOS
+from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
 
 
 def as_line(msg: ControllerState) -> str:
     values = [msg.distance, msg.weight, *msg.effort]
-    return json.dumps({'stamp': msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+    return json.dumps({'stamp': stamp_seconds(msg.header.stamp),
                        'status': msg.status, 'task': msg.task, 'distance': msg.distance,
                        'weight': msg.weight, 'effort': list(msg.effort),
                        'finite': all(math.isfinite(v) for v in values)})

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.common import REPO_ROOT, NodeProcess, format_parameter, node_environment, wait_for
+from tests.common import REPO_ROOT, NodeProcess, node_environment, ros2_run_command, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.exclusive]
 
@@ -98,15 +98,6 @@ class NamespacedProcess(NodeProcess):
                                         stderr=subprocess.STDOUT, start_new_session=True)
 
 
-def ros2_run(package: str, executable: str, params: dict | None = None) -> list[str]:
-    command = ['ros2', 'run', package, executable]
-    if params:
-        command.append('--ros-args')
-        for key, value in params.items():
-            command += ['-p', f'{key}:={format_parameter(value)}']
-    return command
-
-
 @pytest.fixture
 def link():
     if os.geteuid() != 0:
@@ -151,15 +142,17 @@ def test_closed_loop_across_two_hosts(link, ros_domain, setting):
 
     try:
         sent_before = link.sent_bytes()
-        sim = start(link.robot, robot_env, ros2_run('scara_sim', 'scara_sim'), 'scara_sim')
-        start(link.control, control_env, ros2_run(
+        sim = start(link.robot, robot_env, ros2_run_command('scara_sim', 'scara_sim'),
+                    'scara_sim')
+        start(link.control, control_env, ros2_run_command(
             'hri_adaptive_controller', 'event_manager',
             {'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': 0.5}),
             'event_manager')
         controller = start(link.control, control_env,
-                           ros2_run('hri_adaptive_controller', 'controller'), 'controller')
+                           ros2_run_command('hri_adaptive_controller', 'controller'),
+                           'controller')
         # The hand 0.21 m from the end-effector's start (0.35, 0.30), still.
-        start(link.control, control_env, ros2_run(
+        start(link.control, control_env, ros2_run_command(
             'scara_sim', 'hand_sim', {'profile': 'hold', 'start': [0.45, 0.12]}), 'hand_sim')
         printer = start(link.control, control_env,
                         ['python', str(REPO_ROOT / 'tests/controller_state_printer.py'), '90'],

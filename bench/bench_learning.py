@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hri_core.dynamics import forward_kinematics
 from hri_demo_learning.bag_io import (
     JOINT_STATE,
     JOINT_STATE_TOPIC,
@@ -53,7 +54,6 @@ from hri_demo_learning.performance_learning import (
     fit_task_parameters,
 )
 from hri_demo_learning.task_energy import DEFAULT_STATIONARY_SPEED
-from scara_sim.dynamics import forward_kinematics
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = REPO_ROOT / 'bags' / 'fixtures'

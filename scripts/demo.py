@@ -32,8 +32,8 @@ import numpy as np  # noqa: E402
 from hri_interfaces.msg import TaskEvent  # noqa: E402
 
 from hri_adaptive_controller.run_metrics import run_metrics  # noqa: E402
+from hri_core.task_file import load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
-from hri_demo_learning.task_file import load_task_file  # noqa: E402
 from scara_sim.profiles import minimum_jerk_duration  # noqa: E402
 from tests.common import NodeProcess, RosProbe, start_node, wait_for  # noqa: E402
 

@@ -32,8 +32,8 @@ from std_msgs.msg import Float64MultiArray
 from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
 from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
 from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
-from hri_demo_learning.task_message import TASK_QOS
-from scara_sim.dynamics import forward_kinematics
+from hri_core.dynamics import forward_kinematics
+from hri_core.task_message import TASK_QOS
 from tests.common import REPO_ROOT, wait_for
 from tests.fault_tools import RELIABLE, RawListener, assert_all_finite
 

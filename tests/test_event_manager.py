@@ -7,7 +7,7 @@ import pytest
 from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
 
 from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
-from hri_demo_learning.task_message import TASK_QOS
+from hri_core.task_message import TASK_QOS
 from tests.common import REPO_ROOT, wait_for
 
 PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'

@@ -25,8 +25,8 @@ from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
 from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
+from hri_core.dynamics import ScaraParameters, kinetic_energy
 from hri_demo_learning.bag_io import read_bag
-from scara_sim.dynamics import ScaraParameters, kinetic_energy
 from scara_sim.scara_sim_node import PARAMETERS as SIM_PARAMETERS
 from tests.common import REPO_ROOT, wait_for
 from tests.fault_tools import RELIABLE, RawListener, assert_all_finite, lines_after

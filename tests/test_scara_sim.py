@@ -13,7 +13,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from scara_sim.dynamics import forward_kinematics
+from hri_core.dynamics import forward_kinematics
 from tests.common import wait_for
 
 pytestmark = pytest.mark.integration

@@ -7,7 +7,7 @@
     dV/dt = -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q               (eq. 22)
 
 qdot_r, qddot_r, delta_eps and the shaped potential Q come from task_variable (eq. 12', 14);
-Y_d is scara_sim.dynamics.regressor (eq. 18). Two deliberate differences from the paper's
+Y_d is hri_core.dynamics.regressor (eq. 18). Two deliberate differences from the paper's
 text, both needed for eq. 22 to follow from eq. 16-21:
 
 - eq. 16 prints -Kp a delta_eps; the closed loop eq. 20 (and the units: delta_eps is a task
@@ -26,7 +26,7 @@ projected onto a box of physically plausible values (pi1, pi3 >= 1e-3 kg m^2, pi
 projection onto a convex set that contains the true parameters never increases V.
 
 Units: q rad, qdot rad/s, tau N m, x m; theta = [pi1, pi2, pi3 (kg m^2), b1, b2 (N m s/rad),
-mlc1, mlc2 (kg m)] as in scara_sim.dynamics.dynamic_parameters.
+mlc1, mlc2 (kg m)] as in hri_core.dynamics.dynamic_parameters.
 """
 
 import math
@@ -42,8 +42,8 @@ from hri_adaptive_controller.task_variable import (
     shaped_potential,
     task_potential,
 )
-from hri_demo_learning.potential import TaskShape
-from scara_sim.dynamics import regressor
+from hri_core.dynamics import regressor
+from hri_core.potential import TaskShape
 
 PARAMETER_COUNT = 7
 PARAMETER_NAMES = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')

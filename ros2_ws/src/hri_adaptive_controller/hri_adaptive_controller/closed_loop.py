@@ -2,7 +2,7 @@
 
 Each control period dt (s) the loop takes the events due, evaluates a(E, t) (event_weight,
 eq. 13), samples the target trajectory, computes the torque of eq. 16 (adaptive_law, which also
-advances theta_hat by eq. 19) and integrates the true dynamics (scara_sim.dynamics.rk4_step,
+advances theta_hat by eq. 19) and integrates the true dynamics (hri_core.dynamics.rk4_step,
 eq. 15, torque held over the step). It is what the unit tests and the benchmarks run; the ROS
 nodes run the same library against topics.
 
@@ -22,8 +22,9 @@ from hri_adaptive_controller.adaptive_law import (
     ControllerGains,
 )
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
-from hri_demo_learning.potential import TaskShape
-from scara_sim.dynamics import ScaraParameters, dynamic_parameters, rk4_step
+from hri_core.dynamics import ScaraParameters, dynamic_parameters, rk4_step
+from hri_core.potential import TaskShape
+from hri_core.validation import planar_vector
 
 TargetSample = tuple[np.ndarray, np.ndarray, np.ndarray]
 TargetTrajectory = Callable[[float], TargetSample]
@@ -31,16 +32,10 @@ TargetTrajectory = Callable[[float], TargetSample]
 DEFAULT_INITIAL_Q = (0.0, math.pi / 2.0)  # rad: end-effector at (0.35, 0.30) m
 
 
-def _point(value, name: str) -> np.ndarray:
-    array = np.asarray(value, dtype=float)
-    if array.shape != (2,) or not np.all(np.isfinite(array)):
-        raise ValueError(f'{name} must be 2 finite values, got {np.ravel(value)}')
-    return array
-
 
 def still_target(point) -> TargetTrajectory:
     """A target that stays at `point` (2,) m: zero velocity and acceleration."""
-    point = _point(point, 'point')
+    point = planar_vector(point, 'point')
     zero = np.zeros(2)
     return lambda t: (point.copy(), zero.copy(), zero.copy())
 
@@ -52,7 +47,7 @@ def minimum_jerk_target(start, end, start_time: float, duration: float) -> Targe
     smoothstep: x_d, xdot_d and xddot_d are continuous; peak speed 15/8 |end - start| /
     duration (m/s).
     """
-    start, end = _point(start, 'start'), _point(end, 'end')
+    start, end = planar_vector(start, 'start'), planar_vector(end, 'end')
     if not (math.isfinite(duration) and duration > 0.0):
         raise ValueError(f'duration must be finite and > 0 s, got {duration}')
     if not math.isfinite(start_time):
@@ -135,7 +130,7 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
     schedule = EventWeightSchedule(ramp_time, initial_task)
     controller = AdaptiveController(gains, theta_hat0, params.l1, params.l2, params.gravity)
     friction = (params.b1, params.b2)
-    q, dq = _point(q0, 'q0'), _point(dq0, 'dq0')
+    q, dq = planar_vector(q0, 'q0'), planar_vector(dq0, 'dq0')
 
     steps = int(round(duration / dt))
     time = np.arange(steps) * dt

@@ -43,14 +43,15 @@ from hri_adaptive_controller.adaptive_law import (
     ControllerGains,
 )
 from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
-from hri_demo_learning.potential import TaskShape
-from scara_sim.dynamics import ScaraParameters, dynamic_parameters, forward_kinematics
-from scara_sim.node_common import (
+from hri_core.dynamics import ScaraParameters, dynamic_parameters, forward_kinematics
+from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
     run_node,
 )
+from hri_core.potential import TaskShape
+from hri_core.velocity_estimator import VelocityEstimator
 
 NODE_NAME = 'controller'
 JOINT_NAMES = ('joint1', 'joint2')
@@ -96,7 +97,7 @@ PARAMETERS = {
     'task_state_timeout': ParameterSpec(2.0, 'no TaskState for this long: a = 0 (s)',
                                         low=0.1, high=3600.0),
     'target_filter_time': ParameterSpec(0.05, 'time constant of the hand velocity estimate (s)',
-                                        low=0.001, high=5.0),
+                                        low=0.001, high=5.0, read_only=True),
     'max_target_distance': ParameterSpec(2.0, 'targets farther than this from the base are '
                                          'dropped (m)', low=0.1, high=100.0),
     'l1': ParameterSpec(0.35, 'link 1 length (m)', low=0.01, high=5.0, read_only=True),
@@ -141,6 +142,7 @@ class Controller(Node):
         self._joint_stamp = -math.inf
         self._target = self._target_velocity = None
         self._target_stamp = None
+        self._hand_velocity = VelocityEstimator(values['target_filter_time'])
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
         self._shape_key = None
@@ -219,17 +221,10 @@ class Controller(Node):
                        f'max_target_distance {self._values["max_target_distance"]:g} m')
             return
         stamp = stamp_seconds(msg.header.stamp)
-        if self._target is None:
-            self._target_velocity = np.zeros(2)
-        else:
-            dt = stamp - self._target_stamp
-            if dt <= 0.0:
-                self._warn('target_stamp', 'target dropped: stamp did not advance')
-                return
-            blend = dt / (dt + self._values['target_filter_time'])
-            measured = (position - self._target) / dt
-            self._target_velocity = self._target_velocity + blend * (
-                measured - self._target_velocity)
+        if self._target_stamp is not None and stamp <= self._target_stamp:
+            self._warn('target_stamp', 'target dropped: stamp did not advance')
+            return
+        self._target_velocity = self._hand_velocity.update(position, stamp).copy()
         self._target, self._target_stamp = position, stamp
 
     def _on_task_state(self, msg: TaskState) -> None:

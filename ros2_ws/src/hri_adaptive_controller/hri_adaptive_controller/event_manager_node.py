@@ -36,14 +36,14 @@ from hri_adaptive_controller.event_weight import (
     PHASE_IDLE,
     EventWeightSchedule,
 )
-from hri_demo_learning.task_file import TaskRecord, load_task_directory
-from hri_demo_learning.task_message import TASK_QOS, task_message, task_record
-from scara_sim.node_common import (
+from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
     run_node,
 )
+from hri_core.task_file import TaskRecord, load_task_directory
+from hri_core.task_message import TASK_QOS, task_message, task_record
 
 NODE_NAME = 'event_manager'
 # Latest state: a late controller gets it at once.

@@ -163,11 +163,6 @@ class EventWeightSchedule:
         """Shortest ramp (s)."""
         return self._min_ramp_time
 
-    @property
-    def max_rest_rate(self) -> float:
-        """Bound on |da/dt| (1/s) for ramps that start at rest: 15 / (8 ramp_time)."""
-        return SMOOTHSTEP_PEAK_SLOPE / self._ramp_time
-
     def request(self, task: Hashable | None, now: float) -> WeightState:
         """Handle an event asking for `task` (None: no task) at time `now` (s).
 

@@ -4,7 +4,7 @@ Task variable (eq. 12)
 ----------------------
 The paper's task variable is a(E, t) dP/d(dx) with dx = x - x_d (m). Learned potentials span
 an enormous range: Table I's follow potential has |dP/d(dx)| ~ 1e-11 1/m at 9 mm outside its
-region, its avoidance potential ~ 1e100 (the cap of hri_demo_learning.potential) just inside.
+region, its avoidance potential ~ 1e100 (the cap of hri_core.potential) just inside.
 No single gain maps both to a usable velocity. The task variable used here is therefore the
 gradient of a *shaped* potential Q(dx) (`ShapedPotential`) with the same desired region:
 
@@ -31,7 +31,7 @@ Joint-velocity reference (eq. 14) and its derivative (eq. 18)
     qddot_r = (dJ+/dt) v_r + J+ (xddot_d - da/dt delta_eps - a H_Q (xdot - xdot_d)),
 
 with xdot = J qdot and H_Q = d(delta_eps)/d(dx) the Hessian of Q, built from P's gradient and
-Hessian (hri_demo_learning.potential) through the chain rule: the exact time derivative, no
+Hessian (hri_core.potential) through the chain rule: the exact time derivative, no
 finite difference. J+ is the damped pseudo-inverse
 
     J+ = J^T (J J^T + lambda^2 I)^-1,
@@ -40,7 +40,7 @@ finite difference. J+ is the damped pseudo-inverse
 so J+ is the exact inverse away from singularities (w >= w0: eq. 22 holds unchanged) and the
 damping grows smoothly (C1 in q) to lambda_max at a singularity, where it bounds the joint
 speed by |v_r| / (2 lambda_max). dJ+/dt is differentiated analytically, including
-d(lambda^2)/dt, from J and Jdot = scara_sim.dynamics.jacobian_derivative.
+d(lambda^2)/dt, from J and Jdot = hri_core.dynamics.jacobian_derivative.
 """
 
 import math
@@ -48,8 +48,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hri_demo_learning.potential import TaskShape, potential_gradient, potential_hessian
-from scara_sim.dynamics import forward_kinematics, jacobian, jacobian_derivative
+from hri_core.dynamics import forward_kinematics, jacobian, jacobian_derivative
+from hri_core.potential import TaskShape, potential_gradient, potential_hessian
+from hri_core.validation import planar_vector, positive
 
 # Largest |entry| (1/s) of the Hessian of Q. Only a potential that steps within a fraction of
 # a micrometre (Table I's avoidance boundary, or dx exactly 0 for it) reaches it; there the
@@ -167,18 +168,6 @@ class JointReference:
     task: TaskVariable | None
 
 
-def _finite_positive(value: float, name: str, unit: str) -> float:
-    value = float(value)
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f'{name} must be finite and > 0 {unit}, got {value}')
-    return value
-
-
-def _vector(value, name: str) -> np.ndarray:
-    array = np.asarray(value, dtype=float)
-    if array.shape != (2,) or not np.all(np.isfinite(array)):
-        raise ValueError(f'{name} must be 2 finite values, got {np.ravel(value)}')
-    return array
 
 
 def _sech_squared(x: float) -> float:
@@ -242,15 +231,15 @@ def shaped_potential(shape: TaskShape, max_task_speed: float, approach_distance:
     >= tanh(1) v_max = 0.76 v_max at the approach distance from every boundary.
     Raises ValueError for bad values or when no probe sees a slope.
     """
-    v_max = _finite_positive(max_task_speed, 'max_task_speed', 'm/s')
-    delta = _finite_positive(approach_distance, 'approach_distance', 'm')
+    v_max = positive(max_task_speed, 'max_task_speed', 'm/s')
+    delta = positive(approach_distance, 'approach_distance', 'm')
     if not (math.isfinite(region_margin) and region_margin >= 0.0):
         raise ValueError(f'region_margin must be finite and >= 0 m, got {region_margin}')
     radial_map = _radial_map(shape, region_margin)
     if shape.s == -1 and shape.d2 > shape.d1:
         radial_map['peak'] = _potential_peak(ShapedPotential(shape, 1.0, v_max, **radial_map))
     if task_gain is not None:
-        return ShapedPotential(shape, _finite_positive(task_gain, 'task_gain', 'm^2/s'), v_max,
+        return ShapedPotential(shape, positive(task_gain, 'task_gain', 'm^2/s'), v_max,
                                **radial_map)
     unit = ShapedPotential(shape, 1.0, v_max, **radial_map)
     d1, d2 = unit.region()
@@ -273,7 +262,7 @@ def task_variable(dx, shaped: ShapedPotential) -> TaskVariable:
     Q'' = k c^2 (d2P/d(rho)2) sech^2(k c dP/d(rho) / v_max), entries bounded by
     MAX_TASK_HESSIAN. Zero on Q's zero set.
     """
-    dx = _vector(dx, 'dx')
+    dx = planar_vector(dx, 'dx')
     k, v_max = shaped.task_gain, shaped.max_task_speed
     r = math.hypot(dx[0], dx[1])
     if r == 0.0:
@@ -441,9 +430,9 @@ def joint_velocity_reference(q, dq, x_d, xdot_d, xddot_d, weight: float, weight_
     None (no task: the reference only follows xdot_d); l1, l2 link lengths (m); damping of J+.
     Raises ValueError for non-finite inputs or a weight outside [0, 1].
     """
-    q, dq = _vector(q, 'q'), _vector(dq, 'dq')
-    x_d, xdot_d, xddot_d = _vector(x_d, 'x_d'), _vector(xdot_d, 'xdot_d'), _vector(
-        xddot_d, 'xddot_d')
+    q, dq = planar_vector(q, 'q'), planar_vector(dq, 'dq')
+    x_d, xdot_d = planar_vector(x_d, 'x_d', 'm'), planar_vector(xdot_d, 'xdot_d', 'm/s')
+    xddot_d = planar_vector(xddot_d, 'xddot_d', 'm/s^2')
     if not (math.isfinite(weight) and 0.0 <= weight <= 1.0):
         raise ValueError(f'weight a(E, t) must be in [0, 1], got {weight}')
     if not math.isfinite(weight_rate):

@@ -17,14 +17,14 @@ from hri_adaptive_controller.adaptive_law import (
     predicted_lyapunov_rate,
 )
 from hri_adaptive_controller.task_variable import DampingSettings
-from hri_demo_learning.potential import TaskShape
-from scara_sim.dynamics import (
+from hri_core.dynamics import (
     ScaraParameters,
     dynamic_parameters,
     jacobian,
     mass_matrix,
     regressor,
 )
+from hri_core.potential import TaskShape
 
 PARAMS = ScaraParameters()
 THETA = dynamic_parameters(PARAMS)

@@ -14,13 +14,13 @@ from hri_adaptive_controller.closed_loop import (
     simulate,
     still_target,
 )
-from hri_demo_learning.potential import TaskShape
-from scara_sim.dynamics import (
+from hri_core.dynamics import (
     ScaraParameters,
     dynamic_parameters,
     jacobian,
     mass_matrix,
 )
+from hri_core.potential import TaskShape
 
 TASKS = {
     'follow': TaskShape(1, 1.291, 13.66, 0.0, 0.041),

@@ -17,8 +17,8 @@ from hri_adaptive_controller.task_variable import (
     task_potential,
     task_variable,
 )
-from hri_demo_learning.potential import TaskShape, potential
-from scara_sim.dynamics import jacobian, jacobian_derivative
+from hri_core.dynamics import jacobian, jacobian_derivative
+from hri_core.potential import TaskShape, potential
 
 L1, L2 = 0.35, 0.30
 TABLE_I = {

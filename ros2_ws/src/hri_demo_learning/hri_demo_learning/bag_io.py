@@ -35,7 +35,7 @@ from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from scara_sim.dynamics import forward_kinematics
+from hri_core.dynamics import forward_kinematics
 
 #: rosbag2 bag format version that ROS 2 Jazzy's rosbag2 writes.
 JAZZY_BAG_VERSION = 8
@@ -509,7 +509,7 @@ def _joint_positions(series: TopicMessages, path: Path) -> np.ndarray:
 def end_effector_positions(joint_angles: np.ndarray, l1: float, l2: float) -> np.ndarray:
     """End-effector positions (N, 2) in m from joint angles (N, 2) in rad (forward kinematics).
 
-    Uses scara_sim.dynamics.forward_kinematics with link lengths l1, l2 in m.
+    Uses hri_core.dynamics.forward_kinematics with link lengths l1, l2 in m.
     """
     joint_angles = np.asarray(joint_angles, dtype=float).reshape(-1, 2)
     return np.asarray(forward_kinematics(joint_angles, l1, l2), dtype=float).reshape(-1, 2)

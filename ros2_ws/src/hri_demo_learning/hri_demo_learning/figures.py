@@ -13,7 +13,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from hri_demo_learning.potential import log_potential
+from hri_core.potential import log_potential
 
 _GRID_POINTS = 600
 _MAX_LOG = 700.0  # keeps exp() finite when P at a grid point dwarfs P at the samples

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hri_demo_learning.potential import TaskShape, normalised_potential
+from hri_core.potential import TaskShape, normalised_potential
 
 DEFAULT_WORKSPACE_RADIUS = 2.0
 """m: d2 of a desired region that is open outward."""

@@ -35,6 +35,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from hri_core.task_file import TaskRecord, is_safe_task_name, save_task_file
+from hri_core.task_message import TASK_QOS, task_message
 from hri_demo_learning.bag_io import BagError, read_demonstration
 from hri_demo_learning.identification import identify_task_region
 from hri_demo_learning.performance_learning import (
@@ -49,8 +51,6 @@ from hri_demo_learning.task_energy import (
     combine_energy_profiles,
     demonstration_energy,
 )
-from hri_demo_learning.task_file import TaskRecord, is_safe_task_name, save_task_file
-from hri_demo_learning.task_message import TASK_QOS, task_message
 
 NODE_NAME = 'learner'
 REFERENCE_TOLERANCE = 1e-3  # m: how far x_r may wander during one demonstration

@@ -42,8 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hri_core.potential import TaskShape, log_potential, normalised_potential
 from hri_demo_learning.identification import DEFAULT_INITIAL_STEEPNESS
-from hri_demo_learning.potential import TaskShape, log_potential, normalised_potential
 
 STEEPNESS_BOUNDS = (1e-3, 1e3)
 """1/m^2: lower and upper bound of a1, a2 during the fit."""

@@ -43,8 +43,8 @@ from rosbags.interfaces import (
     QosTime,
 )
 
+from hri_core.node_common import StartupError, init_ros, spin_until_stopped
 from hri_demo_learning.bag_io import BagError, BagWriter
-from scara_sim.node_common import StartupError, init_ros, spin_until_stopped
 
 NODE_NAME = 'recorder'
 DEFAULT_TOPICS = ['/joint_states', '/ee_position', '/demo/reference', '/target',

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from hri_core.dynamics import forward_kinematics
 from hri_demo_learning.bag_io import (
     BagError,
     BagWriter,
@@ -16,7 +17,6 @@ from hri_demo_learning.bag_io import (
     read_demonstration,
     register_message_type,
 )
-from scara_sim.dynamics import forward_kinematics
 
 TYPES = jazzy_typestore()
 JOINT_STATE = 'sensor_msgs/msg/JointState'

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from hri_core.potential import TaskShape
 from hri_demo_learning.figures import plot_task_fit
-from hri_demo_learning.potential import TaskShape
 
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
 

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
+from hri_core.potential import TaskShape, potential
 from hri_demo_learning.identification import (
     desired_set,
     identify_task_region,
     normalised_mismatch,
     region_bounds,
 )
-from hri_demo_learning.potential import TaskShape, potential
 from hri_demo_learning.task_energy import combine_energy_profiles, demonstration_energy
 
 REFERENCE = np.array([0.45, 0.10])

@@ -5,13 +5,13 @@ import warnings
 import numpy as np
 import pytest
 
+from hri_core.potential import TaskShape, normalised_potential, potential
 from hri_demo_learning.performance_learning import (
     STEEPNESS_BOUNDS,
     fit_task_parameters,
     normalised_potential_jacobian,
     task_cost,
 )
-from hri_demo_learning.potential import TaskShape, normalised_potential, potential
 
 # Shapes whose a1, a2 are determined by samples on the given distance range (m).
 IDENTIFIABLE = {

@@ -27,18 +27,18 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from scara_sim.node_common import (
+from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
     run_node,
 )
+from hri_core.velocity_estimator import VelocityEstimator
 from scara_sim.profiles import (
     DEMONSTRATION_MODES,
     Demonstration,
     PushSettings,
     Tremor,
-    VelocityEstimator,
     demonstration_goal,
 )
 

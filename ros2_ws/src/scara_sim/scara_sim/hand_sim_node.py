@@ -16,7 +16,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from scara_sim.node_common import (
+from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,

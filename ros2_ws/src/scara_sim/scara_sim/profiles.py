@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hri_core.validation import planar_vector, positive
+
 HAND_PROFILES = ('hold', 'approach', 'retreat', 'back_and_forth', 'circle', 'waypoints')
 DEMONSTRATION_MODES = ('follow', 'avoid')
 
@@ -23,20 +25,6 @@ DEMONSTRATION_MODES = ('follow', 'avoid')
 MINIMUM_JERK_PEAK_RATIO = 1.875
 
 
-def _point(value, name: str) -> np.ndarray:
-    """`value` as a finite float array of shape (2,); ValueError otherwise."""
-    array = np.asarray(value, dtype=float).reshape(-1)
-    if array.shape != (2,) or not np.all(np.isfinite(array)):
-        raise ValueError(f'{name} must be 2 finite values [x, y] in m, got {np.ravel(value)}')
-    return array
-
-
-def _positive(value: float, name: str, unit: str) -> float:
-    """`value` as a float; ValueError unless finite and > 0."""
-    value = float(value)
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f'{name} must be finite and > 0 {unit}, got {value}')
-    return value
 
 
 def minimum_jerk(s) -> tuple[np.ndarray, np.ndarray]:
@@ -51,7 +39,7 @@ def minimum_jerk(s) -> tuple[np.ndarray, np.ndarray]:
 
 def minimum_jerk_duration(distance: float, peak_speed: float) -> float:
     """Duration (s) of a minimum-jerk move of `distance` m whose peak speed is `peak_speed`."""
-    _positive(peak_speed, 'peak_speed', 'm/s')
+    positive(peak_speed, 'peak_speed', 'm/s')
     if not (math.isfinite(distance) and distance >= 0.0):
         raise ValueError(f'distance must be finite and >= 0 m, got {distance}')
     return MINIMUM_JERK_PEAK_RATIO * distance / peak_speed
@@ -64,7 +52,7 @@ def minimum_jerk_segment(start, end, t, duration: float) -> tuple[np.ndarray, np
     it is at `start`, after it at `end`. t may be a scalar or an array of shape (...).
     A zero duration jumps at t = 0.
     """
-    start, end = _point(start, 'start'), _point(end, 'end')
+    start, end = planar_vector(start, 'start', 'm'), planar_vector(end, 'end', 'm')
     t = np.asarray(t, dtype=float)
     if not (math.isfinite(duration) and duration >= 0.0):
         raise ValueError(f'duration must be finite and >= 0 s, got {duration}')
@@ -101,11 +89,11 @@ class HandProfile:
         if self.name not in HAND_PROFILES:
             raise ValueError(f'unknown hand profile {self.name!r}; expected one of '
                              f'{", ".join(HAND_PROFILES)}')
-        _point(self.start, 'start')
-        _point(self.end, 'end')
-        _positive(self.speed, 'speed', 'm/s')
-        _positive(self.period, 'period', 's')
-        _positive(self.radius, 'radius', 'm')
+        planar_vector(self.start, 'start', 'm')
+        planar_vector(self.end, 'end', 'm')
+        positive(self.speed, 'speed', 'm/s')
+        positive(self.period, 'period', 's')
+        positive(self.radius, 'radius', 'm')
         if not (math.isfinite(self.start_delay) and self.start_delay >= 0.0):
             raise ValueError(f'start_delay must be finite and >= 0 s, got {self.start_delay}')
         if self.name == 'waypoints':
@@ -168,15 +156,16 @@ def demonstration_goal(mode: str, start, reference, stop_distance: float,
     `fallback_direction` instead. Raises ValueError when the move would not be toward x_r
     (follow) or away from it (avoid).
     """
-    start, reference = _point(start, 'start'), _point(reference, 'reference')
-    _positive(stop_distance, 'stop_distance', 'm')
-    _positive(safe_distance, 'safe_distance', 'm')
+    start = planar_vector(start, 'start', 'm')
+    reference = planar_vector(reference, 'reference', 'm')
+    positive(stop_distance, 'stop_distance', 'm')
+    positive(safe_distance, 'safe_distance', 'm')
     offset = start - reference
     distance = float(np.linalg.norm(offset))
     if distance >= min_direction_distance:
         direction = offset / distance
     else:
-        fallback = _point(fallback_direction, 'fallback_direction')
+        fallback = planar_vector(fallback_direction, 'fallback_direction', 'm')
         norm = float(np.linalg.norm(fallback))
         if norm == 0.0:
             raise ValueError('fallback_direction must not be zero')
@@ -203,10 +192,10 @@ def hand_force(setpoint, setpoint_velocity, position, velocity, stiffness: float
     v_s (m/s), end-effector position x (m) and velocity v (m/s), stiffness K (N/m) and
     damping D (N s/m). The force's magnitude is capped at `max_force` N, direction kept.
     """
-    _positive(stiffness, 'stiffness', 'N/m')
+    positive(stiffness, 'stiffness', 'N/m')
     if not (math.isfinite(damping) and damping >= 0.0):
         raise ValueError(f'damping must be finite and >= 0 N s/m, got {damping}')
-    _positive(max_force, 'max_force', 'N')
+    positive(max_force, 'max_force', 'N')
     force = (stiffness * (np.asarray(setpoint, float) - np.asarray(position, float))
              + damping * (np.asarray(setpoint_velocity, float) - np.asarray(velocity, float)))
     if not np.all(np.isfinite(force)):
@@ -228,7 +217,7 @@ class Tremor:
         if not (math.isfinite(amplitude) and amplitude >= 0.0):
             raise ValueError(f'tremor amplitude must be finite and >= 0 N, got {amplitude}')
         low, high = float(band[0]), float(band[1])
-        rate_hz = _positive(rate_hz, 'rate_hz', 'Hz')
+        rate_hz = positive(rate_hz, 'rate_hz', 'Hz')
         if not (0.0 < low < high < 0.5 * rate_hz):
             raise ValueError(f'tremor band must satisfy 0 < low < high < rate/2 = '
                              f'{0.5 * rate_hz} Hz, got [{low}, {high}]')
@@ -273,7 +262,7 @@ class PushSettings:
     def __post_init__(self):
         for name in ('stiffness', 'max_force', 'peak_speed', 'settle_tolerance',
                      'settle_speed', 'settle_timeout'):
-            _positive(getattr(self, name), name, '')
+            positive(getattr(self, name), name, '')
         for name in ('damping', 'hold_time'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -291,7 +280,8 @@ class Demonstration:
     """
 
     def __init__(self, start, goal, settings: PushSettings, tremor: 'Tremor | None' = None):
-        self.start, self.goal = _point(start, 'start'), _point(goal, 'goal')
+        self.start = planar_vector(start, 'start', 'm')
+        self.goal = planar_vector(goal, 'goal', 'm')
         self.settings = settings
         self.tremor = tremor
         self.duration = minimum_jerk_duration(float(np.linalg.norm(self.goal - self.start)),
@@ -304,7 +294,8 @@ class Demonstration:
         """Force (2,) in N at time t (s since the push began) for the measured end-effector
         position (2,) in m and velocity (2,) in m/s; advances the phase."""
         s = self.settings
-        position, velocity = _point(position, 'position'), _point(velocity, 'velocity')
+        position = planar_vector(position, 'position', 'm')
+        velocity = planar_vector(velocity, 'velocity', 'm/s')
         if self.phase == 'pushing' and t >= self.duration:
             self.phase = 'settling'
         if self.phase == 'settling':
@@ -322,29 +313,3 @@ class Demonstration:
         force = hand_force(setpoint, setpoint_velocity, position, velocity, s.stiffness,
                            s.damping, s.max_force)
         return force if self.tremor is None else force + self.tremor.sample()
-
-
-class VelocityEstimator:
-    """End-effector velocity (2,) in m/s from stamped positions: low-passed differences.
-
-    Each new sample's finite difference goes through a first-order low-pass of time constant
-    `time_constant` s. A sample whose stamp does not advance is ignored.
-    """
-
-    def __init__(self, time_constant: float):
-        self._tc = _positive(time_constant, 'time_constant', 's')
-        self._last = None
-        self.velocity = np.zeros(2)
-
-    def update(self, position, stamp: float) -> np.ndarray:
-        """Feed a position (2,) in m taken at `stamp` s; return the filtered velocity."""
-        position = _point(position, 'position')
-        if self._last is not None:
-            dt = stamp - self._last[1]
-            if dt <= 0.0:
-                return self.velocity
-            raw = (position - self._last[0]) / dt
-            alpha = dt / (self._tc + dt)
-            self.velocity = self.velocity + alpha * (raw - self.velocity)
-        self._last = (position, stamp)
-        return self.velocity

@@ -38,8 +38,8 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from scara_sim.dynamics import ScaraParameters, forward_kinematics
-from scara_sim.node_common import (
+from hri_core.dynamics import ScaraParameters, forward_kinematics
+from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scara_sim.dynamics import ScaraParameters, jacobian, rk4_step
+from hri_core.dynamics import ScaraParameters, jacobian, rk4_step
 
 COMMAND_MODES = ('idle', 'effort', 'velocity')
 

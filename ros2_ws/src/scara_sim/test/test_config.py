@@ -11,8 +11,8 @@ import yaml
 
 pytest.importorskip('rclpy')
 
+from hri_core.dynamics import ScaraParameters  # noqa: E402
 from scara_sim import demonstrator_node, hand_sim_node, scara_sim_node  # noqa: E402
-from scara_sim.dynamics import ScaraParameters  # noqa: E402
 from scara_sim.profiles import HandProfile, PushSettings  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'

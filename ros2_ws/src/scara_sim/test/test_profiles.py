@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from scara_sim.dynamics import ScaraParameters, forward_kinematics, jacobian
+from hri_core.dynamics import ScaraParameters, forward_kinematics, jacobian
+from hri_core.velocity_estimator import VelocityEstimator
 from scara_sim.profiles import (
     Demonstration,
     HandProfile,
     PushSettings,
     Tremor,
-    VelocityEstimator,
     demonstration_goal,
     hand_force,
     hand_position,
@@ -158,15 +158,6 @@ def test_tremor_is_seeded_band_limited_with_the_requested_rms():
 def test_tremor_rejects_a_band_above_nyquist():
     with pytest.raises(ValueError, match='tremor band must satisfy'):
         Tremor(0.2, (8.0, 120.0), 200.0, seed=0)
-
-
-def test_velocity_estimator_converges_to_the_slope_and_skips_repeated_stamps():
-    estimator = VelocityEstimator(time_constant=0.01)
-    for k in range(200):
-        t = k * 1e-3
-        velocity = estimator.update([0.1 * t, -0.2 * t], t)
-    np.testing.assert_allclose(velocity, [0.1, -0.2], rtol=1e-6)
-    np.testing.assert_array_equal(estimator.update([5.0, 5.0], 0.199), velocity)
 
 
 def simulate_demonstration(mode, reference):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from scara_sim.dynamics import ScaraParameters, forward_kinematics, jacobian, kinetic_energy
+from hri_core.dynamics import ScaraParameters, forward_kinematics, jacobian, kinetic_energy
 from scara_sim.simulation import (
     FixedStepClock,
     ScaraSimulator,

@@ -1,12 +1,12 @@
-"""Unit tests of hri_demo_learning.task_file: task YAML round trip and rejected files."""
+"""Unit tests of hri_core.task_file: task YAML round trip and rejected files."""
 
 import os
 
 import pytest
 import yaml
 
-from hri_demo_learning.potential import TaskShape
-from hri_demo_learning.task_file import (
+from hri_core.potential import TaskShape
+from hri_core.task_file import (
     TASK_KEYS,
     TaskRecord,
     load_task_directory,

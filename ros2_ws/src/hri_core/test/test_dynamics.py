@@ -1,9 +1,9 @@
-"""Unit tests of scara_sim.dynamics: the 2-link model, its regressor and the RK4 integrator."""
+"""Unit tests of hri_core.dynamics: the 2-link model, its regressor and the RK4 integrator."""
 
 import numpy as np
 import pytest
 
-from scara_sim.dynamics import (
+from hri_core.dynamics import (
     ScaraParameters,
     coriolis_matrix,
     dynamic_parameters,

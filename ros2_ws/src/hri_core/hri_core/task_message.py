@@ -7,7 +7,7 @@ both use these conversions and `TASK_QOS`, so that the two ends cannot drift apa
 from hri_interfaces.msg import TaskParameters
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from hri_demo_learning.task_file import TaskRecord
+from hri_core.task_file import TaskRecord
 
 # /hri/task: every learned task reaches late joiners (DESIGN.md: keep_last >= 16).
 TASK_QOS = QoSProfile(depth=16, history=HistoryPolicy.KEEP_LAST,

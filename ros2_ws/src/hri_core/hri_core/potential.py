@@ -87,13 +87,6 @@ class TaskShape:
 # ---------------------------------------------------------------------------------------------
 # Scalar path (one point, plain floats).
 
-def _log_abs_one_minus_exp(t):
-    """log|1 - exp(t)| for a float t; -inf at t = 0."""
-    if t == 0.0:
-        return _NEG_INF
-    return max(t, 0.0) + math.log(-math.expm1(-abs(t)))
-
-
 def _signed_log_sum(terms):
     """(log|sum|, sign(sum)) of sum_k sign_k exp(log_k) for (log_k, sign_k) pairs."""
     top = max(log for log, _ in terms)

@@ -1,4 +1,4 @@
-"""Unit tests of hri_demo_learning.potential: eq. 1, 2, derivatives and overflow safety."""
+"""Unit tests of hri_core.potential: eq. 1, 2, derivatives and overflow safety."""
 
 import math
 import time
@@ -7,7 +7,7 @@ from decimal import Decimal, localcontext
 import numpy as np
 import pytest
 
-from hri_demo_learning.potential import (
+from hri_core.potential import (
     POTENTIAL_CEILING,
     TaskShape,
     log_potential,

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import yaml
 
-from hri_demo_learning.potential import TaskShape
+from hri_core.potential import TaskShape
 
 TASK_KEYS = ('name', 's', 'a1', 'a2', 'd1', 'd2', 'n', 'cost', 'iterations')
 """The keys of a task file, in the order they are written."""

@@ -1,0 +1,30 @@
+"""Checks of numbers and planar vectors at the boundary of the pure modules. No ROS import.
+
+Each returns the value converted (float, or a (2,) float array) or raises ValueError with a
+one-line reason naming the argument, so that a node can log that line as it is.
+"""
+
+import math
+
+import numpy as np
+
+
+def planar_vector(value, name: str, unit: str = '') -> np.ndarray:
+    """`value` as a finite float array of shape (2,) ([x, y], in `unit`); ValueError otherwise.
+
+    A (1, 2) or (2, 1) input is accepted and flattened; any other size is refused.
+    """
+    array = np.asarray(value, dtype=float).reshape(-1)
+    if array.shape != (2,) or not np.all(np.isfinite(array)):
+        where = f' in {unit}' if unit else ''
+        raise ValueError(f'{name} must be 2 finite values [x, y]{where}, got {np.ravel(value)}')
+    return array
+
+
+def positive(value: float, name: str, unit: str = '') -> float:
+    """`value` as a float; ValueError unless it is finite and > 0 (`unit` names its unit)."""
+    value = float(value)
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f'{name} must be finite and > 0{" " + unit if unit else ""}, '
+                         f'got {value}')
+    return value

@@ -45,7 +45,7 @@ from hri_interfaces.msg import ControllerState  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
-from hri_adaptive_controller.controller_node import STATE_QOS  # noqa: E402
+from hri_core.topics import MONITOR_QOS  # noqa: E402
 from tests.common import RosProbe, start_node, wait_for  # noqa: E402
 
 TASKS_DIR = REPO_ROOT / 'ros2_ws' / 'src' / 'hri_adaptive_controller' / 'tasks'
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> dict:
         probe = RosProbe(args.domain_id, name='bench_loop_probe')
         probe.node.create_subscription(JointState, '/joint_states', joint_times,
                                        JOINT_STATE_PROBE_QOS)
-        states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)
+        states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
         for package, executable, params in (
                 ('scara_sim', 'scara_sim', None),
                 ('hri_adaptive_controller', 'event_manager',

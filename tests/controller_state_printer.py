@@ -15,7 +15,8 @@ import rclpy
 from hri_interfaces.msg import ControllerState
 from rclpy.executors import ExternalShutdownException
 
-from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
+from hri_adaptive_controller.controller_node import stamp_seconds
+from hri_core.topics import MONITOR_QOS
 
 
 def as_line(msg: ControllerState) -> str:
@@ -30,7 +31,7 @@ def main(seconds: float) -> int:
     rclpy.init()
     node = rclpy.create_node('controller_state_printer')
     node.create_subscription(ControllerState, '/hri/controller_state',
-                             lambda msg: print(as_line(msg), flush=True), STATE_QOS)
+                             lambda msg: print(as_line(msg), flush=True), MONITOR_QOS)
     end = time.monotonic() + seconds
     try:
         while time.monotonic() < end:

@@ -30,10 +30,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
-from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
-from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
+from hri_adaptive_controller.controller_node import stamp_seconds
 from hri_core.dynamics import forward_kinematics
-from hri_core.task_message import TASK_QOS
+from hri_core.topics import LEARNED_TASKS_QOS, MONITOR_QOS, TASK_STATE_QOS
 from tests.common import REPO_ROOT, wait_for
 from tests.fault_tools import RELIABLE, RawListener, assert_all_finite
 
@@ -104,7 +103,7 @@ def arm(probe):
 
 def start_controller(nodes, probe, **params):
     """The controller on the stand-in arm; returns (process, states, commands)."""
-    states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)
+    states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
     controller = nodes('hri_adaptive_controller', 'controller',
                        params={'joint_state_timeout': 0.2, **params})
@@ -270,7 +269,7 @@ def test_event_manager_rejects_invalid_tasks_and_events_for_unknown_tasks(nodes,
     manager = nodes('hri_adaptive_controller', 'event_manager', params={
         'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': 0.3})
     assert wait_for(lambda: states and states[-1].phase == 'active', 20.0), manager.log()
-    tasks = probe.publisher('/hri/task', TaskParameters, TASK_QOS)
+    tasks = probe.publisher('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
     events = probe.publisher('/hri/events', TaskEvent, 100)
     assert wait_for(lambda: tasks.get_subscription_count() > 0
                     and events.get_subscription_count() > 0, 10.0)
@@ -303,7 +302,7 @@ def test_event_manager_rejects_invalid_tasks_and_events_for_unknown_tasks(nodes,
 @pytest.mark.exclusive
 def test_a_burst_of_1000_events_in_one_second_under_the_closed_loop(nodes, probe):
     task_states = probe.collect('/hri/task_state', TaskState, TASK_STATE_QOS)
-    states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)
+    states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
     ramp_time = 0.5
     nodes('scara_sim', 'scara_sim')

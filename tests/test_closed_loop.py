@@ -16,7 +16,8 @@ from hri_interfaces.msg import ControllerState, TaskEvent
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
+from hri_adaptive_controller.controller_node import stamp_seconds
+from hri_core.topics import MONITOR_QOS
 from tests.common import REPO_ROOT, wait_for
 
 PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
@@ -32,7 +33,7 @@ def loop(nodes, probe):
     """start(task, hand params) -> list of ControllerState; the nodes run until the test ends."""
 
     def start(task: str, hand: dict, ramp_time: float = 0.5):
-        states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)
+        states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
         nodes('scara_sim', 'scara_sim')
         nodes('hri_adaptive_controller', 'event_manager',
               params={'tasks_dir': str(PAPER_TASKS), 'initial_task': task,
@@ -127,7 +128,7 @@ def test_event_switch_follow_to_avoid_has_no_torque_jump(loop, probe):
 
 def test_bad_joint_states_give_zero_torque_without_crash(nodes, probe):
     """NaN joint states are dropped; without fresh valid ones the torque is zero."""
-    states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)
+    states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     commands = probe.collect('/effort_controller/commands', Float64MultiArray, 10)
     controller = nodes('hri_adaptive_controller', 'controller',
                        params={'joint_state_timeout': 0.05})

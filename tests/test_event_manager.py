@@ -6,8 +6,7 @@ import time
 import pytest
 from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
 
-from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
-from hri_core.task_message import TASK_QOS
+from hri_core.topics import LEARNED_TASKS_QOS, TASK_STATE_QOS
 from tests.common import REPO_ROOT, wait_for
 
 PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
@@ -70,7 +69,7 @@ def test_unknown_task_event_is_ignored(manager):
 
 def test_invalid_task_is_rejected_and_current_kept(manager, probe):
     process, states, _ = manager
-    tasks = probe.publisher('/hri/task', TaskParameters, TASK_QOS)
+    tasks = probe.publisher('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
     bad = TaskParameters(name='follow', s=0, a1=1.0, a2=1.0, d1=0.0, d2=0.05, n=3)
     tasks.publish(bad)
     inverted = TaskParameters(name='follow', s=1, a1=1.0, a2=1.0, d1=0.3, d2=0.1, n=3)
@@ -84,7 +83,7 @@ def test_invalid_task_is_rejected_and_current_kept(manager, probe):
 
 def test_new_task_on_topic_becomes_switchable(manager, probe):
     process, states, events = manager
-    tasks = probe.publisher('/hri/task', TaskParameters, TASK_QOS)
+    tasks = probe.publisher('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
     tasks.publish(TaskParameters(name='wide_follow', s=1, a1=2.0, a2=20.0, d1=0.0, d2=0.1,
                                  n=3, cost=0.01, iterations=12))
     assert wait_for(lambda: 'wide_follow' in process.log(), 10.0), process.log()

@@ -24,8 +24,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
-from hri_adaptive_controller.controller_node import STATE_QOS, stamp_seconds
+from hri_adaptive_controller.controller_node import stamp_seconds
 from hri_core.dynamics import ScaraParameters, kinetic_energy
+from hri_core.topics import MONITOR_QOS
 from hri_demo_learning.bag_io import read_bag
 from scara_sim.scara_sim_node import PARAMETERS as SIM_PARAMETERS
 from tests.common import REPO_ROOT, wait_for
@@ -63,7 +64,7 @@ def probe_time(probe) -> float:
 
 def start_loop(nodes, probe, controller_params=None, manager_params=None):
     """The closed loop following FAR_HAND; returns (processes by name, ControllerState list)."""
-    states = probe.collect('/hri/controller_state', ControllerState, STATE_QOS)
+    states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     processes = {
         'scara_sim': nodes('scara_sim', 'scara_sim'),
         'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={

@@ -28,7 +28,7 @@ from mcap.reader import make_reader
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from hri_adaptive_controller.controller_node import STATE_QOS
+from hri_core.topics import MONITOR_QOS
 from tests.common import REPO_ROOT, wait_for
 from tests.fault_tools import floats_of
 
@@ -81,7 +81,7 @@ def test_closed_loop_soak(nodes, probe, tmp_path):
                        all(math.isfinite(v) for v in floats_of(msg))))
 
     probe.node.create_subscription(ControllerState, '/hri/controller_state', on_state,
-                                   STATE_QOS)
+                                   MONITOR_QOS)
     processes = {
         'scara_sim': nodes('scara_sim', 'scara_sim'),
         'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={

@@ -32,7 +32,6 @@ from hri_interfaces.msg import ControllerState, TaskState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -42,7 +41,7 @@ from hri_adaptive_controller.adaptive_law import (
     AdaptiveController,
     ControllerGains,
 )
-from hri_adaptive_controller.event_manager_node import TASK_STATE_QOS
+from hri_core import topics
 from hri_core.dynamics import ScaraParameters, dynamic_parameters, forward_kinematics
 from hri_core.node_common import (
     ParameterSpec,
@@ -55,11 +54,6 @@ from hri_core.velocity_estimator import VelocityEstimator
 
 NODE_NAME = 'controller'
 JOINT_NAMES = ('joint1', 'joint2')
-# Sensor streams as scara_sim offers them (reliable); only the latest sample matters.
-JOINT_STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-TARGET_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-STATE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a tick later than 1.5 periods counts as a deadline miss
 MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
@@ -157,16 +151,18 @@ class Controller(Node):
         self._warned: dict[str, float] = {}
         self._input_age = 0.0
 
-        topic = '/velocity_controller/commands' if self._velocity_mode \
-            else '/effort_controller/commands'
-        self._command_pub = self.create_publisher(Float64MultiArray, topic, COMMAND_QOS)
-        self._state_pub = self.create_publisher(ControllerState, '/hri/controller_state',
-                                                STATE_QOS)
-        self.create_subscription(JointState, '/joint_states', self._on_joint_state,
-                                 JOINT_STATE_QOS)
-        self.create_subscription(PointStamped, '/target', self._on_target, TARGET_QOS)
-        self.create_subscription(TaskState, '/hri/task_state', self._on_task_state,
-                                 TASK_STATE_QOS)
+        command = topics.VELOCITY_COMMANDS if self._velocity_mode else topics.EFFORT_COMMANDS
+        self._command_pub = self.create_publisher(command.type, command.name, command.qos)
+        topic = self._command_pub.topic_name
+        self._state_pub = self.create_publisher(
+            ControllerState, topics.CONTROLLER_STATE.name, topics.CONTROLLER_STATE.qos)
+        # Only the newest joint state and hand position matter to the 1 kHz loop.
+        self.create_subscription(JointState, topics.JOINT_STATES.name, self._on_joint_state,
+                                 topics.LATEST_SAMPLE_QOS)
+        self.create_subscription(PointStamped, topics.TARGET.name, self._on_target,
+                                 topics.LATEST_SAMPLE_QOS)
+        self.create_subscription(TaskState, topics.TASK_STATE.name, self._on_task_state,
+                                 topics.TASK_STATE.qos)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.create_timer(self._period, self._control)
         self.get_logger().info(

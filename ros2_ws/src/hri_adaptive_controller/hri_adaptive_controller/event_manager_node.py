@@ -28,7 +28,6 @@ from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from hri_adaptive_controller.event_weight import (
     PHASE_FADING_IN,
@@ -36,6 +35,7 @@ from hri_adaptive_controller.event_weight import (
     PHASE_IDLE,
     EventWeightSchedule,
 )
+from hri_core import topics
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -43,13 +43,9 @@ from hri_core.node_common import (
     run_node,
 )
 from hri_core.task_file import TaskRecord, load_task_directory
-from hri_core.task_message import TASK_QOS, task_message, task_record
+from hri_core.task_message import task_message, task_record
 
 NODE_NAME = 'event_manager'
-# Latest state: a late controller gets it at once.
-TASK_STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
-EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 WARNING_THROTTLE = 1.0  # s between repeats of one kind of warning
 
 PARAMETERS = {
@@ -96,10 +92,12 @@ class EventManager(Node):
         self._last_published = None
         self._last_publish_time = -float('inf')
 
-        self._state_publisher = self.create_publisher(TaskState, '/hri/task_state',
-                                                      TASK_STATE_QOS)
-        self.create_subscription(TaskParameters, '/hri/task', self._on_task, TASK_QOS)
-        self.create_subscription(TaskEvent, '/hri/events', self._on_event, EVENT_QOS)
+        self._state_publisher = self.create_publisher(TaskState, topics.TASK_STATE.name,
+                                                      topics.TASK_STATE.qos)
+        self.create_subscription(TaskParameters, topics.TASK.name, self._on_task,
+                                 topics.TASK.qos)
+        self.create_subscription(TaskEvent, topics.EVENTS.name, self._on_event,
+                                 topics.EVENTS.qos)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.create_timer(1.0 / values['publish_rate_hz'], self._publish)
         self.get_logger().info(

@@ -1,18 +1,12 @@
-"""A task record as the TaskParameters message, and the QoS of the latest-tasks topic.
+"""A task record as the TaskParameters message, and back.
 
 The learner publishes learned tasks on /hri/task and the event manager takes them from there;
-both use these conversions and `TASK_QOS`, so that the two ends cannot drift apart.
+both use these conversions (and `topics.TASK`), so that the two ends cannot drift apart.
 """
 
 from hri_interfaces.msg import TaskParameters
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from hri_core.task_file import TaskRecord
-
-# /hri/task: every learned task reaches late joiners (DESIGN.md: keep_last >= 16).
-TASK_QOS = QoSProfile(depth=16, history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def task_message(record: TaskRecord, stamp=None) -> TaskParameters:

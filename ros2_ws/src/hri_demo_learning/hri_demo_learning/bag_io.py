@@ -35,6 +35,7 @@ from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from hri_core import topics
 from hri_core.dynamics import forward_kinematics
 
 #: rosbag2 bag format version that ROS 2 Jazzy's rosbag2 writes.
@@ -45,11 +46,12 @@ MCAP_MAGIC = b'\x89MCAP0\r\n'
 #: Compression of the MCAP chunks that BagWriter offers ('none' or 'zstd').
 COMPRESSIONS = ('none', 'zstd')
 
-POSITION_TOPIC = '/ee_position'
-JOINT_STATE_TOPIC = '/joint_states'
-REFERENCE_TOPIC = '/demo/reference'
-POINT_STAMPED = 'geometry_msgs/msg/PointStamped'
-JOINT_STATE = 'sensor_msgs/msg/JointState'
+# Where a demonstration's data is in a bag: the recorder's default topics.
+POSITION_TOPIC = topics.EE_POSITION.name
+JOINT_STATE_TOPIC = topics.JOINT_STATES.name
+REFERENCE_TOPIC = topics.DEMO_REFERENCE.name
+POINT_STAMPED = topics.EE_POSITION.type_name
+JOINT_STATE = topics.JOINT_STATES.type_name
 JOINT_NAMES = ('joint1', 'joint2')
 
 

@@ -35,8 +35,9 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from hri_core import topics
 from hri_core.task_file import TaskRecord, is_safe_task_name, save_task_file
-from hri_core.task_message import TASK_QOS, task_message
+from hri_core.task_message import task_message
 from hri_demo_learning.bag_io import BagError, read_demonstration
 from hri_demo_learning.identification import identify_task_region
 from hri_demo_learning.performance_learning import (
@@ -188,7 +189,8 @@ class Learner(Node):
                                 '(1-64 of A-Z a-z 0-9 _ -, not starting with -)')
         self.once = bool(p['once'])
         self.add_on_set_parameters_callback(self._reject_changes)
-        self._publisher = self.create_publisher(TaskParameters, '/hri/task', TASK_QOS)
+        self._publisher = self.create_publisher(TaskParameters, topics.TASK.name,
+                                                topics.TASK.qos)
 
         learned = learn_from_bags(
             bags, shifts, name, n=int(p['n']), stationary_speed=p['stationary_speed'],

@@ -43,12 +43,12 @@ from rosbags.interfaces import (
     QosTime,
 )
 
+from hri_core import topics
 from hri_core.node_common import StartupError, init_ros, spin_until_stopped
 from hri_demo_learning.bag_io import BagError, BagWriter
 
 NODE_NAME = 'recorder'
-DEFAULT_TOPICS = ['/joint_states', '/ee_position', '/demo/reference', '/target',
-                  '/human/wrench']
+DEFAULT_TOPICS = [topic.name for topic in topics.DEMONSTRATION_TOPICS]
 FLUSH_PERIOD_RANGE = (0.05, 1.0)  # s
 DISCOVERY_PERIOD = 0.1  # s between looks at the graph for topics not recorded yet
 

@@ -25,8 +25,9 @@ import numpy as np
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 
+from hri_core import topics
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -43,9 +44,6 @@ from scara_sim.profiles import (
 )
 
 NODE_NAME = 'demonstrator'
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-REFERENCE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-EE_QOS = qos_profile_sensor_data
 # Every parameter is read-only: a demonstration runs once with the values it started with.
 PUSH_SETTINGS = {  # PushSettings fields
     'stiffness': ParameterSpec(300.0, 'hand impedance stiffness (N/m)', 1.0, 5000.0,
@@ -127,10 +125,13 @@ class Demonstrator(Node):
         self._heard_at: float | None = None
         self._push_start = 0.0
         self._peak_speed = 0.0
-        self._wrench_pub = self.create_publisher(WrenchStamped, '/human/wrench', COMMAND_QOS)
-        self._reference_pub = self.create_publisher(PointStamped, '/demo/reference',
-                                                    REFERENCE_QOS)
-        self.create_subscription(PointStamped, '/ee_position', self._on_position, EE_QOS)
+        self._wrench_pub = self.create_publisher(WrenchStamped, topics.HUMAN_WRENCH.name,
+                                                 topics.HUMAN_WRENCH.qos)
+        self._reference_pub = self.create_publisher(PointStamped, topics.DEMO_REFERENCE.name,
+                                                    topics.DEMO_REFERENCE.qos)
+        # The push loop needs fresh positions, not every one: best effort is enough.
+        self.create_subscription(PointStamped, topics.EE_POSITION.name, self._on_position,
+                                 qos_profile_sensor_data)
         self._wrench = WrenchStamped()
         self._wrench.header.frame_id = self._frame
         self._reference_msg = PointStamped()

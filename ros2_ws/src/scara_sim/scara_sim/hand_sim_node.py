@@ -14,8 +14,8 @@ from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from hri_core import topics
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -25,7 +25,6 @@ from hri_core.node_common import (
 from scara_sim.profiles import HAND_PROFILES, HandProfile, hand_position
 
 NODE_NAME = 'hand_sim'
-TARGET_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 PARAMETERS = {
     'rate_hz': ParameterSpec(100.0, 'publish rate of /target (Hz)', 1.0, 1000.0,
                              read_only=True),
@@ -62,7 +61,8 @@ class HandSim(Node):
         self._started = time.monotonic()
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self._publisher = self.create_publisher(PointStamped, '/target', TARGET_QOS)
+        self._publisher = self.create_publisher(PointStamped, topics.TARGET.name,
+                                                topics.TARGET.qos)
         self._msg = PointStamped()
         self._msg.header.frame_id = self._frame
         self.create_timer(1.0 / rate_hz, self._publish)

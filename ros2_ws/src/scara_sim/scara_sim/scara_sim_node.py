@@ -33,11 +33,11 @@ from geometry_msgs.msg import PointStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from hri_core import topics
 from hri_core.dynamics import ScaraParameters, forward_kinematics
 from hri_core.node_common import (
     ParameterSpec,
@@ -55,8 +55,6 @@ from scara_sim.simulation import (
 
 NODE_NAME = 'scara_sim'
 JOINT_NAMES = ['joint1', 'joint2']
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-STATE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 WARN_THROTTLE = 2.0  # s between two warnings about malformed input
 
 ARM_PARAMETERS = {  # ScaraParameters fields; every one may change at run time
@@ -143,13 +141,16 @@ class ScaraSim(Node):
         self._reported = (0, 0, 0)
         self._last_report = time.monotonic()
 
-        self._joint_pub = self.create_publisher(JointState, '/joint_states', STATE_QOS)
-        self._ee_pub = self.create_publisher(PointStamped, '/ee_position', STATE_QOS)
-        self.create_subscription(Float64MultiArray, '/effort_controller/commands',
-                                 self._on_effort, COMMAND_QOS)
-        self.create_subscription(Float64MultiArray, '/velocity_controller/commands',
-                                 self._on_velocity, COMMAND_QOS)
-        self.create_subscription(WrenchStamped, '/human/wrench', self._on_wrench, COMMAND_QOS)
+        self._joint_pub = self.create_publisher(JointState, topics.JOINT_STATES.name,
+                                                topics.JOINT_STATES.qos)
+        self._ee_pub = self.create_publisher(PointStamped, topics.EE_POSITION.name,
+                                             topics.EE_POSITION.qos)
+        self.create_subscription(Float64MultiArray, topics.EFFORT_COMMANDS.name,
+                                 self._on_effort, topics.EFFORT_COMMANDS.qos)
+        self.create_subscription(Float64MultiArray, topics.VELOCITY_COMMANDS.name,
+                                 self._on_velocity, topics.VELOCITY_COMMANDS.qos)
+        self.create_subscription(WrenchStamped, topics.HUMAN_WRENCH.name, self._on_wrench,
+                                 topics.HUMAN_WRENCH.qos)
         self._joint_msg = JointState(name=list(JOINT_NAMES))
         self._ee_msg = PointStamped()
         self._ee_msg.header.frame_id = self._frame

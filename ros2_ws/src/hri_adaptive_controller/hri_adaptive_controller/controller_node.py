@@ -42,7 +42,7 @@ from hri_adaptive_controller.adaptive_law import (
     ControllerGains,
 )
 from hri_core import topics
-from hri_core.dynamics import ScaraParameters, dynamic_parameters, forward_kinematics
+from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -58,45 +58,41 @@ WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a tick later than 1.5 periods counts as a deadline miss
 MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
 
-# The true parameters of scara_sim's default arm, scaled: the controller starts wrong on
-# purpose (DESIGN.md) and adapts (eq. 19).
-_DEFAULT_THETA_HAT0 = [float(round(v, 4)) for v in 0.6 * dynamic_parameters(ScaraParameters())]
-
 PARAMETERS = {
-    'rate_hz': ParameterSpec(1000.0, 'control rate (Hz)', low=10.0, high=2000.0,
+    'rate_hz': ParameterSpec(float, 'control rate (Hz)', low=10.0, high=2000.0,
                              read_only=True),
-    'state_rate_hz': ParameterSpec(100.0, 'ControllerState rate (Hz)', low=1.0, high=1000.0,
+    'state_rate_hz': ParameterSpec(float, 'ControllerState rate (Hz)', low=1.0, high=1000.0,
                                    read_only=True),
-    'mode': ParameterSpec('effort', 'effort: torques (eq. 16); velocity: qdot_r (eq. 14)',
+    'mode': ParameterSpec(str, 'effort: torques (eq. 16); velocity: qdot_r (eq. 14)',
                           choices=('effort', 'velocity'), read_only=True),
-    'ks': ParameterSpec(list(DEFAULT_GAINS.ks), 'diagonal of Ks (N m s/rad)', size=2),
-    'kp': ParameterSpec(DEFAULT_GAINS.kp, 'task gain Kp (N s/m)', low=0.0, high=1000.0),
-    'adaptation_gain': ParameterSpec(list(DEFAULT_GAINS.adaptation),
+    'ks': ParameterSpec(list, 'diagonal of Ks (N m s/rad)', size=2),
+    'kp': ParameterSpec(float, 'task gain Kp (N s/m)', low=0.0, high=1000.0),
+    'adaptation_gain': ParameterSpec(list,
                                      'diagonal of L, one per theta (eq. 19)', size=7),
-    'theta_hat0': ParameterSpec(_DEFAULT_THETA_HAT0, 'initial theta_hat: '
+    'theta_hat0': ParameterSpec(list, 'initial theta_hat: '
                                 + ', '.join(PARAMETER_NAMES), size=7, read_only=True),
-    'max_task_speed': ParameterSpec(DEFAULT_GAINS.max_task_speed,
+    'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
-    'approach_distance': ParameterSpec(DEFAULT_GAINS.approach_distance,
+    'approach_distance': ParameterSpec(float,
                                        'distance from the region where the reference slows '
                                        'down (m)', low=0.001, high=0.5),
-    'region_margin': ParameterSpec(DEFAULT_GAINS.region_margin,
+    'region_margin': ParameterSpec(float,
                                    'how far inside the learned region the task aims (m)',
                                    low=0.0, high=0.1),
-    'effort_limit': ParameterSpec(DEFAULT_GAINS.effort_limit, 'torque limit per joint (N m)',
+    'effort_limit': ParameterSpec(float, 'torque limit per joint (N m)',
                                   low=0.1, high=500.0),
-    'joint_state_timeout': ParameterSpec(0.1, 'joint states older than this: zero torque (s)',
+    'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
                                          low=0.002, high=10.0),
-    'task_state_timeout': ParameterSpec(2.0, 'no TaskState for this long: a = 0 (s)',
+    'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: a = 0 (s)',
                                         low=0.1, high=3600.0),
-    'target_filter_time': ParameterSpec(0.05, 'time constant of the hand velocity estimate (s)',
+    'target_filter_time': ParameterSpec(float, 'time constant of the hand velocity estimate (s)',
                                         low=0.001, high=5.0, read_only=True),
-    'max_target_distance': ParameterSpec(2.0, 'targets farther than this from the base are '
+    'max_target_distance': ParameterSpec(float, 'targets farther than this from the base are '
                                          'dropped (m)', low=0.1, high=100.0),
-    'l1': ParameterSpec(0.35, 'link 1 length (m)', low=0.01, high=5.0, read_only=True),
-    'l2': ParameterSpec(0.30, 'link 2 length (m)', low=0.01, high=5.0, read_only=True),
-    'gravity': ParameterSpec(0.0, 'gravity in the arm plane (m/s^2; 0 horizontal)',
+    'l1': ParameterSpec(float, 'link 1 length (m)', low=0.01, high=5.0, read_only=True),
+    'l2': ParameterSpec(float, 'link 2 length (m)', low=0.01, high=5.0, read_only=True),
+    'gravity': ParameterSpec(float, 'gravity in the arm plane (m/s^2; 0 horizontal)',
                              low=0.0, high=20.0, read_only=True),
 }
 GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_distance',
@@ -346,7 +342,7 @@ class Controller(Node):
 
 def main(args=None):
     # The 1 kHz loop and its 1 kHz input: the EventsExecutor at a fraction of the CPU.
-    return run_node(Controller, NODE_NAME, EventsExecutor, args)
+    return run_node(Controller, NODE_NAME, 'hri_adaptive_controller', EventsExecutor, args)
 
 
 if __name__ == '__main__':

@@ -49,15 +49,15 @@ NODE_NAME = 'event_manager'
 WARNING_THROTTLE = 1.0  # s between repeats of one kind of warning
 
 PARAMETERS = {
-    'tasks_dir': ParameterSpec('tasks', 'folder of task YAML files loaded at start',
+    'tasks_dir': ParameterSpec(str, 'folder of task YAML files loaded at start',
                                read_only=True),
-    'initial_task': ParameterSpec('', 'task faded in at start ("" = start idle, a = 0)',
+    'initial_task': ParameterSpec(str, 'task faded in at start ("" = start idle, a = 0)',
                                   read_only=True),
-    'ramp_time': ParameterSpec(1.0, 'duration of a full fade 1 -> 0 or 0 -> 1 (s)',
+    'ramp_time': ParameterSpec(float, 'duration of a full fade 1 -> 0 or 0 -> 1 (s)',
                                low=0.05, high=60.0),
-    'publish_rate_hz': ParameterSpec(200.0, 'TaskState rate during a ramp (Hz)',
+    'publish_rate_hz': ParameterSpec(float, 'TaskState rate during a ramp (Hz)',
                                      low=100.0, high=1000.0, read_only=True),
-    'heartbeat_period': ParameterSpec(0.5, 'TaskState period when nothing changes (s)',
+    'heartbeat_period': ParameterSpec(float, 'TaskState period when nothing changes (s)',
                                       low=0.01, high=60.0),
 }
 
@@ -190,7 +190,8 @@ def _name(key) -> str:
 
 
 def main(args=None):
-    return run_node(EventManager, NODE_NAME, SingleThreadedExecutor, args)
+    return run_node(EventManager, NODE_NAME, 'hri_adaptive_controller',
+                    SingleThreadedExecutor, args)
 
 
 if __name__ == '__main__':

@@ -1,10 +1,12 @@
 """What the suite's nodes share (ROS side, not pure): parameters, spinning, a node's life.
 
-Parameters: each node lists its parameters as a table of `ParameterSpec` (default,
-description, range); `declare_parameters` declares them all with descriptors and turns
-rclpy's exceptions into `StartupError` with a one-line reason, so that a node started with a
-bad value logs that line and exits non-zero instead of printing a traceback. The package's
-config/*.yaml files are checked against the tables (test/test_config.py).
+Parameters: each node lists its parameters as a table of `ParameterSpec` (type,
+description, range); their values come from the node's `config/<node>.yaml`, installed in its
+package's share folder, which `init_ros` puts first on the command line as a `--params-file`:
+that file is the one source of the defaults, and whatever the user passes (`--params-file`,
+`-p`) comes after it and wins. `declare_parameters` declares them all with descriptors and
+turns rclpy's exceptions into `StartupError` with a one-line reason, so that a node started
+with a bad or missing value logs that line and exits non-zero instead of printing a traceback.
 
 Spinning: `init_ros` starts rclpy without its signal handlers and turns SIGINT and SIGTERM
 into a stop request that `spin_until_stopped` checks between callbacks. rclpy's own handlers
@@ -15,20 +17,28 @@ node leaves the loop, logs its summary and exits 0.
 
 import math
 import signal
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import rclpy
+import yaml
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
     ParameterDescriptor,
-    ParameterType,
 )
-from rclpy.exceptions import InvalidParameterTypeException, ParameterException
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    ParameterException,
+    ParameterUninitializedException,
+)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 
@@ -36,13 +46,23 @@ class StartupError(Exception):
     """A node cannot start; the message is a one-line reason."""
 
 
+# The parameter types a table may use, as rclpy's types.
+PARAMETER_TYPES = {
+    float: Parameter.Type.DOUBLE,
+    int: Parameter.Type.INTEGER,
+    str: Parameter.Type.STRING,
+    bool: Parameter.Type.BOOL,
+    list: Parameter.Type.DOUBLE_ARRAY,
+}
+
+
 @dataclass(frozen=True)
 class ParameterSpec:
-    """One parameter: its default (its type sets the parameter type: float, int, str, bool,
-    list of float), description, range [low, high] for numbers, exact size for arrays,
-    allowed values for strings, and whether it is read-only at run time."""
+    """One parameter: its type (float, int, str, bool, or list for an array of floats),
+    description, range [low, high] for numbers, exact size for arrays, allowed values for
+    strings, and whether it is read-only at run time. Its value is in the node's YAML."""
 
-    default: float | int | str | bool | list
+    type: type
     description: str
     low: float | None = None
     high: float | None = None
@@ -50,26 +70,56 @@ class ParameterSpec:
     choices: tuple[str, ...] = ()
     read_only: bool = False
 
+    def descriptor(self) -> ParameterDescriptor:
+        """The descriptor ROS shows for this parameter (`ros2 param describe`)."""
+        descriptor = ParameterDescriptor(description=self.description,
+                                         read_only=self.read_only,
+                                         type=PARAMETER_TYPES[self.type].value)
+        if self.type is float:
+            descriptor.floating_point_range = [
+                FloatingPointRange(from_value=float(self.low), to_value=float(self.high))]
+        elif self.type is int:
+            descriptor.integer_range = [
+                IntegerRange(from_value=int(self.low), to_value=int(self.high))]
+        if self.choices:
+            descriptor.additional_constraints = f'one of {", ".join(self.choices)}'
+        return descriptor
+
+    def problem(self, value) -> str:
+        """Why `value` is not valid beyond its type and range ('' if it is)."""
+        if self.type is str and self.choices and value not in self.choices:
+            return f'{value!r} is not one of {", ".join(self.choices)}'
+        if self.type is list:
+            return float_array_problem(value, self.size)
+        return ''
+
 
 def declare_parameters(node: Node, specs: dict[str, ParameterSpec]) -> dict:
-    """Declare every parameter of `specs` on `node`; return {name: value}."""
+    """Declare every parameter of `specs` on `node`; return {name: value}.
+
+    Raises StartupError with a one-line reason for a value of the wrong type, out of range,
+    not among the choices, or missing (no YAML, or a node renamed away from its YAML's key).
+    """
     values = {}
     for name, spec in specs.items():
-        default = spec.default
-        if isinstance(default, bool):
-            values[name] = declare_bool(node, name, default, spec.description, spec.read_only)
-        elif isinstance(default, int):
-            values[name] = declare_integer(node, name, default, spec.description, spec.low,
-                                           spec.high, spec.read_only)
-        elif isinstance(default, float):
-            values[name] = declare_float(node, name, default, spec.description, spec.low,
-                                         spec.high, spec.read_only)
-        elif isinstance(default, str):
-            values[name] = declare_string(node, name, default, spec.description,
-                                          spec.choices, spec.read_only)
-        else:
-            values[name] = declare_float_array(node, name, default, spec.description,
-                                               spec.size, spec.read_only)
+        try:
+            node.declare_parameter(name, PARAMETER_TYPES[spec.type], spec.descriptor())
+            value = node.get_parameter(name).value
+        except ParameterUninitializedException:
+            raise StartupError(
+                f'parameter {name} has no value: give it with -p {name}:=VALUE or in a '
+                f'--params-file (config/{node.get_name()}.yaml of the package holds every '
+                'default, under the node name)') from None
+        except InvalidParameterTypeException as error:
+            hint = ' (write it with a decimal point, e.g. 1000.0)' if spec.type is float \
+                else ''
+            raise StartupError(f'bad parameter {name}: {_reason(error, name)}{hint}') from None
+        except ParameterException as error:
+            raise StartupError(f'bad parameter {name}: {_reason(error, name)}') from None
+        reason = spec.problem(value)
+        if reason:
+            raise StartupError(f'bad parameter {name}: {reason}')
+        values[name] = [float(v) for v in value] if spec.type is list else value
     return values
 
 
@@ -77,63 +127,6 @@ def _reason(error: ParameterException, name: str) -> str:
     """rclpy's message of a parameter exception without its trailing ': <name>'."""
     message = str(error)
     return message[:-len(f': {name}')] if message.endswith(f': {name}') else message
-
-
-def _declare(node: Node, name: str, default, descriptor: ParameterDescriptor):
-    try:
-        return node.declare_parameter(name, default, descriptor).value
-    except InvalidParameterTypeException as error:
-        hint = ' (write it with a decimal point, e.g. 1000.0)' if isinstance(default, float) \
-            else ''
-        raise StartupError(f'bad parameter {name}: {_reason(error, name)}{hint}') from None
-    except ParameterException as error:
-        raise StartupError(f'bad parameter {name}: {_reason(error, name)}') from None
-
-
-def declare_float(node: Node, name: str, default: float, description: str, low: float,
-                  high: float, read_only: bool = False) -> float:
-    """Declare a double parameter in [low, high]; return its value."""
-    return _declare(node, name, float(default), ParameterDescriptor(
-        description=description, read_only=read_only,
-        floating_point_range=[FloatingPointRange(from_value=low, to_value=high)]))
-
-
-def declare_integer(node: Node, name: str, default: int, description: str, low: int,
-                    high: int, read_only: bool = False) -> int:
-    """Declare an integer parameter in [low, high]; return its value."""
-    return _declare(node, name, int(default), ParameterDescriptor(
-        description=description, read_only=read_only,
-        integer_range=[IntegerRange(from_value=low, to_value=high)]))
-
-
-def declare_string(node: Node, name: str, default: str, description: str,
-                   choices: tuple[str, ...] = (), read_only: bool = False) -> str:
-    """Declare a string parameter, one of `choices` when given; return its value."""
-    value = _declare(node, name, default, ParameterDescriptor(
-        description=description, read_only=read_only, type=ParameterType.PARAMETER_STRING))
-    if choices and value not in choices:
-        raise StartupError(f'bad parameter {name}: {value!r} is not one of '
-                           f'{", ".join(choices)}')
-    return value
-
-
-def declare_bool(node: Node, name: str, default: bool, description: str,
-                 read_only: bool = False) -> bool:
-    """Declare a bool parameter; return its value."""
-    return _declare(node, name, bool(default), ParameterDescriptor(
-        description=description, read_only=read_only, type=ParameterType.PARAMETER_BOOL))
-
-
-def declare_float_array(node: Node, name: str, default: list[float], description: str,
-                        size: int | None = None, read_only: bool = False) -> list[float]:
-    """Declare a double-array parameter of finite values (exactly `size` if given)."""
-    value = _declare(node, name, [float(v) for v in default], ParameterDescriptor(
-        description=description, read_only=read_only,
-        type=ParameterType.PARAMETER_DOUBLE_ARRAY))
-    reason = float_array_problem(value, size)
-    if reason:
-        raise StartupError(f'bad parameter {name}: {reason}')
-    return [float(v) for v in value]
 
 
 def float_array_problem(value, size: int | None) -> str:
@@ -146,9 +139,43 @@ def float_array_problem(value, size: int | None) -> str:
     return ''
 
 
-def init_ros(args=None) -> threading.Event:
-    """rclpy.init without rclpy's signal handlers; return the event SIGINT/SIGTERM set."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+def defaults_file(package: str, node_name: str) -> Path:
+    """The YAML with the defaults of `node_name`: config/<node_name>.yaml in the package's
+    share folder. StartupError if it is not installed."""
+    try:
+        path = Path(get_package_share_directory(package)) / 'config' / f'{node_name}.yaml'
+    except PackageNotFoundError:
+        raise StartupError(f'package {package} is not installed (source the workspace)') \
+            from None
+    if not path.is_file():
+        raise StartupError(f'the defaults of {node_name} are missing: no {path}')
+    return path
+
+
+def load_defaults(package: str, node_name: str) -> dict:
+    """The default parameter values of `node_name` ({name: value}) from its YAML."""
+    path = defaults_file(package, node_name)
+    try:
+        document = yaml.safe_load(path.read_text())
+        return dict(document[node_name]['ros__parameters'])
+    except (yaml.YAMLError, KeyError, TypeError) as error:
+        raise StartupError(f'{path} does not hold {node_name}.ros__parameters: '
+                           f'{" ".join(str(error).split())}') from None
+
+
+def with_defaults(argv: Sequence[str], defaults: Path) -> list[str]:
+    """`argv` with `--params-file defaults` in front of its ROS arguments, so that every
+    parameter file and `-p` the user gives comes later and wins."""
+    return [argv[0], '--ros-args', '--params-file', str(defaults), '--', *argv[1:]]
+
+
+def init_ros(args=None, defaults: Path | None = None) -> threading.Event:
+    """rclpy.init without rclpy's signal handlers, with the parameter file `defaults` first
+    (see `with_defaults`); return the event SIGINT/SIGTERM set."""
+    argv = list(sys.argv if args is None else args) or ['node']
+    if defaults is not None:
+        argv = with_defaults(argv, defaults)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
 
     def request_stop(signum, frame):
@@ -166,18 +193,26 @@ def spin_until_stopped(executor, stop: threading.Event,
         executor.spin_once(timeout_sec=0.1)
 
 
-def run_node(create_node: Callable[[], Node], node_name: str, executor_class=None,
-             args=None, exit_code: Callable[[Node], int | None] | None = None,
+def run_node(create_node: Callable[[], Node], node_name: str, package: str,
+             executor_class=None, args=None,
+             exit_code: Callable[[Node], int | None] | None = None,
              on_stop: Callable[[Node], None] | None = None) -> int:
-    """A node's whole life: rclpy up, create the node, spin until SIGINT/SIGTERM (or until
-    `exit_code(node)` is not None), clean up; return the process exit code.
+    """A node's whole life: rclpy up with the package's config/<node_name>.yaml as its
+    defaults, create the node, spin until SIGINT/SIGTERM (or until `exit_code(node)` is not
+    None), clean up; return the process exit code.
 
-    A StartupError is logged as its one-line reason and gives exit code 1. `on_stop(node)`
-    runs before the node is destroyed (a summary line, closing a file). `executor_class`
-    defaults to SingleThreadedExecutor; the EventsExecutor is driven with spin_once here,
-    because its spin() ignores shutdown (notes/measured-limits.md).
+    A StartupError is logged as its one-line reason (ERROR) and gives exit code 1.
+    `on_stop(node)` runs before the node is destroyed (a summary line, closing a file).
+    `executor_class` defaults to SingleThreadedExecutor; the EventsExecutor is driven with
+    spin_once here, because its spin() ignores shutdown (docs/design-notes.md).
     """
-    stop = init_ros(args)
+    logger = rclpy.logging.get_logger(node_name)
+    try:
+        defaults = defaults_file(package, node_name)
+    except StartupError as error:
+        logger.error(str(error))
+        return 1
+    stop = init_ros(args, defaults)
     node = None
     executor = None
     code = 0
@@ -191,7 +226,7 @@ def run_node(create_node: Callable[[], Node], node_name: str, executor_class=Non
         if exit_code is not None and exit_code(node) is not None:
             code = exit_code(node)
     except StartupError as error:
-        rclpy.logging.get_logger(node_name).fatal(str(error))
+        logger.error(str(error))
         code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -46,49 +46,49 @@ from scara_sim.profiles import (
 NODE_NAME = 'demonstrator'
 # Every parameter is read-only: a demonstration runs once with the values it started with.
 PUSH_SETTINGS = {  # PushSettings fields
-    'stiffness': ParameterSpec(300.0, 'hand impedance stiffness (N/m)', 1.0, 5000.0,
+    'stiffness': ParameterSpec(float, 'hand impedance stiffness (N/m)', 1.0, 5000.0,
                                read_only=True),
-    'damping': ParameterSpec(40.0, 'hand impedance damping (N s/m)', 0.0, 1000.0,
+    'damping': ParameterSpec(float, 'hand impedance damping (N s/m)', 0.0, 1000.0,
                              read_only=True),
-    'max_force': ParameterSpec(30.0, 'largest force the hand applies (N)', 0.1, 200.0,
+    'max_force': ParameterSpec(float, 'largest force the hand applies (N)', 0.1, 200.0,
                                read_only=True),
-    'peak_speed': ParameterSpec(0.15, 'peak speed of the minimum-jerk path (m/s)', 0.01, 1.0,
+    'peak_speed': ParameterSpec(float, 'peak speed of the minimum-jerk path (m/s)', 0.01, 1.0,
                                 read_only=True),
-    'settle_tolerance': ParameterSpec(0.002, 'arrived: this close to the goal (m)', 1e-4, 0.1,
+    'settle_tolerance': ParameterSpec(float, 'arrived: this close to the goal (m)', 1e-4, 0.1,
                                       read_only=True),
-    'settle_speed': ParameterSpec(0.002, 'arrived: slower than this (m/s)', 1e-4, 0.1,
+    'settle_speed': ParameterSpec(float, 'arrived: slower than this (m/s)', 1e-4, 0.1,
                                   read_only=True),
-    'settle_timeout': ParameterSpec(5.0, 'let go this long after the path ends (s)', 0.1,
+    'settle_timeout': ParameterSpec(float, 'let go this long after the path ends (s)', 0.1,
                                     60.0, read_only=True),
-    'hold_time': ParameterSpec(3.0, 'zero force for this long before exiting (s)', 0.0,
+    'hold_time': ParameterSpec(float, 'zero force for this long before exiting (s)', 0.0,
                                600.0, read_only=True),
 }
 PARAMETERS = {
-    'mode': ParameterSpec('follow', 'follow: toward x_r; avoid: away from x_r',
+    'mode': ParameterSpec(str, 'follow: toward x_r; avoid: away from x_r',
                           choices=DEMONSTRATION_MODES, read_only=True),
-    'reference': ParameterSpec([0.45, 0.05], 'x_r, the demonstration reference [x, y] (m)',
+    'reference': ParameterSpec(list, 'x_r, the demonstration reference [x, y] (m)',
                                size=2, read_only=True),
-    'stop_distance': ParameterSpec(0.041, 'follow: stop this far from x_r (m)', 0.001, 2.0,
+    'stop_distance': ParameterSpec(float, 'follow: stop this far from x_r (m)', 0.001, 2.0,
                                    read_only=True),
-    'safe_distance': ParameterSpec(0.183, 'avoid: move out to this distance from x_r (m)',
+    'safe_distance': ParameterSpec(float, 'avoid: move out to this distance from x_r (m)',
                                    0.001, 2.0, read_only=True),
-    'avoid_direction': ParameterSpec([0.0, -1.0], 'avoid: direction to move when starting '
+    'avoid_direction': ParameterSpec(list, 'avoid: direction to move when starting '
                                      'within 5 mm of x_r', size=2, read_only=True),
     **PUSH_SETTINGS,
-    'tremor_amplitude': ParameterSpec(0.2, 'hand tremor force, RMS per axis (N)', 0.0, 10.0,
+    'tremor_amplitude': ParameterSpec(float, 'hand tremor force, RMS per axis (N)', 0.0, 10.0,
                                       read_only=True),
-    'tremor_band': ParameterSpec([8.0, 12.0], 'hand tremor band [low, high] (Hz)', size=2,
+    'tremor_band': ParameterSpec(list, 'hand tremor band [low, high] (Hz)', size=2,
                                  read_only=True),
-    'seed': ParameterSpec(0, 'seed of the tremor noise', 0, 2**31 - 1, read_only=True),
-    'rate_hz': ParameterSpec(200.0, 'rate of /human/wrench and /demo/reference (Hz)', 10.0,
+    'seed': ParameterSpec(int, 'seed of the tremor noise', 0, 2**31 - 1, read_only=True),
+    'rate_hz': ParameterSpec(float, 'rate of /human/wrench and /demo/reference (Hz)', 10.0,
                              1000.0, read_only=True),
-    'start_delay': ParameterSpec(1.0, 'wait after hearing the arm before pushing (s)', 0.0,
+    'start_delay': ParameterSpec(float, 'wait after hearing the arm before pushing (s)', 0.0,
                                  600.0, read_only=True),
-    'wait_timeout': ParameterSpec(10.0, 'give up when no /ee_position comes (s)', 0.1, 600.0,
+    'wait_timeout': ParameterSpec(float, 'give up when no /ee_position comes (s)', 0.1, 600.0,
                                   read_only=True),
-    'velocity_filter_time': ParameterSpec(0.01, 'time constant of the end-effector velocity '
+    'velocity_filter_time': ParameterSpec(float, 'time constant of the end-effector velocity '
                                           'filter (s)', 0.001, 1.0, read_only=True),
-    'base_frame': ParameterSpec('base', 'frame of /demo/reference and /human/wrench',
+    'base_frame': ParameterSpec(str, 'frame of /demo/reference and /human/wrench',
                                 read_only=True),
 }
 
@@ -224,7 +224,7 @@ class Demonstrator(Node):
 
 def main(args=None):
     # /ee_position comes at 1 kHz: the EventsExecutor takes it at a fraction of the CPU.
-    return run_node(Demonstrator, NODE_NAME, EventsExecutor, args,
+    return run_node(Demonstrator, NODE_NAME, 'scara_sim', EventsExecutor, args,
                     exit_code=lambda node: node.exit_code)
 
 

@@ -26,21 +26,21 @@ from scara_sim.profiles import HAND_PROFILES, HandProfile, hand_position
 
 NODE_NAME = 'hand_sim'
 PARAMETERS = {
-    'rate_hz': ParameterSpec(100.0, 'publish rate of /target (Hz)', 1.0, 1000.0,
+    'rate_hz': ParameterSpec(float, 'publish rate of /target (Hz)', 1.0, 1000.0,
                              read_only=True),
-    'profile': ParameterSpec('hold', 'hand motion: ' + ', '.join(HAND_PROFILES),
+    'profile': ParameterSpec(str, 'hand motion: ' + ', '.join(HAND_PROFILES),
                              choices=HAND_PROFILES),
-    'start': ParameterSpec([0.45, 0.05], 'start point [x, y] (m); centre of the circle',
+    'start': ParameterSpec(list, 'start point [x, y] (m); centre of the circle',
                            size=2),
-    'end': ParameterSpec([0.30, 0.30], 'end point [x, y] (m)', size=2),
-    'speed': ParameterSpec(0.15, 'peak speed of approach, retreat and waypoints moves (m/s)',
+    'end': ParameterSpec(list, 'end point [x, y] (m)', size=2),
+    'speed': ParameterSpec(float, 'peak speed of approach, retreat and waypoints moves (m/s)',
                            0.001, 5.0),
-    'period': ParameterSpec(8.0, 'cycle time of back_and_forth and circle (s)', 0.1, 3600.0),
-    'radius': ParameterSpec(0.08, 'circle radius (m)', 0.001, 2.0),
-    'start_delay': ParameterSpec(0.0, 'time the hand waits before moving (s)', 0.0, 3600.0),
-    'waypoints': ParameterSpec([0.45, 0.05, 0.30, 0.30],
+    'period': ParameterSpec(float, 'cycle time of back_and_forth and circle (s)', 0.1, 3600.0),
+    'radius': ParameterSpec(float, 'circle radius (m)', 0.001, 2.0),
+    'start_delay': ParameterSpec(float, 'time the hand waits before moving (s)', 0.0, 3600.0),
+    'waypoints': ParameterSpec(list,
                                'waypoints profile: flat [x0, y0, x1, y1, ...] (m)'),
-    'base_frame': ParameterSpec('base', 'frame of /target', read_only=True),
+    'base_frame': ParameterSpec(str, 'frame of /target', read_only=True),
 }
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
                       'waypoints')
@@ -66,7 +66,8 @@ class HandSim(Node):
         self._msg = PointStamped()
         self._msg.header.frame_id = self._frame
         self.create_timer(1.0 / rate_hz, self._publish)
-        self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on /target')
+        self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on '
+                               f'{self._publisher.topic_name}')
 
     def _profile_from(self, overrides: dict) -> HandProfile:
         def value(name):
@@ -109,7 +110,7 @@ class HandSim(Node):
 
 
 def main(args=None):
-    return run_node(HandSim, NODE_NAME, SingleThreadedExecutor, args)
+    return run_node(HandSim, NODE_NAME, 'scara_sim', SingleThreadedExecutor, args)
 
 
 if __name__ == '__main__':

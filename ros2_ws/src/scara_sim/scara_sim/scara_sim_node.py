@@ -58,49 +58,49 @@ JOINT_NAMES = ['joint1', 'joint2']
 WARN_THROTTLE = 2.0  # s between two warnings about malformed input
 
 ARM_PARAMETERS = {  # ScaraParameters fields; every one may change at run time
-    'l1': ParameterSpec(0.35, 'length of link 1 (m)', 0.05, 2.0),
-    'l2': ParameterSpec(0.30, 'length of link 2 (m)', 0.05, 2.0),
-    'lc1': ParameterSpec(0.175, 'joint 1 to the centre of mass of link 1 (m)', 0.0, 2.0),
-    'lc2': ParameterSpec(0.18, 'joint 2 to the centre of mass of link 2 and its load (m)',
+    'l1': ParameterSpec(float, 'length of link 1 (m)', 0.05, 2.0),
+    'l2': ParameterSpec(float, 'length of link 2 (m)', 0.05, 2.0),
+    'lc1': ParameterSpec(float, 'joint 1 to the centre of mass of link 1 (m)', 0.0, 2.0),
+    'lc2': ParameterSpec(float, 'joint 2 to the centre of mass of link 2 and its load (m)',
                          0.0, 2.0),
-    'm1': ParameterSpec(4.0, 'mass of link 1 (kg)', 0.01, 100.0),
-    'm2': ParameterSpec(3.0, 'mass of link 2 with quill and tool (kg)', 0.01, 100.0),
-    'i1': ParameterSpec(0.045, 'inertia of link 1 about its centre of mass (kg m^2)',
+    'm1': ParameterSpec(float, 'mass of link 1 (kg)', 0.01, 100.0),
+    'm2': ParameterSpec(float, 'mass of link 2 with quill and tool (kg)', 0.01, 100.0),
+    'i1': ParameterSpec(float, 'inertia of link 1 about its centre of mass (kg m^2)',
                         1e-5, 10.0),
-    'i2': ParameterSpec(0.03, 'inertia of link 2 about its centre of mass (kg m^2)',
+    'i2': ParameterSpec(float, 'inertia of link 2 about its centre of mass (kg m^2)',
                         1e-5, 10.0),
-    'b1': ParameterSpec(1.0, 'viscous friction of joint 1 (N m s/rad)', 0.0, 100.0),
-    'b2': ParameterSpec(0.5, 'viscous friction of joint 2 (N m s/rad)', 0.0, 100.0),
-    'gravity': ParameterSpec(0.0, 'gravity along -y of the arm plane (m/s^2); 0: horizontal',
+    'b1': ParameterSpec(float, 'viscous friction of joint 1 (N m s/rad)', 0.0, 100.0),
+    'b2': ParameterSpec(float, 'viscous friction of joint 2 (N m s/rad)', 0.0, 100.0),
+    'gravity': ParameterSpec(float, 'gravity along -y of the arm plane (m/s^2); 0: horizontal',
                              -20.0, 20.0),
 }
 ARRAY_PARAMETERS = {
-    'joint_lower_limits': ParameterSpec([-2.30, -2.46], 'lower joint limits (rad)', size=2),
-    'joint_upper_limits': ParameterSpec([2.30, 2.46], 'upper joint limits (rad)', size=2),
-    'velocity_kp': ParameterSpec([80.0, 20.0],
+    'joint_lower_limits': ParameterSpec(list, 'lower joint limits (rad)', size=2),
+    'joint_upper_limits': ParameterSpec(list, 'upper joint limits (rad)', size=2),
+    'velocity_kp': ParameterSpec(list,
                                  'velocity-mode PI loop: proportional gains (N m s/rad)',
                                  size=2),
-    'velocity_ki': ParameterSpec([800.0, 200.0],
+    'velocity_ki': ParameterSpec(list,
                                  'velocity-mode PI loop: integral gains (N m/rad)', size=2),
 }
 PARAMETERS = {
-    'rate_hz': ParameterSpec(1000.0, 'integration step and publish rate (Hz); step = '
+    'rate_hz': ParameterSpec(float, 'integration step and publish rate (Hz); step = '
                              '1/rate_hz', 1000.0, 10000.0, read_only=True),
     'max_catch_up_steps': ParameterSpec(
-        50, 'most steps one timer tick may run to catch up with real time; the rest are '
+        int, 'most steps one timer tick may run to catch up with real time; the rest are '
         'dropped and counted', 1, 10000, read_only=True),
     **ARM_PARAMETERS,
     **ARRAY_PARAMETERS,
-    'initial_q': ParameterSpec([0.0, math.pi / 2], 'joint positions at start (rad)', size=2,
+    'initial_q': ParameterSpec(list, 'joint positions at start (rad)', size=2,
                                read_only=True),
-    'effort_limit': ParameterSpec(20.0, 'drive torque limit of each joint (N m)', 0.1, 1000.0),
-    'command_timeout': ParameterSpec(0.2, 'no joint command for this long (s): zero torque',
+    'effort_limit': ParameterSpec(float, 'drive torque limit of each joint (N m)', 0.1, 1000.0),
+    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque',
                                      0.005, 60.0),
-    'wrench_timeout': ParameterSpec(0.2, 'no /human/wrench for this long (s): zero force',
+    'wrench_timeout': ParameterSpec(float, 'no /human/wrench for this long (s): zero force',
                                     0.005, 60.0),
-    'base_frame': ParameterSpec('base', 'frame of /ee_position and of /human/wrench',
+    'base_frame': ParameterSpec(str, 'frame of /ee_position and of /human/wrench',
                                 read_only=True),
-    'report_period': ParameterSpec(10.0, 'how often (s) late or dropped steps are reported',
+    'report_period': ParameterSpec(float, 'how often (s) late or dropped steps are reported',
                                    0.1, 3600.0),
 }
 
@@ -308,7 +308,7 @@ class ScaraSim(Node):
 
 def main(args=None):
     # EventsExecutor halves the CPU of the 1 kHz loop (bench/bench_sim.py).
-    return run_node(ScaraSim, NODE_NAME, EventsExecutor, args,
+    return run_node(ScaraSim, NODE_NAME, 'scara_sim', EventsExecutor, args,
                     on_stop=lambda node: node.get_logger().info(node.summary()))
 
 

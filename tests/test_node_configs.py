@@ -1,0 +1,64 @@
+"""Each node's config/<node>.yaml gives a valid value to every parameter the node declares.
+
+That file is the one source of a node's defaults (node_common.run_node reads it first), so a
+value missing from it, of the wrong type, out of its declared range, or a key the node does not
+declare (ROS would ignore it without a word) is caught here rather than at a robot.
+Imports the node modules for their parameter tables; rclpy is imported, never initialised.
+"""
+
+import math
+
+import pytest
+
+from hri_adaptive_controller import controller_node, event_manager_node
+from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
+from hri_core.node_common import PARAMETER_TYPES, load_defaults
+from scara_sim import demonstrator_node, hand_sim_node, scara_sim_node
+
+TABLE_NODES = [
+    ('scara_sim', scara_sim_node),
+    ('scara_sim', hand_sim_node),
+    ('scara_sim', demonstrator_node),
+    ('hri_adaptive_controller', controller_node),
+    ('hri_adaptive_controller', event_manager_node),
+]
+
+
+def value_problem(spec, value) -> str:
+    """Why `value` does not fit `spec` ('' if it does)."""
+    if spec.type is list:
+        if not (isinstance(value, list) and all(isinstance(v, float) for v in value)):
+            return f'expected a list of floats, got {value!r}'
+    elif type(value) is not spec.type:
+        return f'expected {spec.type.__name__}, got {value!r}'
+    if spec.type in (int, float) and not spec.low <= value <= spec.high:
+        return f'{value} outside [{spec.low}, {spec.high}]'
+    return spec.problem(value)
+
+
+@pytest.mark.parametrize(('package', 'module'), TABLE_NODES,
+                         ids=[module.NODE_NAME for _, module in TABLE_NODES])
+def test_yaml_holds_a_valid_value_for_every_declared_parameter(package, module):
+    values = load_defaults(package, module.NODE_NAME)
+    assert set(values) == set(module.PARAMETERS)
+    for name, spec in module.PARAMETERS.items():
+        assert spec.type in PARAMETER_TYPES, name
+        assert spec.description, name
+        assert value_problem(spec, values[name]) == '', name
+
+
+def test_value_problem_catches_what_ros_would_refuse():
+    spec = controller_node.PARAMETERS['kp']
+    assert value_problem(spec, 10) == 'expected float, got 10'
+    assert 'outside' in value_problem(spec, -1.0)
+    mode = controller_node.PARAMETERS['mode']
+    assert 'is not one of' in value_problem(mode, 'torque')
+    ks = controller_node.PARAMETERS['ks']
+    assert 'expected 2 values' in value_problem(ks, [1.0])
+    assert 'finite' in value_problem(ks, [1.0, math.nan])
+
+
+def test_controller_yaml_runs_the_gains_the_closed_loop_tests_check():
+    """The unit tests of the pure closed loop use DEFAULT_GAINS; the node must run them."""
+    values = load_defaults('hri_adaptive_controller', 'controller')
+    assert controller_node.gains_from(values) == DEFAULT_GAINS

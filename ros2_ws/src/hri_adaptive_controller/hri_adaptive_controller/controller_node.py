@@ -9,7 +9,7 @@ the joint-velocity reference qdot_r of eq. 14 on /velocity_controller/commands i
 ControllerState (distance, V, |s|, a, theta_hat, effort, deadline misses) goes out at
 `state_rate_hz`.
 
-Safety (choices where DESIGN.md is silent):
+Safety (the choices are argued in docs/design-notes.md):
 - zero torque while joint states are missing or older than `joint_state_timeout` (one
   warning per outage, one info line when they resume), or invalid (throttled warning:
   non-finite, wrong length, unknown joint names: joints are mapped by name; stamps going

@@ -6,7 +6,7 @@ on /hri/events names the task to switch to; `EventWeightSchedule` (eq. 13) fades
 out, swaps the task while a = 0, and fades it in again. The node publishes TaskState on every
 change, at `publish_rate_hz` (>= 100 Hz) during a ramp, and every `heartbeat_period` otherwise.
 
-Choices where DESIGN.md is silent:
+Choices (docs/design-notes.md says why):
 - `initial_task` fades in from a = 0 (a ramp of `ramp_time`), like any other switch, so a
   robot never starts with the full task force at once. The ramp starts when /hri/task_state
   has its first subscriber (a = 0 until then): started at once, it would be over before a

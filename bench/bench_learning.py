@@ -3,7 +3,7 @@
 
 Three parts, all through the functions the `learner` node uses:
 
-* fixtures: `learner_node.learn_from_bags` on bags/fixtures/follow, bags/fixtures/avoid and
+* fixtures: `learning.learn_from_bags` on bags/fixtures/follow, bags/fixtures/avoid and
   follow_safe (both, shifts [0.23, 0.0]) with the paper's Gauss-Newton ('gauss_newton') and
   the default 'trf', side by side in one run: `--repeats` rounds, each running both methods
   on each task (the order of the two alternates between rounds). Reports iterations, final
@@ -47,7 +47,7 @@ from hri_demo_learning.bag_io import (
     read_demonstration,
 )
 from hri_demo_learning.identification import identify_task_region
-from hri_demo_learning.learner_node import learn_from_bags
+from hri_demo_learning.learning import learn_from_bags
 from hri_demo_learning.performance_learning import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_TOLERANCE,

@@ -12,7 +12,9 @@ import pytest
 
 from hri_adaptive_controller import controller_node, event_manager_node
 from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
+from hri_core import topics
 from hri_core.node_common import PARAMETER_TYPES, load_defaults
+from hri_demo_learning import learner_node, recorder_node
 from scara_sim import demonstrator_node, hand_sim_node, scara_sim_node
 
 TABLE_NODES = [
@@ -21,14 +23,17 @@ TABLE_NODES = [
     ('scara_sim', demonstrator_node),
     ('hri_adaptive_controller', controller_node),
     ('hri_adaptive_controller', event_manager_node),
+    ('hri_demo_learning', learner_node),
+    ('hri_demo_learning', recorder_node),
 ]
 
 
 def value_problem(spec, value) -> str:
     """Why `value` does not fit `spec` ('' if it does)."""
-    if spec.type is list:
-        if not (isinstance(value, list) and all(isinstance(v, float) for v in value)):
-            return f'expected a list of floats, got {value!r}'
+    if spec.type in (list, list[str]):
+        item = float if spec.type is list else str
+        if not (isinstance(value, list) and all(isinstance(v, item) for v in value)):
+            return f'expected a list of {item.__name__}, got {value!r}'
     elif type(value) is not spec.type:
         return f'expected {spec.type.__name__}, got {value!r}'
     if spec.type in (int, float) and not spec.low <= value <= spec.high:
@@ -39,9 +44,12 @@ def value_problem(spec, value) -> str:
 @pytest.mark.parametrize(('package', 'module'), TABLE_NODES,
                          ids=[module.NODE_NAME for _, module in TABLE_NODES])
 def test_yaml_holds_a_valid_value_for_every_declared_parameter(package, module):
+    """Every parameter but those the user must give (required) or may leave unset."""
     values = load_defaults(package, module.NODE_NAME)
-    assert set(values) == set(module.PARAMETERS)
-    for name, spec in module.PARAMETERS.items():
+    with_default = {name: spec for name, spec in module.PARAMETERS.items()
+                    if not (spec.required or spec.optional)}
+    assert set(values) == set(with_default)
+    for name, spec in with_default.items():
         assert spec.type in PARAMETER_TYPES, name
         assert spec.description, name
         assert value_problem(spec, values[name]) == '', name
@@ -56,6 +64,12 @@ def test_value_problem_catches_what_ros_would_refuse():
     ks = controller_node.PARAMETERS['ks']
     assert 'expected 2 values' in value_problem(ks, [1.0])
     assert 'finite' in value_problem(ks, [1.0, math.nan])
+    assert 'list of str' in value_problem(recorder_node.PARAMETERS['topics'], ['/a', 1.0])
+
+
+def test_the_recorder_records_the_demonstration_topics_by_default():
+    defaults = load_defaults('hri_demo_learning', 'recorder')
+    assert defaults['topics'] == [topic.name for topic in topics.DEMONSTRATION_TOPICS]
 
 
 def test_controller_yaml_runs_the_gains_the_closed_loop_tests_check():

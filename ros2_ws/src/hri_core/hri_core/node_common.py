@@ -22,6 +22,7 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import GenericAlias
 
 import rclpy
 import yaml
@@ -46,29 +47,36 @@ class StartupError(Exception):
     """A node cannot start; the message is a one-line reason."""
 
 
-# The parameter types a table may use, as rclpy's types.
+# The parameter types a table may use, as rclpy's types: `list` is an array of floats.
 PARAMETER_TYPES = {
     float: Parameter.Type.DOUBLE,
     int: Parameter.Type.INTEGER,
     str: Parameter.Type.STRING,
     bool: Parameter.Type.BOOL,
     list: Parameter.Type.DOUBLE_ARRAY,
+    list[str]: Parameter.Type.STRING_ARRAY,
 }
 
 
 @dataclass(frozen=True)
 class ParameterSpec:
-    """One parameter: its type (float, int, str, bool, or list for an array of floats),
-    description, range [low, high] for numbers, exact size for arrays, allowed values for
-    strings, and whether it is read-only at run time. Its value is in the node's YAML."""
+    """One parameter: its type (float, int, str, bool, list for an array of floats, list[str]
+    for an array of strings), description, range [low, high] for numbers, exact size for
+    arrays, allowed values for strings, and whether it is read-only at run time.
 
-    type: type
+    Its value is in the node's YAML, except for a parameter that has no default: a `required`
+    one (a string or an array) the user must give, not empty; an `optional` one may stay
+    unset, and its value is then None. At most one of the two is set."""
+
+    type: type | GenericAlias
     description: str
     low: float | None = None
     high: float | None = None
     size: int | None = None
     choices: tuple[str, ...] = ()
     read_only: bool = False
+    required: bool = False
+    optional: bool = False
 
     def descriptor(self) -> ParameterDescriptor:
         """The descriptor ROS shows for this parameter (`ros2 param describe`)."""
@@ -98,7 +106,8 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec]) -> dict:
     """Declare every parameter of `specs` on `node`; return {name: value}.
 
     Raises StartupError with a one-line reason for a value of the wrong type, out of range,
-    not among the choices, or missing (no YAML, or a node renamed away from its YAML's key).
+    not among the choices, or missing (no YAML, or a node renamed away from its YAML's key;
+    for a `required` parameter also an empty one). An unset `optional` parameter is None.
     """
     values = {}
     for name, spec in specs.items():
@@ -106,21 +115,32 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec]) -> dict:
             node.declare_parameter(name, PARAMETER_TYPES[spec.type], spec.descriptor())
             value = node.get_parameter(name).value
         except ParameterUninitializedException:
-            raise StartupError(
-                f'parameter {name} has no value: give it with -p {name}:=VALUE or in a '
-                f'--params-file (config/{node.get_name()}.yaml of the package holds every '
-                'default, under the node name)') from None
+            if spec.optional:
+                values[name] = None
+                continue
+            raise StartupError(_missing_value(node, name, spec)) from None
         except InvalidParameterTypeException as error:
             hint = ' (write it with a decimal point, e.g. 1000.0)' if spec.type is float \
                 else ''
             raise StartupError(f'bad parameter {name}: {_reason(error, name)}{hint}') from None
         except ParameterException as error:
             raise StartupError(f'bad parameter {name}: {_reason(error, name)}') from None
+        if spec.required and len(value) == 0:
+            raise StartupError(_missing_value(node, name, spec))
         reason = spec.problem(value)
         if reason:
             raise StartupError(f'bad parameter {name}: {reason}')
         values[name] = [float(v) for v in value] if spec.type is list else value
     return values
+
+
+def _missing_value(node: Node, name: str, spec: ParameterSpec) -> str:
+    """The one-line reason for a parameter without a value."""
+    if spec.required:
+        return f'parameter {name} is required: {spec.description}'
+    return (f'parameter {name} has no value: give it with -p {name}:=VALUE or in a '
+            f'--params-file (config/{node.get_name()}.yaml of the package holds every '
+            'default, under the node name)')
 
 
 def _reason(error: ParameterException, name: str) -> str:

@@ -9,23 +9,20 @@ stamp stays inside the message). Every `flush_period` seconds the open MCAP chun
 (zstd-compressed with `compression:=zstd`) and handed to the OS, so a SIGKILL loses at most
 that much. SIGINT or SIGTERM close the bag cleanly (MCAP summary and metadata.yaml) and the
 node logs one summary line (messages per topic). An `output` that exists already is refused
-(one error line, exit code 1), as is a bad parameter.
+(one error line, exit code 1), as is a bad parameter; a bag that cannot be written any more
+(disk full) stops the node the same way. The parameters' defaults are in config/recorder.yaml
+(`topics`: the names of hri_core.topics.DEMONSTRATION_TOPICS); `output` has none (required).
 """
 
 import importlib
+import sys
 import time
 from pathlib import Path
 
-import rclpy
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    ParameterDescriptor,
-    ParameterType,
-    SetParametersResult,
-)
-from rclpy.exceptions import InvalidTopicNameException, ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import InvalidTopicNameException
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -43,14 +40,28 @@ from rosbags.interfaces import (
     QosTime,
 )
 
-from hri_core import topics
-from hri_core.node_common import StartupError, init_ros, spin_until_stopped
-from hri_demo_learning.bag_io import BagError, BagWriter
+from hri_core.node_common import (
+    ParameterSpec,
+    StartupError,
+    declare_parameters,
+    run_node,
+)
+from hri_demo_learning.bag_io import COMPRESSIONS, BagError, BagWriter
 
 NODE_NAME = 'recorder'
-DEFAULT_TOPICS = [topic.name for topic in topics.DEMONSTRATION_TOPICS]
 FLUSH_PERIOD_RANGE = (0.05, 1.0)  # s
 DISCOVERY_PERIOD = 0.1  # s between looks at the graph for topics not recorded yet
+
+PARAMETERS = {
+    'output': ParameterSpec(str, 'the bag folder to create (an existing path is refused)',
+                            read_only=True, required=True),
+    'topics': ParameterSpec(list[str], 'topics to record (each recorded once it has a '
+                            'publisher)', read_only=True),
+    'compression': ParameterSpec(str, 'MCAP chunk compression: none or zstd (about 3x '
+                                 'smaller)', choices=COMPRESSIONS, read_only=True),
+    'flush_period': ParameterSpec(float, 's between flushes to disk: a SIGKILL loses at most '
+                                  'this much', *FLUSH_PERIOD_RANGE),
+}
 
 
 def message_class(msgtype: str):
@@ -105,43 +116,26 @@ class Recorder(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
+        values = declare_parameters(self, PARAMETERS)
         try:
-            self.declare_parameter('output', '', ParameterDescriptor(
-                description='bag folder to create (required); an existing path is refused',
-                read_only=True))
-            self.declare_parameter('topics', DEFAULT_TOPICS, ParameterDescriptor(
-                description='topics to record (each recorded once it has a publisher)',
-                type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True))
-            self.declare_parameter('compression', 'none', ParameterDescriptor(
-                description="MCAP chunk compression: 'none' or 'zstd' (about 3x smaller)",
-                read_only=True))
-            self.declare_parameter('flush_period', 0.5, ParameterDescriptor(
-                description='s between flushes to disk: a SIGKILL loses at most this much',
-                floating_point_range=[FloatingPointRange(
-                    from_value=FLUSH_PERIOD_RANGE[0], to_value=FLUSH_PERIOD_RANGE[1])]))
-        except ParameterException as err:
-            raise StartupError(f'bad parameter: {err}') from None
-        output = self.get_parameter('output').value
-        if not output:
-            raise StartupError('parameter output is required: the bag folder to create')
-        try:
-            names = [self.resolve_topic_name(t) for t in self.get_parameter('topics').value
+            names = [self.resolve_topic_name(t) for t in values['topics']
                      if validate_topic_name(t)]
         except InvalidTopicNameException as err:
             reason = str(err).splitlines()[0].rstrip(': ')
             raise StartupError(f'bad name in parameter topics: {reason}') from None
-        if not names:
-            raise StartupError('parameter topics is empty: nothing to record')
         self._pending = list(dict.fromkeys(names))
         self._topics = list(self._pending)
         self._recording: dict[str, object] = {}
-        self._writer = BagWriter(output, read_definition=read_msg_definition,
-                                 compression=self.get_parameter('compression').value).open()
+        self.exit_code: int | None = None  # 1 once the bag cannot be written any more
+        try:
+            self._writer = BagWriter(values['output'], read_definition=read_msg_definition,
+                                     compression=values['compression']).open()
+        except BagError as err:
+            raise StartupError(str(err)) from None
         self._started = time.monotonic()
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self._flush_timer = self.create_timer(self.get_parameter('flush_period').value,
-                                              self._writer.flush)
+        self._flush_timer = self.create_timer(values['flush_period'], self._flush)
         self._discovery_timer = self.create_timer(DISCOVERY_PERIOD, self._discover)
         self.get_logger().info(f'recording into {self._writer.path} '
                                f'(compression {self._writer.compression}): '
@@ -200,7 +194,10 @@ class Recorder(Node):
         write = self._writer.write
 
         def on_message(data: bytes, info: dict) -> None:
-            write(connection, info.get('received_timestamp') or time.time_ns(), data)
+            try:
+                write(connection, info.get('received_timestamp') or time.time_ns(), data)
+            except OSError as err:
+                self._stop_on_write_error(err)
 
         self._recording[topic] = self.create_subscription(
             cls, topic, on_message, qos, raw=True)
@@ -208,14 +205,30 @@ class Recorder(Node):
             f'recording {topic} ({msgtype}, {qos.reliability.name.lower()}, '
             f'{qos.durability.name.lower()}, keep_all)')
 
-    def close_bag(self) -> str:
-        """Close the bag (MCAP summary, metadata.yaml); return a one-line summary of counts."""
-        if not self._writer.is_open:
-            return ''
+    def _flush(self) -> None:
+        try:
+            self._writer.flush()
+        except OSError as err:
+            self._stop_on_write_error(err)
+
+    def _stop_on_write_error(self, error: OSError) -> None:
+        """A bag that cannot be written any more (disk full): one error line, exit code 1."""
+        if self.exit_code is None:
+            self.get_logger().error(f'cannot write bag {self._writer.path}: '
+                                    f'{error.strerror or error}; stopping')
+            self.exit_code = 1
+
+    def close_bag(self) -> None:
+        """Close the bag (MCAP summary, metadata.yaml) and log a one-line summary of counts."""
         for subscription in self._recording.values():
             self.destroy_subscription(subscription)
         self._recording.clear()
-        counts = self._writer.close()
+        try:
+            counts = self._writer.close()
+        except OSError as err:
+            self.get_logger().error(f'cannot close bag {self._writer.path}: '
+                                    f'{err.strerror or err}')
+            return
         elapsed = time.monotonic() - self._started
         per_topic = ', '.join(f'{topic}: {counts[topic]}' for topic in self._topics
                               if topic in counts)
@@ -224,39 +237,13 @@ class Recorder(Node):
                 f'{elapsed:.1f} s ({per_topic or "no topic seen"})')
         if missing:
             line += f'; never published: {", ".join(missing)}'
-        return line
-
-    def destroy_node(self) -> None:
-        summary = self.close_bag()
-        super().destroy_node()
-        if summary:
-            # After the node is gone: on SIGINT/SIGTERM the context is already shut down and
-            # the node's logger could no longer publish to /rosout.
-            rclpy.logging.get_logger(NODE_NAME).info(summary)
+        self.get_logger().info(line)
 
 
 def main(args=None):
-    # SIGINT/SIGTERM become a stop request handled between callbacks (node_common): rclpy's own
-    # handlers shut the context down under a running callback, a traceback and exit 1.
-    stop = init_ros(args)
-    node = None
-    code = 0
-    try:
-        node = Recorder()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_stopped(executor, stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (StartupError, BagError, OSError) as err:
-        rclpy.logging.get_logger(NODE_NAME).error(str(err))
-        code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(Recorder, NODE_NAME, 'hri_demo_learning', SingleThreadedExecutor, args,
+                    exit_code=lambda node: node.exit_code, on_stop=Recorder.close_bag)
 
 
 if __name__ == '__main__':
-    raise SystemExit(main())
+    sys.exit(main())

@@ -1,7 +1,7 @@
 """Topic-level tests of how a node is configured: its YAML, a user's copy, and remapping.
 
-A node reads its package's config/<node>.yaml first; a copy passed with --params-file and
-`-p` come later and win; `--ros-args -r` moves any of its topics.
+A node's defaults are its package's config/<node>.yaml; a copy passed with --params-file and
+`-p` win over them, also for a renamed node; `--ros-args -r` moves any of its topics.
 """
 
 from pathlib import Path
@@ -33,8 +33,7 @@ def held_point(messages: list[PointStamped]) -> list[float]:
 def test_a_node_runs_with_the_values_of_an_edited_copy_of_its_yaml(nodes, probe, tmp_path):
     targets = probe.collect(TARGET.name, PointStamped, TARGET.qos)
     my_yaml = edited_copy('scara_sim', 'hand_sim', tmp_path, start=[0.2, -0.1])
-    hand = nodes('scara_sim', 'hand_sim', extra_args=['--ros-args', '--params-file',
-                                                      str(my_yaml)])
+    hand = nodes('scara_sim', 'hand_sim', params_files=[my_yaml])
     assert wait_for(lambda: len(targets) > 5, 15.0), hand.log()
     assert held_point(targets) == [0.2, -0.1]
     assert 'hand profile hold (at [0.2, -0.1]' in hand.log()
@@ -52,15 +51,27 @@ def test_a_parameter_given_with_p_wins_over_the_params_file(nodes, probe, tmp_pa
     targets = probe.collect(TARGET.name, PointStamped, TARGET.qos)
     my_yaml = edited_copy('scara_sim', 'hand_sim', tmp_path, start=[0.2, -0.1])
     hand = nodes('scara_sim', 'hand_sim', params={'start': [0.25, 0.15]},
-                 extra_args=['--ros-args', '--params-file', str(my_yaml), '--'])
+                 params_files=[my_yaml])
     assert wait_for(lambda: len(targets) > 5, 15.0), hand.log()
     assert held_point(targets) == [0.25, 0.15]
 
 
+def test_a_renamed_node_keeps_its_defaults_and_takes_its_own_section(nodes, probe, tmp_path):
+    targets = probe.collect(TARGET.name, PointStamped, TARGET.qos)
+    my_yaml = tmp_path / 'left_hand.yaml'
+    my_yaml.write_text(yaml.safe_dump({'left_hand': {'ros__parameters': {'rate_hz': 20.0}}}))
+    hand = nodes('scara_sim', 'hand_sim', remaps={'__node': 'left_hand'},
+                 params_files=[my_yaml])
+    assert wait_for(lambda: len(targets) > 5, 15.0), hand.log()
+    shipped = yaml.safe_load(defaults_file('scara_sim', 'hand_sim').read_text())
+    assert held_point(targets) == shipped['hand_sim']['ros__parameters']['start']
+    assert '[left_hand]: hand profile hold' in hand.log()
+    assert 'at 20 Hz' in hand.log()
+
+
 def test_a_wrong_value_in_the_params_file_is_refused_in_one_line(nodes, tmp_path):
     my_yaml = edited_copy('scara_sim', 'hand_sim', tmp_path, rate_hz=-3.0)
-    hand = nodes('scara_sim', 'hand_sim', extra_args=['--ros-args', '--params-file',
-                                                      str(my_yaml)])
+    hand = nodes('scara_sim', 'hand_sim', params_files=[my_yaml])
     assert hand.wait(15.0) == 1, hand.log()
     assert 'bad parameter rate_hz' in hand.log()
     assert 'Traceback' not in hand.log()

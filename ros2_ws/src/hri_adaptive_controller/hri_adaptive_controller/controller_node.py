@@ -47,11 +47,13 @@ from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
+    load_defaults,
     run_node,
 )
 from hri_core.potential import TaskShape
 from hri_core.velocity_estimator import VelocityEstimator
 
+PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'controller'
 JOINT_NAMES = ('joint1', 'joint2')
 WARNING_THROTTLE = 2.0  # s between repeats of one warning
@@ -117,7 +119,7 @@ class Controller(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        self._values = declare_parameters(self, PARAMETERS)
+        self._values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         values = self._values
         try:
             self._law = AdaptiveController(gains_from(values), values['theta_hat0'],
@@ -342,7 +344,7 @@ class Controller(Node):
 
 def main(args=None):
     # The 1 kHz loop and its 1 kHz input: the EventsExecutor at a fraction of the CPU.
-    return run_node(Controller, NODE_NAME, 'hri_adaptive_controller', EventsExecutor, args)
+    return run_node(Controller, NODE_NAME, EventsExecutor, args)
 
 
 if __name__ == '__main__':

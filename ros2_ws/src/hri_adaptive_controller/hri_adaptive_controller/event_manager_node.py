@@ -40,11 +40,13 @@ from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
+    load_defaults,
     run_node,
 )
 from hri_core.task_file import TaskRecord, load_task_directory
 from hri_core.task_message import task_message, task_record
 
+PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'event_manager'
 WARNING_THROTTLE = 1.0  # s between repeats of one kind of warning
 
@@ -67,7 +69,7 @@ class EventManager(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        values = declare_parameters(self, PARAMETERS)
+        values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         self._heartbeat_period = values['heartbeat_period']
         self._revisions = count()
         # Schedule keys are (name, revision): a new revision of the active task is a switch.
@@ -190,8 +192,7 @@ def _name(key) -> str:
 
 
 def main(args=None):
-    return run_node(EventManager, NODE_NAME, 'hri_adaptive_controller',
-                    SingleThreadedExecutor, args)
+    return run_node(EventManager, NODE_NAME, SingleThreadedExecutor, args)
 
 
 if __name__ == '__main__':

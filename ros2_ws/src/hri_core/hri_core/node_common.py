@@ -1,12 +1,13 @@
 """What the suite's nodes share (ROS side, not pure): parameters, spinning, a node's life.
 
 Parameters: each node lists its parameters as a table of `ParameterSpec` (type,
-description, range); their values come from the node's `config/<node>.yaml`, installed in its
-package's share folder, which `init_ros` puts first on the command line as a `--params-file`:
-that file is the one source of the defaults, and whatever the user passes (`--params-file`,
-`-p`) comes after it and wins. `declare_parameters` declares them all with descriptors and
-turns rclpy's exceptions into `StartupError` with a one-line reason, so that a node started
-with a bad or missing value logs that line and exits non-zero instead of printing a traceback.
+description, range); their default values come from the node's `config/<node>.yaml`,
+installed in its package's share folder (`load_defaults`): that file is the one source of the
+defaults. `declare_parameters` declares each with its default and descriptor, so whatever the
+user gives (`--params-file`, `-p`) wins as usual in ROS, also for a node renamed with
+`-r __node:=NAME`. It turns rclpy's exceptions into `StartupError` with a one-line reason, so
+that a node started with a bad or missing value logs that line and exits non-zero instead of
+printing a traceback.
 
 Spinning: `init_ros` starts rclpy without its signal handlers and turns SIGINT and SIGTERM
 into a stop request that `spin_until_stopped` checks between callbacks. rclpy's own handlers
@@ -17,9 +18,8 @@ node leaves the loop, logs its summary and exits 0.
 
 import math
 import signal
-import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import GenericAlias
@@ -102,17 +102,26 @@ class ParameterSpec:
         return ''
 
 
-def declare_parameters(node: Node, specs: dict[str, ParameterSpec]) -> dict:
-    """Declare every parameter of `specs` on `node`; return {name: value}.
+def declare_parameters(node: Node, specs: dict[str, ParameterSpec],
+                       defaults: Mapping[str, object]) -> dict:
+    """Declare every parameter of `specs` on `node` with its value in `defaults` (the node's
+    YAML, `load_defaults`) as the default; return {name: value}.
 
     Raises StartupError with a one-line reason for a value of the wrong type, out of range,
-    not among the choices, or missing (no YAML, or a node renamed away from its YAML's key;
-    for a `required` parameter also an empty one). An unset `optional` parameter is None.
+    not among the choices, or missing (a `required` one not given or empty). An unset
+    `optional` parameter is None.
     """
     values = {}
     for name, spec in specs.items():
+        if name in defaults:
+            default = _as_type(defaults[name], spec)
+        elif spec.required or spec.optional:
+            default = PARAMETER_TYPES[spec.type]
+        else:
+            raise StartupError(f'parameter {name} has no default in config/'
+                               f'{node.get_name()}.yaml: give it with -p {name}:=VALUE')
         try:
-            node.declare_parameter(name, PARAMETER_TYPES[spec.type], spec.descriptor())
+            node.declare_parameter(name, default, spec.descriptor())
             value = node.get_parameter(name).value
         except ParameterUninitializedException:
             if spec.optional:
@@ -136,11 +145,18 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec]) -> dict:
 
 def _missing_value(node: Node, name: str, spec: ParameterSpec) -> str:
     """The one-line reason for a parameter without a value."""
-    if spec.required:
-        return f'parameter {name} is required: {spec.description}'
-    return (f'parameter {name} has no value: give it with -p {name}:=VALUE or in a '
-            f'--params-file (config/{node.get_name()}.yaml of the package holds every '
-            'default, under the node name)')
+    return f'parameter {name} is required: {spec.description}'
+
+
+def _as_type(value, spec: ParameterSpec):
+    """A YAML default as the parameter's declared type (1000 for a float is 1000.0), so that
+    the parameter gets its declared type; anything else is left for ROS to refuse."""
+    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if spec.type is list and isinstance(value, list) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return [float(v) for v in value]
+    return value
 
 
 def _reason(error: ParameterException, name: str) -> str:
@@ -183,19 +199,9 @@ def load_defaults(package: str, node_name: str) -> dict:
                            f'{" ".join(str(error).split())}') from None
 
 
-def with_defaults(argv: Sequence[str], defaults: Path) -> list[str]:
-    """`argv` with `--params-file defaults` in front of its ROS arguments, so that every
-    parameter file and `-p` the user gives comes later and wins."""
-    return [argv[0], '--ros-args', '--params-file', str(defaults), '--', *argv[1:]]
-
-
-def init_ros(args=None, defaults: Path | None = None) -> threading.Event:
-    """rclpy.init without rclpy's signal handlers, with the parameter file `defaults` first
-    (see `with_defaults`); return the event SIGINT/SIGTERM set."""
-    argv = list(sys.argv if args is None else args) or ['node']
-    if defaults is not None:
-        argv = with_defaults(argv, defaults)
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+def init_ros(args=None) -> threading.Event:
+    """rclpy.init without rclpy's signal handlers; return the event SIGINT/SIGTERM set."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
 
     def request_stop(signum, frame):
@@ -213,13 +219,11 @@ def spin_until_stopped(executor, stop: threading.Event,
         executor.spin_once(timeout_sec=0.1)
 
 
-def run_node(create_node: Callable[[], Node], node_name: str, package: str,
-             executor_class=None, args=None,
-             exit_code: Callable[[Node], int | None] | None = None,
+def run_node(create_node: Callable[[], Node], node_name: str, executor_class=None,
+             args=None, exit_code: Callable[[Node], int | None] | None = None,
              on_stop: Callable[[Node], None] | None = None) -> int:
-    """A node's whole life: rclpy up with the package's config/<node_name>.yaml as its
-    defaults, create the node, spin until SIGINT/SIGTERM (or until `exit_code(node)` is not
-    None), clean up; return the process exit code.
+    """A node's whole life: rclpy up, create the node, spin until SIGINT/SIGTERM (or until
+    `exit_code(node)` is not None), clean up; return the process exit code.
 
     A StartupError is logged as its one-line reason (ERROR) and gives exit code 1.
     `on_stop(node)` runs before the node is destroyed (a summary line, closing a file).
@@ -227,12 +231,7 @@ def run_node(create_node: Callable[[], Node], node_name: str, package: str,
     spin_once here, because its spin() ignores shutdown (docs/design-notes.md).
     """
     logger = rclpy.logging.get_logger(node_name)
-    try:
-        defaults = defaults_file(package, node_name)
-    except StartupError as error:
-        logger.error(str(error))
-        return 1
-    stop = init_ros(args, defaults)
+    stop = init_ros(args)
     node = None
     executor = None
     code = 0

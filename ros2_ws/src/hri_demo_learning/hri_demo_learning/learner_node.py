@@ -27,12 +27,14 @@ from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
+    load_defaults,
     run_node,
 )
 from hri_core.task_message import task_message
 from hri_demo_learning.learning import LearningError, learn_task
 from hri_demo_learning.performance_learning import METHODS
 
+PACKAGE = 'hri_demo_learning'
 NODE_NAME = 'learner'
 DISCOVERY_WINDOW = 4.0  # s from node start: with `once`, time for running subscribers to match
 # (measured here on loopback: 0.9-2.4 s with Fast DDS's defaults, 0.1 s with config/fastdds.xml)
@@ -68,7 +70,7 @@ class Learner(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
         self._started = time.monotonic()
-        self._values = declare_parameters(self, PARAMETERS)
+        self._values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         self.exit_code: int | None = None  # set when a `once` run is over
         self.add_on_set_parameters_callback(self._reject_changes)
         self._publisher = self.create_publisher(TaskParameters, topics.TASK.name,
@@ -131,7 +133,7 @@ class Learner(Node):
 
 
 def main(args=None):
-    return run_node(Learner, NODE_NAME, 'hri_demo_learning', SingleThreadedExecutor, args,
+    return run_node(Learner, NODE_NAME, SingleThreadedExecutor, args,
                     exit_code=lambda node: node.exit_code)
 
 

@@ -44,10 +44,12 @@ from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
+    load_defaults,
     run_node,
 )
 from hri_demo_learning.bag_io import COMPRESSIONS, BagError, BagWriter
 
+PACKAGE = 'hri_demo_learning'
 NODE_NAME = 'recorder'
 FLUSH_PERIOD_RANGE = (0.05, 1.0)  # s
 DISCOVERY_PERIOD = 0.1  # s between looks at the graph for topics not recorded yet
@@ -116,7 +118,7 @@ class Recorder(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        values = declare_parameters(self, PARAMETERS)
+        values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         try:
             names = [self.resolve_topic_name(t) for t in values['topics']
                      if validate_topic_name(t)]
@@ -241,7 +243,7 @@ class Recorder(Node):
 
 
 def main(args=None):
-    return run_node(Recorder, NODE_NAME, 'hri_demo_learning', SingleThreadedExecutor, args,
+    return run_node(Recorder, NODE_NAME, SingleThreadedExecutor, args,
                     exit_code=lambda node: node.exit_code, on_stop=Recorder.close_bag)
 
 

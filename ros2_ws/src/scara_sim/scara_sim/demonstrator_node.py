@@ -32,6 +32,7 @@ from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
+    load_defaults,
     run_node,
 )
 from hri_core.velocity_estimator import VelocityEstimator
@@ -43,6 +44,7 @@ from scara_sim.profiles import (
     demonstration_goal,
 )
 
+PACKAGE = 'scara_sim'
 NODE_NAME = 'demonstrator'
 # Every parameter is read-only: a demonstration runs once with the values it started with.
 PUSH_SETTINGS = {  # PushSettings fields
@@ -98,7 +100,7 @@ class Demonstrator(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        values = declare_parameters(self, PARAMETERS)
+        values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         self._mode = values['mode']
         self._reference = np.array(values['reference'])
         self._stop_distance = values['stop_distance']
@@ -224,7 +226,7 @@ class Demonstrator(Node):
 
 def main(args=None):
     # /ee_position comes at 1 kHz: the EventsExecutor takes it at a fraction of the CPU.
-    return run_node(Demonstrator, NODE_NAME, 'scara_sim', EventsExecutor, args,
+    return run_node(Demonstrator, NODE_NAME, EventsExecutor, args,
                     exit_code=lambda node: node.exit_code)
 
 

@@ -20,10 +20,12 @@ from hri_core.node_common import (
     ParameterSpec,
     StartupError,
     declare_parameters,
+    load_defaults,
     run_node,
 )
 from scara_sim.profiles import HAND_PROFILES, HandProfile, hand_position
 
+PACKAGE = 'scara_sim'
 NODE_NAME = 'hand_sim'
 PARAMETERS = {
     'rate_hz': ParameterSpec(float, 'publish rate of /target (Hz)', 1.0, 1000.0,
@@ -51,7 +53,7 @@ class HandSim(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        values = declare_parameters(self, PARAMETERS)
+        values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         rate_hz = values['rate_hz']
         self._frame = values['base_frame']
         try:
@@ -110,7 +112,7 @@ class HandSim(Node):
 
 
 def main(args=None):
-    return run_node(HandSim, NODE_NAME, 'scara_sim', SingleThreadedExecutor, args)
+    return run_node(HandSim, NODE_NAME, SingleThreadedExecutor, args)
 
 
 if __name__ == '__main__':

@@ -44,6 +44,7 @@ from hri_core.node_common import (
     StartupError,
     declare_parameters,
     float_array_problem,
+    load_defaults,
     run_node,
 )
 from scara_sim.simulation import (
@@ -53,6 +54,7 @@ from scara_sim.simulation import (
     joint_command_from_values,
 )
 
+PACKAGE = 'scara_sim'
 NODE_NAME = 'scara_sim'
 JOINT_NAMES = ['joint1', 'joint2']
 WARN_THROTTLE = 2.0  # s between two warnings about malformed input
@@ -110,7 +112,7 @@ class ScaraSim(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        values = declare_parameters(self, PARAMETERS)
+        values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         rate_hz = values['rate_hz']
         self._max_catch_up = values['max_catch_up_steps']
         initial_q = values['initial_q']
@@ -308,7 +310,7 @@ class ScaraSim(Node):
 
 def main(args=None):
     # EventsExecutor halves the CPU of the 1 kHz loop (bench/bench_sim.py).
-    return run_node(ScaraSim, NODE_NAME, 'scara_sim', EventsExecutor, args,
+    return run_node(ScaraSim, NODE_NAME, EventsExecutor, args,
                     on_stop=lambda node: node.get_logger().info(node.summary()))
 
 

@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """Benchmark of the closed loop sim -> controller -> sim on topics (a measurement, not a test).
 
-Starts, with `ros2 run` on its own ROS_DOMAIN_ID (discovery kept on loopback), scara_sim,
-event_manager (the paper's tasks of hri_adaptive_controller/tasks, initial task follow),
-controller and hand_sim (a circle: centre (0.45, 0.1) m, radius 0.05 m, period 8 s). Once the
-controller reports status 'ok' and `--warmup` s more have passed, a probe (tests/common.py's
-RosProbe) listens for `--duration` s and reports
+Starts the live loop (hri_bringup.processes.start_live_loop: `ros2 run` on its own
+ROS_DOMAIN_ID, discovery kept on loopback): scara_sim, event_manager (the paper's tasks as
+installed with hri_adaptive_controller, initial task follow), controller and hand_sim (a
+circle: centre (0.45, 0.1) m, radius 0.05 m, period 8 s). Once the controller reports status
+'ok' and `--warmup` s more have passed, a probe (hri_bringup.processes.RosProbe) listens for
+`--duration` s and reports
 
 * /joint_states: achieved rate, and the period between messages from their header stamps
   (the simulated time each state stands for) and from their receive times (middleware receive
@@ -35,7 +36,6 @@ import time
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO_ROOT))
 sys.path.insert(0, str(REPO_ROOT / 'bench'))
 
 import numpy as np  # noqa: E402
@@ -45,10 +45,9 @@ from hri_interfaces.msg import ControllerState  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
+from hri_bringup.processes import RosProbe, start_live_loop, wait_for  # noqa: E402
 from hri_core.topics import MONITOR_QOS  # noqa: E402
-from tests.common import RosProbe, start_node, wait_for  # noqa: E402
 
-TASKS_DIR = REPO_ROOT / 'ros2_ws' / 'src' / 'hri_adaptive_controller' / 'tasks'
 HAND = {'profile': 'circle', 'start': [0.45, 0.1], 'radius': 0.05, 'period': 8.0}
 JOINT_STATE_PROBE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 CONTROL_RATE_HZ = 1000.0  # the controller's default rate_hz
@@ -111,14 +110,7 @@ def run(args: argparse.Namespace) -> dict:
         probe.node.create_subscription(JointState, '/joint_states', joint_times,
                                        JOINT_STATE_PROBE_QOS)
         states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
-        for package, executable, params in (
-                ('scara_sim', 'scara_sim', None),
-                ('hri_adaptive_controller', 'event_manager',
-                 {'tasks_dir': str(TASKS_DIR), 'initial_task': 'follow'}),
-                ('hri_adaptive_controller', 'controller', None),
-                ('scara_sim', 'hand_sim', HAND)):
-            started[executable] = start_node(package, executable, args.domain_id,
-                                             params=params, log_dir=log_dir)
+        started = start_live_loop(args.domain_id, {'hand_sim': HAND}, log_dir=log_dir)
         if not wait_for(lambda: bool(states) and states[-1].status == 'ok',
                         args.startup_timeout):
             last = states[-1].status if states else 'no ControllerState at all'

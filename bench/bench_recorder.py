@@ -20,15 +20,12 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO_ROOT))
+import psutil
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
 
-import psutil  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-
-from hri_demo_learning.bag_io import read_bag  # noqa: E402
-from tests.common import RosProbe, next_domain_id, start_node, wait_for  # noqa: E402
+from hri_bringup.processes import RosProbe, start_node, wait_for
+from hri_demo_learning.bag_io import read_bag
 
 TOPIC = '/bench/joint_states'
 
@@ -107,14 +104,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seconds', type=float, default=60.0, help='publishing time, s')
     parser.add_argument('--rate', type=float, default=1000.0, help='publishing rate, Hz')
-    parser.add_argument('--domain-id', type=int, default=None,
-                        help='ROS_DOMAIN_ID (default: one of the test range)')
+    parser.add_argument('--domain-id', type=int, default=91,
+                        help='ROS_DOMAIN_ID to use (scripts/bench.sh: BENCH_DOMAIN_BASE + 1)')
     parser.add_argument('--json', action='store_true', help='print the result as JSON')
     args = parser.parse_args()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    domain_id = args.domain_id if args.domain_id is not None else next_domain_id()
     with tempfile.TemporaryDirectory(prefix='bench-recorder-') as workdir:
-        result = run(args.seconds, args.rate, domain_id, Path(workdir))
+        result = run(args.seconds, args.rate, args.domain_id, Path(workdir))
     if args.json:
         print(json.dumps(result, indent=2))
     else:

@@ -21,22 +21,27 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO_ROOT))
+import matplotlib
 
-import matplotlib  # noqa: E402
-
-matplotlib.use('Agg')
+matplotlib.use('Agg')  # before pyplot is imported: figures go to files, no display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from hri_interfaces.msg import TaskEvent  # noqa: E402
 
 from hri_adaptive_controller.run_metrics import run_metrics  # noqa: E402
+from hri_bringup.processes import (  # noqa: E402
+    NodeProcess,
+    NodesNotReadyError,
+    RosProbe,
+    start_live_loop,
+    start_node,
+    wait_for,
+)
 from hri_core.task_file import load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from scara_sim.profiles import minimum_jerk_duration  # noqa: E402
-from tests.common import NodeProcess, RosProbe, start_node, wait_for  # noqa: E402
 
+REPO_ROOT = Path(__file__).resolve().parents[1]
 PAPER_TABLE_I = {
     'follow': {'s': 1, 'd1': 0.0, 'd2': 0.041, 'a1': 1.291, 'a2': 13.66, 'iterations': 2468},
     'avoid': {'s': 1, 'd1': 0.183, 'd2': 2.0, 'a1': 0.056, 'a2': 25.46, 'iterations': 2146},
@@ -214,20 +219,18 @@ class Demo:
                     events=()) -> Path:
         bag = self.bags / f'run_{run}'
         shutil.rmtree(bag, ignore_errors=True)
-        sim = self.start('scara_sim', 'scara_sim')
-        manager = self.start('hri_adaptive_controller', 'event_manager',
-                             tasks_dir=str(self.tasks), initial_task=initial_task,
-                             ramp_time=1.0)
-        controller = self.start('hri_adaptive_controller', 'controller')
-        recorder = self.start('hri_demo_learning', 'recorder', output=str(bag),
-                              topics=RUN_TOPICS)
-        # The hand starts last so its script begins with everything up.
-        ready = {sim: 'simulating at', manager: 'task(s) loaded', controller: 'control at',
-                 recorder: 'recording into'}
-        if not wait_for(lambda: all(line in p.log() for p, line in ready.items()), 30.0):
-            late = [p.name for p, line in ready.items() if line not in p.log()]
-            raise StageError(f'{", ".join(late)} did not start within 30 s; logs in {self.logs}')
-        hand_sim = self.start('scara_sim', 'hand_sim', **hand)
+        # The hand starts last, once the others are up, so its script begins with the loop
+        # running.
+        try:
+            loop = start_live_loop(self.domain_id, {
+                'event_manager': {'tasks_dir': str(self.tasks), 'initial_task': initial_task,
+                                  'ramp_time': 1.0},
+                'recorder': {'topics': RUN_TOPICS},
+                'hand_sim': hand,
+            }, log_dir=self.logs, record=bag, ready_timeout=30.0)
+        except NodesNotReadyError as error:
+            raise StageError(f'{error}; logs in {self.logs}') from None
+        self.running.extend(loop.values())
         probe = RosProbe(self.domain_id, name='demo_events') if events else None
         try:
             publisher = probe.publisher('/hri/events', TaskEvent, 10) if probe else None
@@ -242,15 +245,13 @@ class Demo:
             if publisher is not None and not wait_for(
                     lambda: publisher.get_subscription_count() > 0, 10.0):
                 raise StageError('event_manager did not subscribe to /hri/events')
-            self.run_for(seconds, f'{run}: running', [sim, manager, controller, recorder,
-                                                      hand_sim], fire)
+            self.run_for(seconds, f'{run}: running', list(loop.values()), fire)
         finally:
             if probe is not None:
                 probe.close()
-        self.stop(hand_sim)
-        self.stop(recorder)
-        for process in (controller, manager, sim):
-            self.stop(process)
+        # The hand first, then the recorder: the bag ends with the loop still running.
+        for name in ('hand_sim', 'recorder', 'controller', 'event_manager', 'scara_sim'):
+            self.stop(loop[name])
         return bag
 
     def run_behaviours(self) -> None:

@@ -4,7 +4,8 @@ import os
 
 import pytest
 
-from tests.common import NodeProcess, RosProbe, next_domain_id, start_node
+from hri_bringup.processes import NodeProcess, RosProbe, start_live_loop, start_node, stop_all
+from tests.common import next_domain_id
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
@@ -29,8 +30,25 @@ def nodes(ros_domain, tmp_path):
     try:
         yield start
     finally:
-        for process in started:
-            process.stop()
+        stop_all(started)
+
+
+@pytest.fixture
+def live_loop(ros_domain, tmp_path):
+    """`live_loop(overrides, **kw)` starts the live loop (hri_bringup.processes.
+    start_live_loop) on the test's domain; {name: process}; all stopped when the test ends."""
+    started: list[NodeProcess] = []
+
+    def start(overrides: dict | None = None, **kwargs) -> dict[str, NodeProcess]:
+        kwargs.setdefault('log_dir', tmp_path)
+        processes = start_live_loop(ros_domain, overrides, **kwargs)
+        started.extend(processes.values())
+        return processes
+
+    try:
+        yield start
+    finally:
+        stop_all(started)
 
 
 @pytest.fixture

@@ -29,18 +29,19 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
 from hri_adaptive_controller.controller_node import stamp_seconds
+from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
+from hri_core.node_common import load_defaults
 from hri_core.topics import LEARNED_TASKS_QOS, MONITOR_QOS, TASK_STATE_QOS
-from tests.common import REPO_ROOT, wait_for
+from tests.common import PAPER_TASKS, REPO_ROOT
 from tests.fault_tools import RELIABLE, RawListener, assert_all_finite
 
 pytestmark = pytest.mark.integration
 
-PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 FOLLOW_BAG = REPO_ROOT / 'bags/fixtures/follow'
-EFFORT_LIMIT = CONTROLLER_PARAMETERS['effort_limit'].default  # N m
+CONTROLLER_DEFAULTS = load_defaults('hri_adaptive_controller', 'controller')
+EFFORT_LIMIT = CONTROLLER_DEFAULTS['effort_limit']  # N m
 Q_ARM = [0.3, 1.2]  # rad: the stand-in arm's pose
 Q_WRONG = [1.2, 0.3]  # rad: where a message read in the wrong order would put it
 HAND_OFFSET = np.array([0.1, 0.0])  # m from the end-effector
@@ -300,16 +301,14 @@ def test_event_manager_rejects_invalid_tasks_and_events_for_unknown_tasks(nodes,
 
 
 @pytest.mark.exclusive
-def test_a_burst_of_1000_events_in_one_second_under_the_closed_loop(nodes, probe):
+def test_a_burst_of_1000_events_in_one_second_under_the_closed_loop(live_loop, probe):
     task_states = probe.collect('/hri/task_state', TaskState, TASK_STATE_QOS)
     states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
     ramp_time = 0.5
-    nodes('scara_sim', 'scara_sim')
-    manager = nodes('hri_adaptive_controller', 'event_manager', params={
-        'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': ramp_time})
-    controller = nodes('hri_adaptive_controller', 'controller')
-    nodes('scara_sim', 'hand_sim', params={'profile': 'circle', 'period': 4.0})
+    processes = live_loop({'event_manager': {'ramp_time': ramp_time},
+                           'hand_sim': {'profile': 'circle', 'period': 4.0}})
+    manager, controller = processes['event_manager'], processes['controller']
     assert wait_for(lambda: states and states[-1].status == 'ok', 30.0), controller.log()
     events = probe.publisher('/hri/events', TaskEvent, RELIABLE)
     assert wait_for(lambda: events.get_subscription_count() > 0, 10.0)

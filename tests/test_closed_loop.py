@@ -17,10 +17,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.controller_node import stamp_seconds
+from hri_bringup.processes import wait_for
 from hri_core.topics import MONITOR_QOS
-from tests.common import REPO_ROOT, wait_for
 
-PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 EFFORT_LIMIT = 20.0  # N m, the controller's default
 TOLERANCE = 0.005  # m around the region boundaries
 
@@ -29,17 +28,13 @@ pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
 
 
 @pytest.fixture
-def loop(nodes, probe):
+def loop(live_loop, probe):
     """start(task, hand params) -> list of ControllerState; the nodes run until the test ends."""
 
     def start(task: str, hand: dict, ramp_time: float = 0.5):
         states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
-        nodes('scara_sim', 'scara_sim')
-        nodes('hri_adaptive_controller', 'event_manager',
-              params={'tasks_dir': str(PAPER_TASKS), 'initial_task': task,
-                      'ramp_time': ramp_time})
-        controller = nodes('hri_adaptive_controller', 'controller')
-        nodes('scara_sim', 'hand_sim', params=hand)
+        controller = live_loop({'event_manager': {'initial_task': task, 'ramp_time': ramp_time},
+                                'hand_sim': hand})['controller']
         assert wait_for(lambda: states and states[-1].status == 'ok', 30.0), controller.log()
         return states
 

@@ -7,7 +7,8 @@ import subprocess
 import psutil
 import pytest
 
-from tests.common import REPO_ROOT, next_domain_id, node_environment
+from hri_bringup.processes import node_environment
+from tests.common import REPO_ROOT, next_domain_id
 
 # The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]

@@ -5,7 +5,7 @@ import pytest
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from tests.common import wait_for
+from hri_bringup.processes import wait_for
 
 pytestmark = pytest.mark.integration
 

@@ -6,22 +6,21 @@ import time
 import pytest
 from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
 
+from hri_bringup.processes import wait_for
 from hri_core.topics import LEARNED_TASKS_QOS, TASK_STATE_QOS
-from tests.common import REPO_ROOT, wait_for
 
-PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 RAMP_TIME = 0.5
 
 pytestmark = pytest.mark.integration
 
 
 @pytest.fixture
-def manager(nodes, probe):
+def manager(live_loop, probe):
     """A running event_manager with Table I's tasks, `follow` faded in, and its state list."""
     states = probe.collect('/hri/task_state', TaskState, TASK_STATE_QOS)
-    process = nodes('hri_adaptive_controller', 'event_manager',
-                    params={'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow',
-                            'ramp_time': RAMP_TIME})
+    # The live loop's event_manager alone: Table I's tasks, initial task follow.
+    process = live_loop({'event_manager': {'ramp_time': RAMP_TIME}},
+                        nodes=['event_manager'])['event_manager']
     assert wait_for(lambda: states and states[-1].phase == 'active', 20.0), process.log()
     events = probe.publisher('/hri/events', TaskEvent, 100)
     assert wait_for(lambda: events.get_subscription_count() > 0, 10.0)
@@ -109,9 +108,9 @@ def test_events_faster_than_the_ramp_keep_weight_continuous(manager):
     assert process.alive()
 
 
-def test_unknown_initial_task_exits_with_reason(nodes):
-    process = nodes('hri_adaptive_controller', 'event_manager',
-                    params={'tasks_dir': str(PAPER_TASKS), 'initial_task': 'dance'})
+def test_unknown_initial_task_exits_with_reason(live_loop):
+    process = live_loop({'event_manager': {'initial_task': 'dance'}},
+                        nodes=['event_manager'])['event_manager']
     assert process.wait(20.0) == 1
     log = process.log()
     assert "initial_task 'dance' is not a known task" in log

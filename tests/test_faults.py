@@ -23,27 +23,28 @@ from hri_interfaces.msg import ControllerState
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_adaptive_controller.controller_node import PARAMETERS as CONTROLLER_PARAMETERS
 from hri_adaptive_controller.controller_node import stamp_seconds
+from hri_bringup.processes import wait_for, wait_until_logged
 from hri_core.dynamics import ScaraParameters, kinetic_energy
+from hri_core.node_common import load_defaults
 from hri_core.topics import MONITOR_QOS
 from hri_demo_learning.bag_io import read_bag
-from scara_sim.scara_sim_node import PARAMETERS as SIM_PARAMETERS
-from tests.common import REPO_ROOT, wait_for
+from tests.common import PAPER_TASKS, REPO_ROOT
 from tests.fault_tools import RELIABLE, RawListener, assert_all_finite, lines_after
 
 # The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
 
-PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 FOLLOW_BAG = REPO_ROOT / 'bags/fixtures/follow'
 # A hand 0.47 m from the end-effector's start (0.35, 0.30): the arm is still moving seconds
 # after the controller is up, so the torque is not zero when a process is killed.
 FAR_HAND = {'profile': 'hold', 'start': [0.50, -0.15]}
-JOINT_STATE_TIMEOUT = CONTROLLER_PARAMETERS['joint_state_timeout'].default  # s
-COMMAND_TIMEOUT = SIM_PARAMETERS['command_timeout'].default  # s
+CONTROLLER_DEFAULTS = load_defaults('hri_adaptive_controller', 'controller')
+SIM_DEFAULTS = load_defaults('scara_sim', 'scara_sim')
+JOINT_STATE_TIMEOUT = CONTROLLER_DEFAULTS['joint_state_timeout']  # s
+COMMAND_TIMEOUT = SIM_DEFAULTS['command_timeout']  # s
 # Most steps the sim runs at once after a stall (1 ms each): how far its clock may jump.
-MAX_CATCH_UP = SIM_PARAMETERS['max_catch_up_steps'].default * 1e-3  # s
+MAX_CATCH_UP = SIM_DEFAULTS['max_catch_up_steps'] * 1e-3  # s
 TASK_STATE_TIMEOUT = 0.5  # s, set small for the test (default 2 s)
 RAMP_TIME = 0.5  # s
 HEARTBEAT_PERIOD = 0.1  # s, the event_manager's TaskState period when nothing changes
@@ -62,18 +63,14 @@ def probe_time(probe) -> float:
     return stamp_seconds(probe.now())
 
 
-def start_loop(nodes, probe, controller_params=None, manager_params=None):
+def start_loop(live_loop, probe, controller_params=None, manager_params=None):
     """The closed loop following FAR_HAND; returns (processes by name, ControllerState list)."""
     states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
-    processes = {
-        'scara_sim': nodes('scara_sim', 'scara_sim'),
-        'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={
-            'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': RAMP_TIME,
-            **(manager_params or {})}),
-        'controller': nodes('hri_adaptive_controller', 'controller',
-                            params=controller_params),
-        'hand_sim': nodes('scara_sim', 'hand_sim', params=FAR_HAND),
-    }
+    processes = live_loop({
+        'event_manager': {'ramp_time': RAMP_TIME, **(manager_params or {})},
+        'controller': controller_params,
+        'hand_sim': FAR_HAND,
+    })
     assert wait_for(lambda: states and states[-1].status == 'ok' and states[-1].weight > 0.99,
                     30.0), processes['controller'].log()
     return processes, states
@@ -107,8 +104,9 @@ def allowed_delay(timeout: float, stall: float) -> float:
 # Kept out of the default run: on a loaded 2-core machine the controller sometimes stalls for
 # about 1 s right after its peer is killed, and the test then fails (seen 2026-11-23).
 @pytest.mark.slow
-def test_sim_killed_gives_zero_torque_then_control_resumes_with_a_new_sim(nodes, probe):
-    processes, states = start_loop(nodes, probe)
+def test_sim_killed_gives_zero_torque_then_control_resumes_with_a_new_sim(live_loop, nodes,
+                                                                          probe):
+    processes, states = start_loop(live_loop, probe)
     controller = processes['controller']
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
     joints = RawListener(probe, '/joint_states', JointState)
@@ -153,8 +151,8 @@ def test_sim_killed_gives_zero_torque_then_control_resumes_with_a_new_sim(nodes,
     assert_all_finite(states, '/hri/controller_state')
 
 
-def test_controller_killed_sim_applies_zero_torque_after_command_timeout(nodes, probe):
-    processes, _ = start_loop(nodes, probe)
+def test_controller_killed_sim_applies_zero_torque_after_command_timeout(live_loop, probe):
+    processes, _ = start_loop(live_loop, probe)
     joints = RawListener(probe, '/joint_states', JointState)
     # Some seconds of joint states before the kill: the sim's clock is read off them below.
     assert wait_for(lambda: len(joints.arrivals) > 2000, 10.0)
@@ -195,9 +193,10 @@ def test_controller_killed_sim_applies_zero_torque_after_command_timeout(nodes, 
 
 # Kept out of the default run: failed once inside the full suite under load (2026-11-23).
 @pytest.mark.slow
-def test_event_manager_killed_means_zero_weight_until_a_task_state_comes_again(nodes, probe):
+def test_event_manager_killed_means_zero_weight_until_a_task_state_comes_again(live_loop, nodes,
+                                                                                probe):
     processes, states = start_loop(
-        nodes, probe, controller_params={'task_state_timeout': TASK_STATE_TIMEOUT},
+        live_loop, probe, controller_params={'task_state_timeout': TASK_STATE_TIMEOUT},
         manager_params={'heartbeat_period': HEARTBEAT_PERIOD})
     processes['event_manager'].send(signal.SIGKILL)
     killed_at = probe_time(probe)
@@ -267,8 +266,8 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, tmp_path, sig):
         'controller': nodes('hri_adaptive_controller', 'controller'),
     }
     targets = probe.collect('/target', PointStamped, RELIABLE)
-    assert wait_for(lambda: all(line in processes[name].log()
-                                for name, line in NODE_READY_LINES.items()), 40.0), {
+    assert wait_until_logged({processes[name]: line for name, line in NODE_READY_LINES.items()},
+                             40.0), {
         name: process.log() for name, process in processes.items()
         if NODE_READY_LINES[name] not in process.log()}
     assert wait_for(lambda: len(targets) > 10, 10.0)

@@ -16,9 +16,10 @@ from hri_interfaces.msg import TaskParameters
 from mcap.reader import make_reader
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from hri_bringup.processes import wait_for
 from hri_core.task_file import load_task_file
 from hri_demo_learning.bag_io import BagWriter, jazzy_typestore, read_bag
-from tests.common import REPO_ROOT, wait_for
+from tests.common import REPO_ROOT
 
 pytestmark = pytest.mark.integration
 

@@ -15,8 +15,8 @@ from rclpy.qos import (
 )
 from sensor_msgs.msg import JointState
 
+from hri_bringup.processes import wait_for
 from hri_demo_learning.bag_io import read_bag, read_demonstration
-from tests.common import wait_for
 
 pytestmark = pytest.mark.integration
 

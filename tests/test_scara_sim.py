@@ -13,8 +13,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
-from tests.common import wait_for
 
 pytestmark = pytest.mark.integration
 

@@ -28,13 +28,12 @@ from mcap.reader import make_reader
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from hri_bringup.processes import wait_for
 from hri_core.topics import MONITOR_QOS
-from tests.common import REPO_ROOT, wait_for
 from tests.fault_tools import floats_of
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.exclusive]
 
-PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 SOAK_SECONDS = float(os.environ.get('HRI_SOAK_SECONDS', '600'))
 WARM_UP = 10.0  # s before the first memory sample
 SWITCH_PERIOD = 20.0  # s between events
@@ -68,7 +67,7 @@ def rss(process) -> int:
     return psutil.Process(process.pid).memory_info().rss
 
 
-def test_closed_loop_soak(nodes, probe, tmp_path):
+def test_closed_loop_soak(live_loop, probe, tmp_path):
     received = {topic: [] for topic in RECORDED}
     for topic, msg_type in zip(RECORDED, (JointState, ControllerState), strict=True):
         probe.node.create_subscription(
@@ -82,18 +81,13 @@ def test_closed_loop_soak(nodes, probe, tmp_path):
 
     probe.node.create_subscription(ControllerState, '/hri/controller_state', on_state,
                                    MONITOR_QOS)
-    processes = {
-        'scara_sim': nodes('scara_sim', 'scara_sim'),
-        'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={
-            'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': 1.0}),
-        'controller': nodes('hri_adaptive_controller', 'controller'),
-        'hand_sim': nodes('scara_sim', 'hand_sim', params={
-            'profile': 'circle', 'start': [0.45, 0.05], 'radius': 0.08, 'period': 8.0}),
-    }
     bag = tmp_path / 'soak'
-    recorder = nodes('hri_demo_learning', 'recorder',
-                     params={'output': str(bag), 'topics': list(RECORDED)})
-    processes['recorder'] = recorder
+    processes = live_loop({
+        'event_manager': {'ramp_time': 1.0},
+        'hand_sim': {'profile': 'circle', 'start': [0.45, 0.05], 'radius': 0.08, 'period': 8.0},
+        'recorder': {'topics': list(RECORDED)},
+    }, record=bag)
+    recorder = processes['recorder']
     assert wait_for(lambda: states and states[-1][0] == 'ok', 30.0), \
         processes['controller'].log()
     assert wait_for(lambda: all(f'recording {t}' in recorder.log() for t in RECORDED), 20.0), \

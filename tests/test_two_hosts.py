@@ -26,11 +26,18 @@ from pathlib import Path
 
 import pytest
 
-from tests.common import REPO_ROOT, NodeProcess, node_environment, ros2_run_command, wait_for
+from hri_bringup.processes import (
+    LIVE_LOOP_EXECUTABLES,
+    NodeProcess,
+    live_loop_parameters,
+    node_environment,
+    ros2_run_command,
+    wait_for,
+)
+from tests.common import REPO_ROOT
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.exclusive]
 
-PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
 ROBOT_ADDRESS = '10.231.0.1'
 CONTROL_ADDRESS = '10.231.0.2'
 FOLLOW_D2 = 0.041  # m, Table I's follow region [0, d2]
@@ -85,19 +92,6 @@ class Link:
             subprocess.run(['ip', 'link', 'del', self.robot_end], capture_output=True)
 
 
-class NamespacedProcess(NodeProcess):
-    """A command run in a network namespace (`ip netns exec`), with a ROS environment."""
-
-    def __init__(self, namespace: str, command: list[str], env: dict, name: str,
-                 log_dir: Path):
-        self.name = f'{namespace}:{name}'
-        self.log_path = log_dir / f'{namespace}-{name}.log'
-        self._log_file = open(self.log_path, 'wb')  # closed in stop()
-        self.command = ['ip', 'netns', 'exec', namespace, *command]
-        self.process = subprocess.Popen(self.command, env=env, stdout=self._log_file,
-                                        stderr=subprocess.STDOUT, start_new_session=True)
-
-
 @pytest.fixture
 def link():
     if os.geteuid() != 0:
@@ -115,7 +109,7 @@ def link():
         created.delete()
 
 
-def controller_states(printer: NamespacedProcess) -> list[dict]:
+def controller_states(printer: NodeProcess) -> list[dict]:
     return [json.loads(line) for line in printer.log().splitlines() if line.startswith('{')]
 
 
@@ -134,26 +128,30 @@ def test_closed_loop_across_two_hosts(link, ros_domain, setting):
     robot_env = {**base, **SETTINGS[setting](CONTROL_ADDRESS)}
     control_env = {**base, **SETTINGS[setting](ROBOT_ADDRESS)}
     processes = []
+    # The live loop's nodes and parameters; the hand 0.21 m from the end-effector's start
+    # (0.35, 0.30), still.
+    loop_parameters = live_loop_parameters({
+        'event_manager': {'ramp_time': 0.5},
+        'hand_sim': {'profile': 'hold', 'start': [0.45, 0.12]}})
 
     def start(namespace, env, command, name):
-        process = NamespacedProcess(namespace, command, env, name, log_dir)
+        """`command` in the network namespace `namespace` (`ip netns exec`)."""
+        process = NodeProcess.from_command(f'{namespace}:{name}',
+                                           ['ip', 'netns', 'exec', namespace, *command], env,
+                                           log_dir)
         processes.append(process)
         return process
 
+    def start_loop_node(namespace, env, name):
+        command = ros2_run_command(*LIVE_LOOP_EXECUTABLES[name], loop_parameters[name])
+        return start(namespace, env, command, name)
+
     try:
         sent_before = link.sent_bytes()
-        sim = start(link.robot, robot_env, ros2_run_command('scara_sim', 'scara_sim'),
-                    'scara_sim')
-        start(link.control, control_env, ros2_run_command(
-            'hri_adaptive_controller', 'event_manager',
-            {'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': 0.5}),
-            'event_manager')
-        controller = start(link.control, control_env,
-                           ros2_run_command('hri_adaptive_controller', 'controller'),
-                           'controller')
-        # The hand 0.21 m from the end-effector's start (0.35, 0.30), still.
-        start(link.control, control_env, ros2_run_command(
-            'scara_sim', 'hand_sim', {'profile': 'hold', 'start': [0.45, 0.12]}), 'hand_sim')
+        sim = start_loop_node(link.robot, robot_env, 'scara_sim')
+        start_loop_node(link.control, control_env, 'event_manager')
+        controller = start_loop_node(link.control, control_env, 'controller')
+        start_loop_node(link.control, control_env, 'hand_sim')
         printer = start(link.control, control_env,
                         ['python', str(REPO_ROOT / 'tests/controller_state_printer.py'), '90'],
                         'printer')

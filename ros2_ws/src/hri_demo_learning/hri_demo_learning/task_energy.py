@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hri_core.validation import positive
+
 DEFAULT_STATIONARY_SPEED = 0.01
 """m/s: a sample slower than this is at rest (eq. 3's ||dx/dt|| = 0)."""
 
@@ -97,14 +99,9 @@ def _check_demonstration(times, positions):
     return t, x
 
 
-def _check_positive(name, value, unit):
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f'{name} must be > 0 {unit}, got {value}')
-
-
 def _check_speed_parameters(stationary_speed, smoothing_window):
-    _check_positive('stationary_speed', stationary_speed, 'm/s')
-    _check_positive('smoothing_window', smoothing_window, 's')
+    positive(stationary_speed, 'stationary_speed', 'm/s')
+    positive(smoothing_window, 'smoothing_window', 's')
 
 
 def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
@@ -115,7 +112,7 @@ def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
     differentiator over ``smoothing_window`` s and interpolates back. Returns (N,) m/s.
     """
     t, x = _check_demonstration(times, positions)
-    _check_positive('smoothing_window', smoothing_window, 's')
+    positive(smoothing_window, 'smoothing_window', 's')
     stamps, inverse, counts = np.unique(t, return_inverse=True, return_counts=True)
     mean_x = np.stack([np.bincount(inverse, weights=x[:, k]) / counts for k in range(2)], axis=1)
     duration = stamps[-1] - stamps[0]

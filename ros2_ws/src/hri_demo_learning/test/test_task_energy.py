@@ -167,7 +167,7 @@ def test_bad_demonstrations_are_rejected_with_a_reason():
     pushing = times < HOLD_BEFORE + 0.8      # the recording ends during the push
     with pytest.raises(ValueError, match='no sample at rest after the motion'):
         demonstration_energy(times[pushing], positions[pushing], REFERENCE)
-    with pytest.raises(ValueError, match='stationary_speed must be > 0'):
+    with pytest.raises(ValueError, match='stationary_speed must be finite and > 0'):
         demonstration_energy(times, positions, REFERENCE, stationary_speed=0.0)
     with pytest.raises(ValueError, match='reference must be a finite'):
         demonstration_energy(times, positions, [0.1, np.inf])

@@ -15,7 +15,7 @@ import rclpy
 from hri_interfaces.msg import ControllerState
 from rclpy.executors import ExternalShutdownException
 
-from hri_adaptive_controller.controller_node import stamp_seconds
+from hri_core.node_common import stamp_seconds
 from hri_core.topics import MONITOR_QOS
 
 

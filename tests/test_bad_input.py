@@ -29,10 +29,9 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_adaptive_controller.controller_node import stamp_seconds
 from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
-from hri_core.node_common import load_defaults
+from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import LEARNED_TASKS_QOS, MONITOR_QOS, TASK_STATE_QOS
 from tests.common import PAPER_TASKS, REPO_ROOT
 from tests.fault_tools import RELIABLE, RawListener, assert_all_finite

@@ -16,8 +16,8 @@ from hri_interfaces.msg import ControllerState, TaskEvent
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_adaptive_controller.controller_node import stamp_seconds
 from hri_bringup.processes import wait_for
+from hri_core.node_common import stamp_seconds
 from hri_core.topics import MONITOR_QOS
 
 EFFORT_LIMIT = 20.0  # N m, the controller's default

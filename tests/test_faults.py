@@ -23,10 +23,9 @@ from hri_interfaces.msg import ControllerState
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_adaptive_controller.controller_node import stamp_seconds
 from hri_bringup.processes import wait_for, wait_until_logged
 from hri_core.dynamics import ScaraParameters, kinetic_energy
-from hri_core.node_common import load_defaults
+from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import MONITOR_QOS
 from hri_demo_learning.bag_io import read_bag
 from tests.common import PAPER_TASKS, REPO_ROOT

@@ -49,6 +49,7 @@ from hri_core.node_common import (
     declare_parameters,
     load_defaults,
     run_node,
+    stamp_seconds,
 )
 from hri_core.potential import TaskShape
 from hri_core.velocity_estimator import VelocityEstimator
@@ -108,10 +109,6 @@ def gains_from(values: dict) -> ControllerGains:
         task_gain=None, approach_distance=values['approach_distance'],
         region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
         effort_limit=values['effort_limit'], damping=DEFAULT_GAINS.damping)
-
-
-def stamp_seconds(stamp) -> float:
-    return stamp.sec + 1e-9 * stamp.nanosec
 
 
 class Controller(Node):

@@ -199,6 +199,11 @@ def load_defaults(package: str, node_name: str) -> dict:
                            f'{" ".join(str(error).split())}') from None
 
 
+def stamp_seconds(stamp) -> float:
+    """A builtin_interfaces/Time (a header's stamp) in seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
 def init_ros(args=None) -> threading.Event:
     """rclpy.init without rclpy's signal handlers; return the event SIGINT/SIGTERM set."""
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)

@@ -12,6 +12,7 @@ import pytest
 
 from hri_adaptive_controller import controller_node, event_manager_node
 from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
+from hri_bringup import live_view_node
 from hri_core import topics
 from hri_core.node_common import PARAMETER_TYPES, load_defaults
 from hri_demo_learning import learner_node, recorder_node
@@ -25,6 +26,7 @@ TABLE_NODES = [
     ('hri_adaptive_controller', event_manager_node),
     ('hri_demo_learning', learner_node),
     ('hri_demo_learning', recorder_node),
+    ('hri_bringup', live_view_node),
 ]
 
 

@@ -19,12 +19,13 @@ setup(
     zip_safe=True,
     maintainer='HRI demo maintainers',
     maintainer_email='maintainers@hri-demo.example.org',
-    description='Process orchestration of the HRI nodes and the `system` node (live loop '
-                'from one YAML file).',
+    description='Process orchestration of the HRI nodes, the `system` node (live loop '
+                'from one YAML file) and the `live_view` node (the system in Foxglove).',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'system = hri_bringup.system:main',
+            'live_view = hri_bringup.live_view_node:main',
         ],
     },
 )

@@ -20,7 +20,7 @@ case $- in *u*) _hri_nounset=1; set +u ;; *) _hri_nounset= ;; esac
 # shellcheck disable=SC1091
 source "$_hri_root/install/setup.bash"
 [ -n "$_hri_nounset" ] && set -u
-# A real ROS 2 install's ros2cli wins; otherwise the project's small `ros2` (verb `run` only).
+# A real ROS 2 install's ros2cli wins; otherwise the project's small `ros2` (run, topic, bag).
 if ! command -v ros2 >/dev/null 2>&1; then
   export PATH="$_hri_root/scripts/bin:$PATH"
 fi

@@ -42,6 +42,7 @@ from hri_bringup.cli_common import (
     ArgumentParser,
     CliError,
     StopRequest,
+    command_parser,
     message_class,
     non_negative_float,
     positive_float,
@@ -291,16 +292,7 @@ def bag_play(args: argparse.Namespace, stop: StopRequest) -> int:
 
 def build_parser() -> ArgumentParser:
     """`ros2 bag` and its sub-verbs."""
-    parser = ArgumentParser(prog='ros2 bag',
-                            description='Various rosbag related sub-commands (no ros2cli '
-                                        'here: the project\'s stand-in).')
-    verbs = parser.add_subparsers(title='Commands', metavar='COMMAND', dest='verb',
-                                  required=True)
-
-    def verb(name: str, handler, help_text: str) -> ArgumentParser:
-        sub = verbs.add_parser(name, help=help_text, description=help_text)
-        sub.set_defaults(handler=handler, prog=sub.prog)
-        return sub
+    parser, verb = command_parser('ros2 bag', 'Various rosbag related sub-commands')
 
     info = verb('info', bag_info, 'Print information about a bag to the screen')
     info.add_argument('bag_path', help='bag folder (with metadata.yaml) or .mcap/.db3 file')

@@ -22,7 +22,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import rclpy
 from rclpy.context import Context
@@ -68,6 +68,22 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f'{self.prog}: error: {" ".join(message.split())} '
                      f'(see {self.prog} --help)\n')
+
+
+def command_parser(prog: str, summary: str) -> tuple[ArgumentParser, Callable]:
+    """The parser of `prog` (e.g. 'ros2 topic') and a function `verb(name, handler, help)`
+    that adds one of its sub-verbs and returns that sub-verb's parser."""
+    parser = ArgumentParser(prog=prog, description=f"{summary} (no ros2cli here: the "
+                                                   "project's stand-in).")
+    verbs = parser.add_subparsers(title='Commands', metavar='COMMAND', dest='verb',
+                                  required=True)
+
+    def verb(name: str, handler: Callable, help_text: str) -> ArgumentParser:
+        sub = verbs.add_parser(name, help=help_text, description=help_text)
+        sub.set_defaults(handler=handler, prog=sub.prog)
+        return sub
+
+    return parser, verb
 
 
 def positive_float(text: str) -> float:

@@ -47,6 +47,7 @@ from hri_bringup.cli_common import (
     StopRequest,
     UsageError,
     add_qos_arguments,
+    command_parser,
     is_hidden_name,
     message_class,
     non_negative_float,
@@ -628,16 +629,7 @@ def _add_discovery_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> ArgumentParser:
     """`ros2 topic` and its sub-verbs."""
-    parser = ArgumentParser(prog='ros2 topic',
-                            description='Various topic related sub-commands (no ros2cli '
-                                        'here: the project\'s stand-in).')
-    verbs = parser.add_subparsers(title='Commands', metavar='COMMAND', dest='verb',
-                                  required=True)
-
-    def verb(name: str, handler, help_text: str) -> ArgumentParser:
-        sub = verbs.add_parser(name, help=help_text, description=help_text)
-        sub.set_defaults(handler=handler, prog=sub.prog)
-        return sub
+    parser, verb = command_parser('ros2 topic', 'Various topic related sub-commands')
 
     listing = verb('list', list_topics, 'Output a list of available topics')
     listing.add_argument('-t', '--show-types', action='store_true',

@@ -244,9 +244,10 @@ def test_bag_play_is_recorded_again_message_for_message(nodes, ros_domain, tmp_p
     assert recorder.wait_for_line(READY_LINES['recorder'], START_TIMEOUT), recorder.log()
     # --delay: play, like rosbag2's, does not wait for subscribers, and a new participant
     # such as play's learns of a running node only at its next periodic announcement (every
-    # 3 s, cli_topic.DEFAULT_SPIN_TIME); 3.5 s of delay once lost the first 0.1 s of play.
+    # 0.5 s with config/fastdds.xml; with Fast DDS's 3 s, 3.5 s of delay once lost the first
+    # 0.1 s of play).
     play = ros2(ros_domain, 'bag', 'play', FOLLOW_BAG, '--rate', '4', '--topics', *topics,
-                '--delay', '5', '--wait-for-all-acked', '5000', timeout=60.0)
+                '--delay', '2', '--wait-for-all-acked', '5000', timeout=60.0)
     assert (play.returncode, play.stdout, play.stderr) == (0, '', '')
     with Reader(FOLLOW_BAG) as reader:
         total = sum(c.msgcount for c in reader.connections if c.topic in topics)

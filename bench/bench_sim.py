@@ -21,8 +21,6 @@ import json
 import os
 import re
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -30,11 +28,11 @@ import time
 
 import numpy as np
 import psutil
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+
+from hri_bringup.processes import RosProbe, start_node
+from hri_core.topics import JOINT_STATES
 
 SUMMARY = re.compile(r'(\d+) steps integrated in (\d+) ticks \(([\d.]+) s\): (\d+) late ticks '
                      r'caught up, (\d+) steps dropped')
@@ -79,23 +77,18 @@ def node_process(root: psutil.Process, executable: str = 'scara_sim') -> psutil.
 
 
 class Listener:
-    """A /joint_states subscriber in its own context, spun in a thread."""
+    """A /joint_states subscriber on a RosProbe: header stamps and receive times, while
+    `recording`."""
 
     def __init__(self, domain_id: int):
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node('bench_sim_listener', context=self.context)
         self.stamps: list[int] = []
         self.received: list[int] = []
         self.recording = False
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.node.create_subscription(JointState, '/joint_states', self._on_message, qos)
         self.first = threading.Event()
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
+        self.probe = RosProbe(domain_id, name='bench_sim_listener')
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.probe.node.create_subscription(JointState, JOINT_STATES.name, self._on_message,
+                                            qos)
 
     def _on_message(self, msg: JointState, info) -> None:
         # `info` must not have a default: rclpy passes the MessageInfo (with the middleware
@@ -106,33 +99,20 @@ class Listener:
             self.stamps.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
             self.received.append(received)
 
-    def _spin(self) -> None:
-        while not self._stop.is_set() and self.context.ok():
-            self.executor.spin_once(timeout_sec=0.05)
-
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        self.probe.close()
 
 
 def run(args: argparse.Namespace) -> dict:
     if shutil.which('ros2') is None:
         raise SystemExit('bench_sim: no `ros2` on PATH; run `source scripts/env.sh` first')
-    env = dict(os.environ, ROS_DOMAIN_ID=str(args.domain_id),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    log = tempfile.NamedTemporaryFile(prefix='bench-sim-', suffix='.log', delete=False)
-    command = ['ros2', 'run', 'scara_sim', 'scara_sim', '--ros-args',
-               '-p', f'rate_hz:={float(args.rate_hz)!r}']
-    sim = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT,
-                           start_new_session=True)
+    sim = start_node('scara_sim', 'scara_sim', args.domain_id,
+                     params={'rate_hz': float(args.rate_hz)},
+                     log_dir=tempfile.mkdtemp(prefix='bench-sim-'))
     listener = Listener(args.domain_id)
     try:
         if not listener.first.wait(timeout=20.0):
-            raise SystemExit('bench_sim: no /joint_states within 20 s; see ' + log.name)
+            raise SystemExit(f'bench_sim: no /joint_states within 20 s; see {sim.log_path}')
         time.sleep(args.warmup)
         process = node_process(psutil.Process(sim.pid))
         cpu0, wall0 = process.cpu_times(), time.monotonic()
@@ -142,19 +122,11 @@ def run(args: argparse.Namespace) -> dict:
         cpu1, wall1 = process.cpu_times(), time.monotonic()
     finally:
         listener.close()
-        if sim.poll() is None:
-            os.kill(sim.pid, signal.SIGINT)
-            try:
-                sim.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                os.kill(sim.pid, signal.SIGKILL)
-                sim.wait()
-        log.close()
+        sim.stop(timeout=10.0)
     wall = wall1 - wall0
     cpu = (cpu1.user - cpu0.user) + (cpu1.system - cpu0.system)
     stamps, received = np.array(listener.stamps), np.array(listener.received)
-    with open(log.name, errors='replace') as handle:
-        match = SUMMARY.search(handle.read())
+    match = SUMMARY.search(sim.log())
     result = {
         'duration_s': round(wall, 3),
         'rate_hz_requested': args.rate_hz,
@@ -165,7 +137,7 @@ def run(args: argparse.Namespace) -> dict:
         'sim_cpu_percent': round(100.0 * cpu / wall, 1),
         'sim_pid': process.pid,
         'cpu_count': psutil.cpu_count(),
-        'sim_log': log.name,
+        'sim_log': str(sim.log_path),
     }
     if match:
         steps, ticks, seconds, late, dropped = match.groups()

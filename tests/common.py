@@ -8,9 +8,11 @@ import itertools
 import os
 from pathlib import Path
 
+from hri_bringup.processes import paper_tasks_dir
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
-# Table I's task files, as in the source tree.
-PAPER_TASKS = REPO_ROOT / 'ros2_ws/src/hri_adaptive_controller/tasks'
+# Table I's task files, where the live loop's event_manager loads them from.
+PAPER_TASKS = paper_tasks_dir()
 _domain_counter = itertools.count()
 DOMAIN_ID_FIRST, DOMAIN_ID_COUNT = 100, 130
 # The xdist controller's PID is the workers' parent: one offset per session.

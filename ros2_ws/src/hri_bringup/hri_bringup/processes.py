@@ -249,9 +249,9 @@ class NodesNotReadyError(TimeoutError):
         self.late = late
 
 
-def paper_tasks_dir() -> str:
+def paper_tasks_dir() -> Path:
     """Table I's task files as installed with hri_adaptive_controller (share/.../tasks)."""
-    return str(Path(get_package_share_directory('hri_adaptive_controller')) / 'tasks')
+    return Path(get_package_share_directory('hri_adaptive_controller')) / 'tasks'
 
 
 def check_live_loop_names(names: Iterable[str]) -> None:
@@ -270,7 +270,8 @@ def live_loop_parameters(overrides: Mapping[str, Mapping | None] | None = None
     overrides = dict(overrides or {})
     check_live_loop_names(overrides)
     parameters: dict[str, dict] = {name: {} for name in LIVE_LOOP_EXECUTABLES}
-    parameters['event_manager'] = {'tasks_dir': paper_tasks_dir(), 'initial_task': 'follow'}
+    parameters['event_manager'] = {'tasks_dir': str(paper_tasks_dir()),
+                                   'initial_task': 'follow'}
     for name, values in overrides.items():
         parameters[name].update(values or {})
     return parameters

@@ -93,6 +93,10 @@ class ParameterSpec:
             descriptor.additional_constraints = f'one of {", ".join(self.choices)}'
         return descriptor
 
+    def missing(self, name: str) -> str:
+        """The one-line reason when this (required) parameter `name` has no value."""
+        return f'parameter {name} is required: {self.description}'
+
     def problem(self, value) -> str:
         """Why `value` is not valid beyond its type and range ('' if it is)."""
         if self.type is str and self.choices and value not in self.choices:
@@ -127,7 +131,7 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec],
             if spec.optional:
                 values[name] = None
                 continue
-            raise StartupError(_missing_value(node, name, spec)) from None
+            raise StartupError(spec.missing(name)) from None
         except InvalidParameterTypeException as error:
             hint = ' (write it with a decimal point, e.g. 1000.0)' if spec.type is float \
                 else ''
@@ -135,17 +139,12 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec],
         except ParameterException as error:
             raise StartupError(f'bad parameter {name}: {_reason(error, name)}') from None
         if spec.required and len(value) == 0:
-            raise StartupError(_missing_value(node, name, spec))
+            raise StartupError(spec.missing(name))
         reason = spec.problem(value)
         if reason:
             raise StartupError(f'bad parameter {name}: {reason}')
         values[name] = [float(v) for v in value] if spec.type is list else value
     return values
-
-
-def _missing_value(node: Node, name: str, spec: ParameterSpec) -> str:
-    """The one-line reason for a parameter without a value."""
-    return f'parameter {name} is required: {spec.description}'
 
 
 def _as_type(value, spec: ParameterSpec):

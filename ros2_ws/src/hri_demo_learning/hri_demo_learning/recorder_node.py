@@ -7,8 +7,10 @@ burst never overflows the queue. Subscriptions are raw (CDR bytes, no deserialis
 each message is stamped in the bag with its receive time from the middleware (the header
 stamp stays inside the message). Every `flush_period` seconds the open MCAP chunk is closed
 (zstd-compressed with `compression:=zstd`) and handed to the OS, so a SIGKILL loses at most
-that much. SIGINT or SIGTERM close the bag cleanly (MCAP summary and metadata.yaml) and the
-node logs one summary line (messages per topic). An `output` that exists already is refused
+that much. SIGINT or SIGTERM first write every message still queued in the subscriptions (received
+and acknowledged to reliable publishers, not yet handed over by the executor), then close the
+bag cleanly (MCAP summary and metadata.yaml), and the node logs one summary line (messages per
+topic). An `output` that exists already is refused
 (one error line, exit code 1), as is a bad parameter; a bag that cannot be written any more
 (disk full) stops the node the same way. The parameters' defaults are in config/recorder.yaml
 (`topics`: the names of hri_core.topics.DEMONSTRATION_TOPICS); `output` has none (required).
@@ -17,6 +19,7 @@ node logs one summary line (messages per topic). An `output` that exists already
 import importlib
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
@@ -128,6 +131,7 @@ class Recorder(Node):
         self._pending = list(dict.fromkeys(names))
         self._topics = list(self._pending)
         self._recording: dict[str, object] = {}
+        self._on_message: dict[str, Callable[[bytes, dict], None]] = {}
         self.exit_code: int | None = None  # 1 once the bag cannot be written any more
         try:
             self._writer = BagWriter(values['output'], read_definition=read_msg_definition,
@@ -201,8 +205,9 @@ class Recorder(Node):
             except OSError as err:
                 self._stop_on_write_error(err)
 
-        self._recording[topic] = self.create_subscription(
-            cls, topic, on_message, qos, raw=True)
+        subscription = self.create_subscription(cls, topic, on_message, qos, raw=True)
+        self._recording[topic] = subscription
+        self._on_message[topic] = on_message
         self.get_logger().info(
             f'recording {topic} ({msgtype}, {qos.reliability.name.lower()}, '
             f'{qos.durability.name.lower()}, keep_all)')
@@ -220,8 +225,25 @@ class Recorder(Node):
                                     f'{error.strerror or error}; stopping')
             self.exit_code = 1
 
+    def drain(self) -> int:
+        """Write every message the middleware has received but the executor not yet handed
+        over (the reliable publishers count those as delivered); return how many."""
+        drained = 0
+        for topic, subscription in self._recording.items():
+            on_message = self._on_message[topic]
+            while self.exit_code is None:
+                with subscription.handle:
+                    taken = subscription.handle.take_message(subscription.msg_type, True)
+                if taken is None:
+                    break
+                on_message(*taken)
+                drained += 1
+        return drained
+
     def close_bag(self) -> None:
-        """Close the bag (MCAP summary, metadata.yaml) and log a one-line summary of counts."""
+        """Write what is still queued, close the bag (MCAP summary, metadata.yaml) and log a
+        one-line summary of counts."""
+        drained = self.drain()
         for subscription in self._recording.values():
             self.destroy_subscription(subscription)
         self._recording.clear()
@@ -236,7 +258,8 @@ class Recorder(Node):
                               if topic in counts)
         missing = [topic for topic in self._topics if topic not in counts]
         line = (f'closed bag {self._writer.path}: {sum(counts.values())} messages in '
-                f'{elapsed:.1f} s ({per_topic or "no topic seen"})')
+                f'{elapsed:.1f} s ({per_topic or "no topic seen"}; {drained} of them still '
+                'queued at the stop)')
         if missing:
             line += f'; never published: {", ".join(missing)}'
         self.get_logger().info(line)

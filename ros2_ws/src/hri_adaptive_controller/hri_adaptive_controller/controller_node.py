@@ -10,7 +10,7 @@ the newest state. With `mode: velocity` it publishes the joint-velocity referenc
 eq. 14 on /velocity_controller/commands instead. theta_hat advances by the time between the
 joint states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
 misses: commands published later than 1.5 periods of `rate_hz` after the stamp of their joint
-state) goes out every `rate_hz / state_rate_hz` cycles.
+state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone computes V.
 
 A watchdog timer (every joint_state_timeout / 4) notices missing or stale joint states; while
 they are, a timer at `rate_hz` publishes zero torque (and ControllerState) in place of the
@@ -138,7 +138,8 @@ class Controller(Node):
             raise StartupError(f'bad controller parameters: {error}') from None
         self._period = 1.0 / values['rate_hz']
         self._late = LATE_FACTOR * self._period
-        self._state_every = max(1, round(values['rate_hz'] / values['state_rate_hz']))
+        self._state_period = 1.0 / values['state_rate_hz']
+        self._next_state = -math.inf  # monotonic time the next ControllerState is due
         self._velocity_mode = values['mode'] == 'velocity'
         self._q = self._dq = None  # (2,) tuples of floats, checked finite on arrival
         self._joint_index = (None, None)  # (names of the last joint state, indices of ours)
@@ -316,8 +317,7 @@ class Controller(Node):
         """One control cycle on the joint state just received (stamp in s)."""
         if self._status == 'stale_joint_states':
             self.get_logger().info('joint states resumed')
-        monitor = (self._cycles + 1) % self._state_every == 0
-        output = self._step(now, dt, monitor)
+        output = self._step(now, dt, monitor=now >= self._next_state)
         self._publish_command(now, output, stamp)
 
     def _publish_command(self, now: float, output, stamp: float | None) -> None:
@@ -334,7 +334,10 @@ class Controller(Node):
             self._input_age = clock - stamp
             if self._input_age > self._late:
                 self._misses += 1
-        if self._cycles % self._state_every == 0:
+        if now >= self._next_state:
+            # On a fixed schedule, whatever the rate of the cycles; no catching up.
+            due = self._next_state + self._state_period
+            self._next_state = due if due > now else now + self._state_period
             self._publish_state(now, output, command)
 
     def _step(self, now: float, dt: float, monitor: bool):

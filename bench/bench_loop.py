@@ -126,7 +126,8 @@ def command_latency(states_ns, commands_ns) -> dict:
 
 def start_load(count: int) -> list[subprocess.Popen]:
     """`count` busy processes at normal priority (ended by end_processes)."""
-    return [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(count)]
+    return [subprocess.Popen([sys.executable, '-c', BUSY_LOOP], stderr=subprocess.DEVNULL)
+            for _ in range(count)]
 
 
 def end_processes(processes) -> None:

@@ -18,7 +18,19 @@ circle: centre (0.45, 0.1) m, radius 0.05 m, period 8 s). Once the controller re
   /joint_states -> controller -> /effort_controller/commands latency) median, p99, max in ms;
 * CPU of each node process and of this probe (user + system time over wall time, psutil, % of
   one core);
-* the sim's own count of late ticks and dropped steps over its whole run (its exit line).
+* the sim's own count of late ticks and dropped steps over its whole run (its exit line);
+* joint state -> command as this probe sees it: for each /joint_states message, the time from
+  its arrival to the arrival of the next /effort_controller/commands (middleware receive
+  timestamps), median, p99, max; deadline misses: states with no command within 1.5 ms;
+  cycles without control: states followed by another state before any command.
+
+Before the loop, in the same run, the transport floor: a trivial rclpy echo (bench/echo_node.py,
+the controller's executor and QoS) answers JointState pings sent at 1 kHz for `--echo-seconds`;
+its round trip (median, p99, max) and CPU are reported, and the ratio of the loop's joint state
+-> command p99 to the echo's round-trip p99. `--load N` starts N busy processes (normal
+priority) before both measurements and ends them after (by PID). The probe and the echo ask
+for SCHED_FIFO (`--probe-priority`, as the nodes do) so that a starved probe does not measure
+its own delays.
 
 Every process started is ended (SIGINT, then SIGKILL by PID) in a `finally`.
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_loop.py`.
@@ -29,6 +41,8 @@ import argparse
 import json
 import os
 import shutil
+import signal
+import subprocess
 import sys
 import tempfile
 import threading
@@ -44,13 +58,18 @@ from bench_sim import SUMMARY, node_process, period_statistics  # noqa: E402
 from hri_interfaces.msg import ControllerState  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from hri_bringup.processes import RosProbe, start_live_loop, wait_for  # noqa: E402
-from hri_core.topics import MONITOR_QOS  # noqa: E402
+from hri_core.realtime import request_sched_fifo  # noqa: E402
+from hri_core.topics import COMMAND_QOS, MONITOR_QOS  # noqa: E402
 
 HAND = {'profile': 'circle', 'start': [0.45, 0.1], 'radius': 0.05, 'period': 8.0}
 JOINT_STATE_PROBE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 CONTROL_RATE_HZ = 1000.0  # the controller's default rate_hz
+DEADLINE_S = 1.5e-3  # a command later than this after its joint state misses its deadline
+ECHO = REPO_ROOT / 'bench' / 'echo_node.py'
+BUSY_LOOP = 'while True: pass'
 
 
 def parse_arguments(argv=None) -> argparse.Namespace:
@@ -61,8 +80,119 @@ def parse_arguments(argv=None) -> argparse.Namespace:
                         help="seconds after the controller's first 'ok' that are not measured")
     parser.add_argument('--startup-timeout', type=float, default=30.0,
                         help="seconds to wait for the controller's status 'ok'")
+    parser.add_argument('--echo-seconds', type=float, default=None,
+                        help='seconds of the echo floor (default: --duration; 0 skips it)')
+    parser.add_argument('--load', type=int, default=0,
+                        help='busy processes (normal priority) running during the measurements')
+    parser.add_argument('--realtime-priority', type=int, default=None,
+                        help="scara_sim's and the controller's realtime_priority (default: "
+                        'their config)')
+    parser.add_argument('--probe-priority', type=int, default=50,
+                        help='SCHED_FIFO priority of this probe and of the echo node (0: off), '
+                        'so that a starved probe does not measure itself')
     parser.add_argument('--json', action='store_true', help='print JSON only')
     return parser.parse_args(argv)
+
+
+class ArrivalTimes:
+    """Middleware receive timestamps (ns) of a topic while `recording` is set."""
+
+    def __init__(self, recording: threading.Event):
+        self.received: list[int] = []
+        self.recording = recording
+
+    def __call__(self, msg, info) -> None:
+        if self.recording.is_set():
+            self.received.append(info.get('received_timestamp') or time.time_ns())
+
+
+def command_latency(states_ns, commands_ns) -> dict:
+    """Joint state -> command as the probe sees it (see the module docstring)."""
+    states, commands = np.sort(states_ns), np.sort(commands_ns)
+    if states.size == 0 or commands.size == 0:
+        return {'states': int(states.size), 'commands': int(commands.size)}
+    following = np.searchsorted(commands, states, side='right')
+    answered = following < commands.size
+    latency = (commands[np.minimum(following, commands.size - 1)] - states) * 1e-9
+    next_state = np.append(states[1:], np.iinfo(np.int64).max)
+    controlled = answered & (commands[np.minimum(following, commands.size - 1)] < next_state)
+    misses = int(np.sum(~answered | (latency > DEADLINE_S)))
+    return {'states': int(states.size), 'commands': int(commands.size),
+            'latency': spread_ms(latency[answered]),
+            'deadline_misses': misses,
+            'deadline_miss_percent': round(100.0 * misses / states.size, 3),
+            'without_control_percent': round(100.0 * float(np.mean(~controlled)), 3)}
+
+
+def start_load(count: int) -> list[subprocess.Popen]:
+    """`count` busy processes at normal priority (ended by end_processes)."""
+    return [subprocess.Popen([sys.executable, '-c', BUSY_LOOP], stderr=subprocess.DEVNULL)
+            for _ in range(count)]
+
+
+def end_processes(processes) -> None:
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def measure_echo(domain_id: int, seconds: float, priority: int) -> dict:
+    """Round trip of JointState pings at 1 kHz through bench/echo_node.py (the floor)."""
+    env = {**os.environ, 'ROS_DOMAIN_ID': str(domain_id),
+           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    echo = subprocess.Popen([sys.executable, str(ECHO), str(priority)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    probe = None
+    round_trips: list[int] = []
+    recording = threading.Event()
+    try:
+        probe = RosProbe(domain_id, name='bench_echo_probe')
+        request_sched_fifo(priority)
+
+        def on_pong(msg, info):
+            if recording.is_set():
+                sent = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                round_trips.append((info.get('received_timestamp') or time.time_ns()) - sent)
+
+        probe.node.create_subscription(JointState, '/bench/pong', on_pong, COMMAND_QOS)
+        ping = probe.publisher('/bench/ping', JointState, JOINT_STATE_PROBE_QOS)
+        if not wait_for(lambda: ping.get_subscription_count() > 0, 30.0):
+            raise SystemExit('bench_loop: the echo node did not come up in 30 s')
+        msg = JointState(name=['joint1', 'joint2'], position=[0.1, 0.2], velocity=[0.0, 0.0],
+                         effort=[0.0, 0.0])
+        process = psutil.Process(echo.pid)
+        start = time.monotonic()
+        sent = 0
+        cpu_before = wall_before = None
+        while True:
+            now = time.monotonic()
+            if cpu_before is None and now - start >= 1.0:  # 1 s of warm-up
+                cpu_before, wall_before = cpu_seconds(process), now
+                recording.set()
+            if now - start >= 1.0 + seconds:
+                break
+            stamp = time.time_ns()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+            ping.publish(msg)
+            sent += 1
+            time.sleep(max(0.0, start + sent * 1e-3 - time.monotonic()))
+        recording.clear()
+        wall = time.monotonic() - wall_before
+        cpu = cpu_seconds(process) - cpu_before
+    finally:
+        if probe is not None:
+            probe.close()
+        end_processes([echo])
+    trips = np.array(round_trips) * 1e-9
+    return {'seconds': round(wall, 3), 'round_trips': int(trips.size),
+            'answered_rate_hz': round(trips.size / wall, 1),
+            'round_trip': spread_ms(trips), 'cpu_percent': round(100.0 * cpu / wall, 1)}
 
 
 class JointStateTimes:
@@ -105,12 +235,24 @@ def run(args: argparse.Namespace) -> dict:
     started = {}
     probe = None
     joint_times = JointStateTimes()
+    command_times = ArrivalTimes(joint_times.recording)
+    load = start_load(args.load)
+    echo_seconds = args.duration if args.echo_seconds is None else args.echo_seconds
     try:
+        echo = (measure_echo(args.domain_id, echo_seconds, args.probe_priority)
+                if echo_seconds > 0 else None)
         probe = RosProbe(args.domain_id, name='bench_loop_probe')
+        scheduling = request_sched_fifo(args.probe_priority)
         probe.node.create_subscription(JointState, '/joint_states', joint_times,
                                        JOINT_STATE_PROBE_QOS)
+        probe.node.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                                       command_times, COMMAND_QOS)
         states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
-        started = start_live_loop(args.domain_id, {'hand_sim': HAND}, log_dir=log_dir)
+        overrides = {'hand_sim': HAND}
+        if args.realtime_priority is not None:
+            for name in ('scara_sim', 'controller'):
+                overrides[name] = {'realtime_priority': args.realtime_priority}
+        started = start_live_loop(args.domain_id, overrides, log_dir=log_dir)
         if not wait_for(lambda: bool(states) and states[-1].status == 'ok',
                         args.startup_timeout):
             last = states[-1].status if states else 'no ControllerState at all'
@@ -138,6 +280,7 @@ def run(args: argparse.Namespace) -> dict:
             probe.close()
         for node in reversed(list(started.values())):
             node.stop(timeout=10.0)
+        end_processes(load)
     stamps, received = np.array(joint_times.stamps), np.array(joint_times.received)
     ok = [s for s in window if s.status == 'ok']
     rates = np.array([s.rate_hz for s in window if s.rate_hz > 0.0])
@@ -167,9 +310,16 @@ def run(args: argparse.Namespace) -> dict:
         },
         'cpu_percent': {name: round(100.0 * (cpu_after[name] - cpu_before[name]) / wall, 1)
                         for name in processes},
+        'load_processes': args.load,
+        'probe_scheduling': scheduling.description,
+        'state_to_command': command_latency(received, np.array(command_times.received)),
+        'echo': echo,
         'pids': {name: p.pid for name, p in processes.items()},
         'cpu_count': psutil.cpu_count(),
     }
+    loop_p99 = result['state_to_command'].get('latency', {}).get('p99_ms')
+    if echo is not None and loop_p99 is not None and echo['round_trip']['p99_ms']:
+        result['latency_p99_ratio'] = round(loop_p99 / echo['round_trip']['p99_ms'], 3)
     match = SUMMARY.search(started['scara_sim'].log())
     if match:
         steps, ticks, seconds, late, dropped = match.groups()
@@ -198,6 +348,19 @@ def print_report(result: dict) -> None:
     print('CPU              ' + ', '.join(f'{name} {value} %'
                                           for name, value in result['cpu_percent'].items())
           + f' (% of one core; {result["cpu_count"]} cores)')
+    link = result['state_to_command']
+    if 'latency' in link:
+        lat = link['latency']
+        print(f'state -> command median {lat["median_ms"]} ms, p99 {lat["p99_ms"]} ms, max '
+              f'{lat["max_ms"]} ms (probe); deadline misses {link["deadline_miss_percent"]} %, '
+              f'without control {link["without_control_percent"]} % of {link["states"]} states')
+    echo = result['echo']
+    if echo is not None:
+        trip = echo['round_trip']
+        print(f'echo floor       round trip median {trip["median_ms"]} ms, p99 '
+              f'{trip["p99_ms"]} ms, max {trip["max_ms"]} ms; echo CPU {echo["cpu_percent"]} %; '
+              f'loop p99 / echo p99 = {result.get("latency_p99_ratio")}')
+    print(f'load processes   {result["load_processes"]}')
     if 'sim_summary' in result:
         summary = result['sim_summary']
         print(f'sim timing       {summary["steps"]} steps in {summary["ticks"]} ticks, '

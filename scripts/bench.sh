@@ -3,26 +3,39 @@
 # another so that they do not disturb each other,
 #   learning  bench/bench_learning.py   fits on the fixtures (Gauss-Newton vs trf), fit time vs
 #                                       samples, learning from a replayed 1M-message bag
-#   loop      bench/bench_loop.py       scara_sim + event_manager + controller + hand_sim, 20 s
+#   loop      bench/bench_loop.py       the trivial rclpy echo floor, then scara_sim +
+#                                       event_manager + controller + hand_sim, 20 s each: joint
+#                                       state -> command latency and its ratio to the echo's
+#                                       round trip, deadline misses, CPU
+#   loop_load the same with N busy processes (`--load N`, started and ended by the bench)
 #   recorder  bench/bench_recorder.py   60 s of JointState at 1 kHz: published vs recorded
 #   sim       bench/bench_sim.py        scara_sim alone, 10 s
 # and writes their figures with the machine's description into bench/results.json and a
-# table on stdout. `scripts/bench.sh --quick` shortens every piece (a smoke run).
+# table on stdout. `scripts/bench.sh --quick` shortens every piece (a smoke run); `--load N`
+# adds the loop_load piece.
 # Each piece ends the processes it started; a piece that fails is reported and the others
 # still run; the exit code is non-zero if any piece failed (the recorder's also if it lost a
-# message). ROS domains: BENCH_DOMAIN_BASE (default 90) .. +2.
+# message). ROS domains: BENCH_DOMAIN_BASE (default 90) .. +3.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
-usage() { echo "usage: scripts/bench.sh [--quick]"; }
+usage() { echo "usage: scripts/bench.sh [--quick] [--load N]"; }
 quick=0
-case "${1:-}" in
-  --quick) quick=1 ;;
-  "") ;;
-  -h | --help) usage; exit 0 ;;
-  *) usage >&2; exit 2 ;;
-esac
+load=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --quick) quick=1 ;;
+    --load)
+      load=${2:-}
+      shift
+      [[ "$load" =~ ^[1-9][0-9]*$ ]] || { echo "--load needs a positive integer" >&2; exit 2; }
+      ;;
+    -h | --help) usage; exit 0 ;;
+    *) usage >&2; exit 2 ;;
+  esac
+  shift
+done
 
 # Set up as scripts/test.sh does; the build step under the colcon lock when flock exists, so
 # that it never runs at the same time as another build of this checkout.
@@ -64,8 +77,16 @@ run_piece() {
 }
 
 run_piece learning 1800 python bench/bench_learning.py --json "${learning_args[@]}"
-run_piece loop $((loop_seconds + 120)) python bench/bench_loop.py --json \
+run_piece loop $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
   --duration "$loop_seconds" --domain-id "$domain"
+if [ "$load" -gt 0 ]; then
+  run_piece loop_load $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
+    --duration "$loop_seconds" --domain-id $((domain + 3)) --load "$load"
+else
+  echo '{"skipped": "no --load N given"}' > "$work/loop_load.json"
+  echo 0 > "$work/loop_load.code"
+  cut -d' ' -f1-3 /proc/loadavg > "$work/loop_load.load"
+fi
 run_piece recorder $((recorder_seconds + 180)) python bench/bench_recorder.py --json \
   --seconds "$recorder_seconds" --domain-id $((domain + 1))
 run_piece sim $((sim_seconds + 120)) python bench/bench_sim.py --json \
@@ -82,7 +103,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 work, output, quick = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3] == '1'
-PIECES = ('learning', 'loop', 'recorder', 'sim')
+PIECES = ('learning', 'loop', 'loop_load', 'recorder', 'sim')
 
 
 def package_version(name):
@@ -158,6 +179,8 @@ for name in PIECES:
     if 'error' in piece:
         row(name, 'FAILED', f"exit {piece['exit_code']}: {piece['error']}")
         continue
+    if 'skipped' in piece:
+        continue
     row(name, 'load average before', load)
     if piece['exit_code'] != 0:
         row(name, 'exit code', str(piece['exit_code']))
@@ -182,8 +205,19 @@ for name in PIECES:
                 f"(read + energy + identification + fit; fit {r['fit_s']} s, "
                 f"{r['iterations']} it, {r['method']}); bag {r['bag_mb']} MB written in "
                 f"{r['write_s']} s; d2 {r['d2']} m")
-    elif name == 'loop':
+    elif name in ('loop', 'loop_load'):
         j, c = piece['joint_states'], piece['controller']
+        row(name, 'busy processes', str(piece['load_processes']))
+        link = piece['state_to_command']
+        if 'latency' in link:
+            row(name, 'joint state -> command (probe)', spread(link['latency']))
+            row(name, 'deadline misses (> 1.5 ms)', f"{link['deadline_miss_percent']} % of "
+                f"{link['states']} states; without control {link['without_control_percent']} %")
+        echo = piece.get('echo')
+        if echo:
+            row(name, 'echo floor round trip', spread(echo['round_trip']) +
+                f"; echo CPU {echo['cpu_percent']} %")
+            row(name, 'loop p99 / echo round-trip p99', fmt(piece.get('latency_p99_ratio')))
         row(name, 'window', f"{piece['duration_s']} s")
         row(name, '/joint_states rate', f"{j['achieved_rate_hz']} Hz received; sim time / "
             f"wall {fmt(j['sim_realtime_factor'])}")

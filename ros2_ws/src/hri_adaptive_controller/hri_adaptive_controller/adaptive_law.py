@@ -25,6 +25,14 @@ fault flag (theta_hat is then left unchanged). theta_hat is integrated with expl
 projected onto a box of physically plausible values (pi1, pi3 >= 1e-3 kg m^2, pi2, b1, b2 >= 0);
 projection onto a convex set that contains the true parameters never increases V.
 
+Two paths compute the same step. `AdaptiveController.step` is the general numpy code, the
+reference (any caller, every argument checked). `AdaptiveController.step_lean` is the 1 kHz
+path of the controller node: the same equations written out in plain floats for the 2-joint
+arm (J, J+ and dJ+/dt, the regressor, the torque, the theta_hat update; V and Q only when
+asked), with no per-call validation: gains, parameters and the task are checked once when they
+are set, the measurements by the node when a message arrives. The unit tests hold the two
+equal to 1e-12 on random states; the task's own term is `task_variable.task_term`.
+
 Units: q rad, qdot rad/s, tau N m, x m; theta = [pi1, pi2, pi3 (kg m^2), b1, b2 (N m s/rad),
 mlc1, mlc2 (kg m)] as in hri_core.dynamics.dynamic_parameters.
 """
@@ -41,6 +49,7 @@ from hri_adaptive_controller.task_variable import (
     joint_velocity_reference,
     shaped_potential,
     task_potential,
+    task_term,
 )
 from hri_core.dynamics import regressor
 from hri_core.potential import TaskShape
@@ -176,6 +185,31 @@ class ControlOutput:
     fault_reason: str = ''
 
 
+@dataclass(frozen=True, slots=True)
+class LeanOutput:
+    """Result of `AdaptiveController.step_lean` (plain floats; the fields of ControlOutput).
+
+    tau, tau_requested (2,) N m; s (2,) rad/s; qdot_r (2,) rad/s (eq. 14; the velocity-mode
+    command); distance |x - x_d| (m; None on a fault); lyapunov V (J), task_potential Q
+    (m^2/s), lyapunov_rate (W): None unless monitored; theta_hat (7,) used for this step;
+    task_gain k (m^2/s); torque_limited, fault (bool); fault_reason (str).
+    """
+
+    tau: tuple[float, float]
+    tau_requested: tuple[float, float]
+    s: tuple[float, float]
+    qdot_r: tuple[float, float]
+    distance: float | None
+    lyapunov: float | None
+    task_potential: float | None
+    lyapunov_rate: float | None
+    theta_hat: tuple[float, ...]
+    task_gain: float
+    torque_limited: bool
+    fault: bool
+    fault_reason: str = ''
+
+
 def limit_torque(tau, effort_limit: float) -> tuple[np.ndarray, bool]:
     """Scale tau (n,) N m as a whole so that max |tau_i| <= effort_limit (N m).
 
@@ -280,6 +314,12 @@ class AdaptiveController:
         self._ks = np.asarray(gains.ks, dtype=float)
         self._adaptation = np.asarray(gains.adaptation, dtype=float)
         self._shaped: dict[TaskShape, ShapedPotential] = {}
+        # The lean step's constants as Python floats.
+        self._ks_floats = tuple(self._ks.tolist())
+        self._adaptation_floats = tuple(self._adaptation.tolist())
+        self._box = tuple(zip(gains.theta_lower, gains.theta_upper, strict=True))
+        self._threshold2 = gains.damping.threshold ** 2
+        self._max_damping2 = gains.damping.max_damping ** 2
         self.reset(theta_hat0)
 
     @property
@@ -290,7 +330,7 @@ class AdaptiveController:
     @property
     def theta_hat(self) -> np.ndarray:
         """Current parameter estimate (7,), a copy."""
-        return self._theta_hat.copy()
+        return np.array(self._theta)
 
     def reset(self, theta_hat0) -> None:
         """Restart the estimate at theta_hat0 (7,), projected onto the box."""
@@ -298,6 +338,7 @@ class AdaptiveController:
         if theta.shape != (PARAMETER_COUNT,) or not np.all(np.isfinite(theta)):
             raise ValueError(f'theta_hat0 must be {PARAMETER_COUNT} finite values, got {theta}')
         self._theta_hat = np.clip(theta, self._lower, self._upper)
+        self._theta = tuple(self._theta_hat.tolist())
 
     def shaped(self, shape: TaskShape | None) -> ShapedPotential | None:
         """The shaped potential Q (eq. 12') the controller uses for `shape` (cached)."""
@@ -331,7 +372,7 @@ class AdaptiveController:
             raise ValueError(f'dt must be finite and > 0 s, got {dt}')
         if not (math.isfinite(a) and 0.0 <= a <= 1.0):
             raise ValueError(f'a(E, t) must be in [0, 1], got {a}')
-        theta_hat = self._theta_hat.copy()
+        theta_hat = np.array(self._theta)
         shaped = self.shaped(shape)
         k = 0.0 if shaped is None else shaped.task_gain
         measurements = [np.asarray(v, dtype=float) for v in (q, dq, x_d, xdot_d, xddot_d)]
@@ -361,7 +402,7 @@ class AdaptiveController:
                 and np.all(np.isfinite(reference.qddot_r))):
             return self._fault(theta_hat, k, 'non-finite torque or parameter update')
         tau, limited = limit_torque(tau_requested, gains.effort_limit)
-        self._theta_hat = theta_next
+        self._theta = tuple(theta_next.tolist())
         q_value = v_value = v_rate = None
         if monitor:
             q_value = 0.0 if shaped is None else task_potential(reference.distance, shaped)
@@ -375,6 +416,134 @@ class AdaptiveController:
             lyapunov=v_value, task_potential=q_value, lyapunov_rate=v_rate,
             theta_hat=theta_hat, reference=reference, task_gain=k, torque_limited=limited,
             fault=False)
+
+    def step_lean(self, q, dq, x_d, xdot_d, xddot_d, a: float, da: float,
+                  shape: TaskShape | None, dt: float, monitor: bool = False,
+                  theta_true=None, friction=None) -> LeanOutput:
+        """`step` for the 2-joint arm in plain floats, without per-call checks.
+
+        Same arguments and equations as `step`; q, dq, x_d, xdot_d, xddot_d are pairs of
+        finite floats (rad, rad/s, m, m/s, m/s^2), a in [0, 1], da finite, dt > 0 s: the
+        caller checks them where they enter (the node, when a message arrives). A non-finite
+        result still gives zero torque and fault=True, theta_hat unchanged.
+        """
+        q1, q2 = q
+        w1, w2 = dq
+        l1, l2 = self._l1, self._l2
+        # Kinematics: x, J, dJ/dt (hri_core.dynamics.forward_kinematics, jacobian, ...).
+        s1, c1 = math.sin(q1), math.cos(q1)
+        s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
+        w12 = w1 + w2
+        j11, j12 = -l1 * s1 - l2 * s12, -l2 * s12
+        j21, j22 = l1 * c1 + l2 * c12, l2 * c12
+        d11, d12 = -l1 * c1 * w1 - l2 * c12 * w12, -l2 * c12 * w12
+        d21, d22 = -l1 * s1 * w1 - l2 * s12 * w12, -l2 * s12 * w12
+        # Damped pseudo-inverse J+ = J^T A^-1, A = J J^T + lambda^2 I, and dJ+/dt.
+        g11, g12, g22 = j11 * j11 + j12 * j12, j11 * j21 + j12 * j22, j21 * j21 + j22 * j22
+        ratio = (g11 * g22 - g12 * g12) / self._threshold2
+        if ratio >= 1.0:
+            lam2 = dlam2 = 0.0
+        else:
+            lam2 = self._max_damping2 * (1.0 - ratio) ** 2
+            dlam2 = -2.0 * self._max_damping2 * (1.0 - ratio) / self._threshold2
+        a11, a22 = g11 + lam2, g22 + lam2
+        det = a11 * a22 - g12 * g12
+        theta = self._theta
+        k = 0.0 if shape is None else self.shaped(shape).task_gain
+        if abs(det) <= 1e-300:
+            return self._lean_fault(theta, k, 'singular Jacobian and no damping '
+                                    '(max_damping = 0)')
+        i11, i12, i22 = a22 / det, -g12 / det, a11 / det  # A^-1 (symmetric)
+        p11, p12 = j11 * i11 + j21 * i12, j11 * i12 + j21 * i22
+        p21, p22 = j12 * i11 + j22 * i12, j12 * i12 + j22 * i22
+        # dG/dt = dJ J^T + J dJ^T (symmetric); d det(G)/dt = tr(adj(G) dG/dt).
+        e11 = 2.0 * (d11 * j11 + d12 * j12)
+        e12 = d11 * j21 + d12 * j22 + j11 * d21 + j12 * d22
+        e22 = 2.0 * (d21 * j21 + d22 * j22)
+        lam2_dot = dlam2 * (g22 * e11 + g11 * e22 - 2.0 * g12 * e12)
+        f11, f22 = e11 + lam2_dot, e22 + lam2_dot  # dA/dt
+        # B = dA/dt A^-1; dJ+/dt = dJ^T A^-1 - J+ B.
+        b11, b12 = f11 * i11 + e12 * i12, f11 * i12 + e12 * i22
+        b21, b22 = e12 * i11 + f22 * i12, e12 * i12 + f22 * i22
+        r11 = d11 * i11 + d21 * i12 - (p11 * b11 + p12 * b21)
+        r12 = d11 * i12 + d21 * i22 - (p11 * b12 + p12 * b22)
+        r21 = d12 * i11 + d22 * i12 - (p21 * b11 + p22 * b21)
+        r22 = d12 * i12 + d22 * i22 - (p21 * b12 + p22 * b22)
+        # Task velocity a delta_eps and its time derivative (eq. 12', 14, 18).
+        xd1, xd2 = x_d
+        vd1, vd2 = xdot_d
+        dx1 = l1 * c1 + l2 * c12 - xd1
+        dx2 = l1 * s1 + l2 * s12 - xd2
+        distance = math.hypot(dx1, dx2)
+        if shape is None:
+            m1 = m2 = n1 = n2 = 0.0
+        elif not math.isfinite(distance):  # the potential's code refuses a non-finite dx
+            return self._lean_fault(theta, k, 'non-finite joint state or target')
+        else:
+            t1, t2, h11, h12, h22 = task_term(dx1, dx2, self._shaped[shape])
+            u1 = j11 * w1 + j12 * w2 - vd1
+            u2 = j21 * w1 + j22 * w2 - vd2
+            m1, m2 = a * t1, a * t2
+            n1 = da * t1 + a * (h11 * u1 + h12 * u2)
+            n2 = da * t2 + a * (h12 * u1 + h22 * u2)
+        v1, v2 = vd1 - m1, vd2 - m2
+        ad1, ad2 = xddot_d
+        z1, z2 = ad1 - n1, ad2 - n2
+        qr1, qr2 = p11 * v1 + p12 * v2, p21 * v1 + p22 * v2
+        ar1 = r11 * v1 + r12 * v2 + (p11 * z1 + p12 * z2)
+        ar2 = r21 * v1 + r22 * v2 + (p21 * z1 + p22 * z2)
+        # Regressor Y_d (eq. 18; hri_core.dynamics.regressor), torque (eq. 16), update (eq. 19).
+        sn1, sn2 = w1 - qr1, w2 - qr2
+        cq2, sq2 = math.cos(q2), math.sin(q2)
+        y12 = cq2 * (2.0 * ar1 + ar2) - sq2 * (w2 * qr1 + w12 * qr2)
+        y22 = cq2 * ar1 + sq2 * w1 * qr1
+        y23 = ar1 + ar2
+        gravity = self._gravity
+        gc1, gc12 = gravity * c1, gravity * c12
+        th1, th2, th3, th4, th5, th6, th7 = theta
+        ks1, ks2 = self._ks_floats
+        kp = self._gains.kp
+        tau1 = (-ks1 * sn1 - kp * (j11 * m1 + j21 * m2)
+                + (ar1 * th1 + y12 * th2 + ar2 * th3 + qr1 * th4 + gc1 * th6 + gc12 * th7))
+        tau2 = (-ks2 * sn2 - kp * (j12 * m1 + j22 * m2)
+                + (y22 * th2 + y23 * th3 + qr2 * th5 + gc12 * th7))
+        rates = (ar1 * sn1, y12 * sn1 + y22 * sn2, ar2 * sn1 + y23 * sn2, qr1 * sn1,
+                 qr2 * sn2, gc1 * sn1, gc12 * (sn1 + sn2))
+        theta_next = []
+        for value, rate, gain, (low, high) in zip(theta, rates, self._adaptation_floats,
+                                                  self._box, strict=True):
+            value = value - dt * (gain * rate)
+            theta_next.append(low if value < low else high if value > high else value)
+        isfinite = math.isfinite
+        if not (isfinite(tau1) and isfinite(tau2) and isfinite(ar1) and isfinite(ar2)
+                and all(map(isfinite, theta_next))):
+            return self._lean_fault(theta, k, 'non-finite torque or parameter update')
+        peak = max(abs(tau1), abs(tau2))
+        limit = self._gains.effort_limit
+        limited = peak > limit
+        tau = (tau1 * (limit / peak), tau2 * (limit / peak)) if limited else (tau1, tau2)
+        self._theta = tuple(theta_next)
+        q_value = v_value = v_rate = None
+        if monitor:
+            q_value = 0.0 if shape is None else task_potential(distance, self._shaped[shape])
+            model = theta if theta_true is None else tuple(float(v) for v in theta_true)
+            mi1, mi2, mi3 = model[0], model[1], model[2]
+            m11, m12 = mi1 + 2.0 * mi2 * cq2, mi3 + mi2 * cq2
+            v_value = (0.5 * (sn1 * (m11 * sn1 + m12 * sn2) + sn2 * (m12 * sn1 + mi3 * sn2))
+                       + kp * a * q_value)
+            if theta_true is not None:
+                v_value += 0.5 * sum((true - hat) ** 2 / gain for true, hat, gain in zip(
+                    model, theta, self._adaptation_floats, strict=True) if gain > 0.0)
+            f1, f2 = (0.0, 0.0) if friction is None else friction
+            v_rate = (-((ks1 + f1) * sn1 * sn1 + (ks2 + f2) * sn2 * sn2)
+                      - kp * (m1 * m1 + m2 * m2) + kp * da * q_value)
+        return LeanOutput(tau, (tau1, tau2), (sn1, sn2), (qr1, qr2), distance, v_value,
+                          q_value, v_rate, theta, k, limited, False)
+
+    def _lean_fault(self, theta, k: float, reason: str) -> LeanOutput:
+        zero = (0.0, 0.0)
+        return LeanOutput(zero, zero, zero, zero, None, None, None, None, theta, k, False,
+                          True, reason)
 
     def _fault(self, theta_hat, k: float, reason: str) -> ControlOutput:
         zero = np.zeros(2)

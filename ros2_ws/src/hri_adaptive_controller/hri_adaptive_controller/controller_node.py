@@ -1,13 +1,21 @@
 """The `controller` node: the adaptive HRI controller of paper eq. 14-19 on topics.
 
-Every 1/`rate_hz` s it takes the latest /joint_states, /target (the hand: the centre x_d of
-the desired region) and /hri/task_state (active task, a(E, t), da/dt), runs
-`AdaptiveController.step` (eq. 16-19, which also adapts theta_hat) and publishes the torque,
-limited to `effort_limit` with its direction kept, on /effort_controller/commands (the
-interface of ros2_control's JointGroupEffortController). With `mode: velocity` it publishes
-the joint-velocity reference qdot_r of eq. 14 on /velocity_controller/commands instead.
-ControllerState (distance, V, |s|, a, theta_hat, effort, deadline misses) goes out at
-`state_rate_hz`.
+Event-driven: each /joint_states message that arrives is the start of a control cycle. In its
+callback the node runs `AdaptiveController.step_lean` (eq. 16-19, which also adapts theta_hat)
+on that state with the latest /target (the hand: the centre x_d of the desired region) and
+/hri/task_state (active task, a(E, t), da/dt), and publishes the torque, limited to
+`effort_limit` with its direction kept, on /effort_controller/commands (the interface of
+ros2_control's JointGroupEffortController): one wake-up per cycle, the command computed from
+the newest state. With `mode: velocity` it publishes the joint-velocity reference qdot_r of
+eq. 14 on /velocity_controller/commands instead. theta_hat advances by the time between the
+joint states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
+misses: commands published later than 1.5 periods of `rate_hz` after the stamp of their joint
+state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone computes V.
+
+A watchdog timer (every joint_state_timeout / 4) notices missing or stale joint states; while
+they are, a timer at `rate_hz` publishes zero torque (and ControllerState) in place of the
+cycles that do not come. With `realtime_priority` > 0 the process asks for SCHED_FIFO at that
+priority (hri_core.realtime) and logs once whether it got it.
 
 Safety (the choices are argued in docs/design-notes.md):
 - zero torque while joint states are missing or older than `joint_state_timeout` (one
@@ -52,18 +60,23 @@ from hri_core.node_common import (
     stamp_seconds,
 )
 from hri_core.potential import TaskShape
+from hri_core.realtime import MAX_PRIORITY, request_sched_fifo
 from hri_core.velocity_estimator import VelocityEstimator
 
 PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'controller'
 JOINT_NAMES = ('joint1', 'joint2')
 WARNING_THROTTLE = 2.0  # s between repeats of one warning
-LATE_FACTOR = 1.5  # a tick later than 1.5 periods counts as a deadline miss
+LATE_FACTOR = 1.5  # a command later than 1.5 periods after its joint state is a deadline miss
+WATCHDOG_CHECKS = 4  # watchdog checks per joint_state_timeout
 MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
 
 PARAMETERS = {
-    'rate_hz': ParameterSpec(float, 'control rate (Hz)', low=10.0, high=2000.0,
+    'rate_hz': ParameterSpec(float, 'expected /joint_states rate, which paces control; '
+                             'deadlines and the zero-torque rate (Hz)', low=10.0, high=2000.0,
                              read_only=True),
+    'realtime_priority': ParameterSpec(int, 'SCHED_FIFO priority to ask for (0: off)',
+                                       low=0, high=MAX_PRIORITY, read_only=True),
     'state_rate_hz': ParameterSpec(float, 'ControllerState rate (Hz)', low=1.0, high=1000.0,
                                    read_only=True),
     'mode': ParameterSpec(str, 'effort: torques (eq. 16); velocity: qdot_r (eq. 14)',
@@ -124,9 +137,12 @@ class Controller(Node):
         except ValueError as error:
             raise StartupError(f'bad controller parameters: {error}') from None
         self._period = 1.0 / values['rate_hz']
-        self._state_every = max(1, round(values['rate_hz'] / values['state_rate_hz']))
+        self._late = LATE_FACTOR * self._period
+        self._state_period = 1.0 / values['state_rate_hz']
+        self._next_state = -math.inf  # monotonic time the next ControllerState is due
         self._velocity_mode = values['mode'] == 'velocity'
-        self._q = self._dq = None
+        self._q = self._dq = None  # (2,) tuples of floats, checked finite on arrival
+        self._joint_index = (None, None)  # (names of the last joint state, indices of ours)
         self._joint_time = -math.inf  # monotonic receive time of the latest joint state
         self._joint_stamp = -math.inf
         self._target = self._target_velocity = None
@@ -136,22 +152,22 @@ class Controller(Node):
         self._task_time = -math.inf
         self._shape_key = None
         self._shape: TaskShape | None = None
-        self._ticks = 0
+        self._cycles = 0
         self._misses = 0
-        self._last_tick = None
         self._window = (time.monotonic(), 0)
         self._rate = 0.0
         self._status = 'starting'
         self._weight = 0.0
         self._warned: dict[str, float] = {}
         self._input_age = 0.0
+        self._command_msg = Float64MultiArray(data=[0.0, 0.0])
 
         command = topics.VELOCITY_COMMANDS if self._velocity_mode else topics.EFFORT_COMMANDS
         self._command_pub = self.create_publisher(command.type, command.name, command.qos)
         topic = self._command_pub.topic_name
         self._state_pub = self.create_publisher(
             ControllerState, topics.CONTROLLER_STATE.name, topics.CONTROLLER_STATE.qos)
-        # Only the newest joint state and hand position matter to the 1 kHz loop.
+        # Only the newest joint state and hand position matter: each joint state starts a cycle.
         self.create_subscription(JointState, topics.JOINT_STATES.name, self._on_joint_state,
                                  topics.LATEST_SAMPLE_QOS)
         self.create_subscription(PointStamped, topics.TARGET.name, self._on_target,
@@ -159,11 +175,18 @@ class Controller(Node):
         self.create_subscription(TaskState, topics.TASK_STATE.name, self._on_task_state,
                                  topics.TASK_STATE.qos)
         self.add_on_set_parameters_callback(self._validate_parameters)
-        self.create_timer(self._period, self._control)
+        self.create_timer(values['joint_state_timeout'] / WATCHDOG_CHECKS, self._watchdog)
+        # Zero torque at the control rate while joint states are missing or stale; running
+        # from the start, since none has arrived yet.
+        self._zero_timer = self.create_timer(self._period, self._zero_cycle)
         self.get_logger().info(
-            f'{values["mode"]} control at {values["rate_hz"]:g} Hz on {topic}; ks={values["ks"]}'
-            f' kp={values["kp"]:g} effort_limit={values["effort_limit"]:g} N m; theta_hat0='
-            f'{values["theta_hat0"]}')
+            f'{values["mode"]} control on each /joint_states (expected at '
+            f'{values["rate_hz"]:g} Hz) on {topic}; ks={values["ks"]} kp={values["kp"]:g} '
+            f'effort_limit={values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
+        scheduling = request_sched_fifo(values['realtime_priority'])
+        log = self.get_logger().info if scheduling.granted or not scheduling.priority else (
+            self.get_logger().warning)
+        log(scheduling.description)
 
     # -- inputs ----------------------------------------------------------------------------
     def _warn(self, kind: str, text: str) -> None:
@@ -174,32 +197,45 @@ class Controller(Node):
             self.get_logger().warning(text)
 
     def _on_joint_state(self, msg: JointState) -> None:
-        names = list(msg.name)
-        if len(msg.position) != len(names) or len(msg.velocity) != len(names):
+        names = msg.name
+        position, velocity = msg.position, msg.velocity
+        if len(position) != len(names) or len(velocity) != len(names):
             self._warn('joint_state_size',
-                       f'joint state dropped: {len(names)} names, {len(msg.position)} '
-                       f'positions, {len(msg.velocity)} velocities')
+                       f'joint state dropped: {len(names)} names, {len(position)} '
+                       f'positions, {len(velocity)} velocities')
             return
-        try:
-            index = [names.index(joint) for joint in JOINT_NAMES]
-        except ValueError:
-            self._warn('joint_state_names',
-                       f'joint state dropped: names {names} lack {", ".join(JOINT_NAMES)}')
-            return
-        q = np.array([msg.position[i] for i in index])
-        dq = np.array([msg.velocity[i] for i in index])
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
+        known, index = self._joint_index
+        if names != known:
+            try:
+                index = tuple(names.index(joint) for joint in JOINT_NAMES)
+            except ValueError:
+                self._warn('joint_state_names',
+                           f'joint state dropped: names {list(names)} lack '
+                           f'{", ".join(JOINT_NAMES)}')
+                return
+            self._joint_index = (list(names), index)
+        i, j = index
+        q = (position[i], position[j])
+        dq = (velocity[i], velocity[j])
+        if not math.isfinite(q[0] + q[1] + dq[0] + dq[1]):
             self._warn('joint_state_non_finite',
                        'joint state dropped: non-finite position or velocity')
             return
-        stamp = stamp_seconds(msg.header.stamp)
-        if stamp < self._joint_stamp:
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        previous = self._joint_stamp
+        if stamp < previous:
             self._warn('joint_state_stamp', 'joint state dropped: stamp went back '
-                       f'{self._joint_stamp - stamp:.4f} s')
+                       f'{previous - stamp:.4f} s')
             return
+        now = time.monotonic()
+        # theta_hat advances by the time between the states (receive times if the stamps
+        # stand still), bounded to 10 periods after a gap.
+        dt = stamp - previous if stamp > previous else now - self._joint_time
         self._q, self._dq = q, dq
-        self._joint_stamp = stamp
-        self._joint_time = time.monotonic()
+        self._joint_stamp, self._joint_time = stamp, now
+        if not self._zero_timer.is_canceled():
+            self._zero_timer.cancel()
+        self._cycle(now, min(max(dt, 1e-6), 10.0 * self._period), stamp)
 
     def _on_target(self, msg: PointStamped) -> None:
         position = np.array([msg.point.x, msg.point.y])
@@ -215,8 +251,9 @@ class Controller(Node):
         if self._target_stamp is not None and stamp <= self._target_stamp:
             self._warn('target_stamp', 'target dropped: stamp did not advance')
             return
-        self._target_velocity = self._hand_velocity.update(position, stamp).copy()
-        self._target, self._target_stamp = position, stamp
+        # Plain float pairs: what the per-cycle step computes with.
+        self._target_velocity = tuple(self._hand_velocity.update(position, stamp).tolist())
+        self._target, self._target_stamp = tuple(position.tolist()), stamp
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -255,36 +292,56 @@ class Controller(Node):
         self.get_logger().info(f'gains changed: {changed}')
         return SetParametersResult(successful=True)
 
-    # -- control loop ------------------------------------------------------------------------
-    def _control(self) -> None:
+    # -- control cycles ----------------------------------------------------------------------
+    def _watchdog(self) -> None:
+        """Start the zero-torque cycles once joint states are missing or stale."""
         now = time.monotonic()
-        dt = self._period if self._last_tick is None else now - self._last_tick
-        if self._last_tick is not None and dt > LATE_FACTOR * self._period:
-            self._misses += 1
-        self._last_tick = now
-        self._ticks += 1
-        monitor = self._ticks % self._state_every == 0
-        output = self._step(now, min(max(dt, 1e-6), 10 * self._period), monitor)
-        command = np.zeros(2) if output is None else (
-            output.reference.qdot_r if self._velocity_mode else output.tau)
-        if not np.all(np.isfinite(command)):
-            command, self._status = np.zeros(2), 'fault: non-finite command'
-        self._command_pub.publish(Float64MultiArray(data=[float(v) for v in command]))
-        if output is not None:
-            self._input_age = stamp_seconds(self.get_clock().now().to_msg()) - self._joint_stamp
-        if monitor:
+        if (now - self._joint_time > self._values['joint_state_timeout']
+                and self._zero_timer.is_canceled()):
+            self._zero_timer.reset()
+            self._zero_cycle()
+
+    def _zero_cycle(self) -> None:
+        now = time.monotonic()
+        if now - self._joint_time <= self._values['joint_state_timeout']:
+            self._zero_timer.cancel()  # joint states are back: they pace the cycles
+            return
+        status = 'no_joint_states' if self._q is None else 'stale_joint_states'
+        if status != self._status:  # once per outage, as scara_sim's command timeout
+            self.get_logger().warning(f'zero torque: {status.replace("_", " ")}')
+        self._status = status
+        self._weight = 0.0
+        self._publish_command(now, None, None)
+
+    def _cycle(self, now: float, dt: float, stamp: float) -> None:
+        """One control cycle on the joint state just received (stamp in s)."""
+        if self._status == 'stale_joint_states':
+            self.get_logger().info('joint states resumed')
+        output = self._step(now, dt, monitor=now >= self._next_state)
+        self._publish_command(now, output, stamp)
+
+    def _publish_command(self, now: float, output, stamp: float | None) -> None:
+        self._cycles += 1
+        if output is None:
+            command = (0.0, 0.0)
+        else:
+            command = output.qdot_r if self._velocity_mode else output.tau
+        msg = self._command_msg
+        msg.data = command
+        self._command_pub.publish(msg)
+        if stamp is not None:
+            clock = self.get_clock().now().nanoseconds * 1e-9
+            self._input_age = clock - stamp
+            if self._input_age > self._late:
+                self._misses += 1
+        if now >= self._next_state:
+            # On a fixed schedule, whatever the rate of the cycles; no catching up.
+            due = self._next_state + self._state_period
+            self._next_state = due if due > now else now + self._state_period
             self._publish_state(now, output, command)
 
     def _step(self, now: float, dt: float, monitor: bool):
         self._weight = 0.0  # no task force acts unless the step below runs
-        if self._q is None or now - self._joint_time > self._values['joint_state_timeout']:
-            status = 'no_joint_states' if self._q is None else 'stale_joint_states'
-            if status != self._status:  # once per outage, as scara_sim's command timeout
-                self.get_logger().warning(f'zero torque: {status.replace("_", " ")}')
-            self._status = status
-            return None
-        if self._status == 'stale_joint_states':
-            self.get_logger().info('joint states resumed')
         if self._target is None:
             self._status = 'no_target'
             return None
@@ -303,8 +360,9 @@ class Controller(Node):
             self._status = 'ok'
         self._weight = weight
         try:
-            output = self._law.step(self._q, self._dq, self._target, self._target_velocity,
-                                    np.zeros(2), weight, rate, shape, dt, monitor=monitor)
+            output = self._law.step_lean(self._q, self._dq, self._target,
+                                         self._target_velocity, (0.0, 0.0), weight, rate,
+                                         shape, dt, monitor=monitor)
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             self._status = f'fault: {type(error).__name__}'
             self._warn('internal', f'zero torque: control step failed: {error!r}')
@@ -318,8 +376,8 @@ class Controller(Node):
     def _publish_state(self, now: float, output, command) -> None:
         started, ticks = self._window
         if now - started >= 1.0:
-            self._rate = (self._ticks - ticks) / (now - started)
-            self._window = (now, self._ticks)
+            self._rate = (self._cycles - ticks) / (now - started)
+            self._window = (now, self._cycles)
         msg = ControllerState(deadline_misses=self._misses, rate_hz=self._rate,
                               input_age=self._input_age,
                               status=self._status, effort=[float(v) for v in command],
@@ -330,17 +388,17 @@ class Controller(Node):
         if output is not None:
             msg.distance = float(output.distance)
             msg.lyapunov = float(output.lyapunov) if output.lyapunov is not None else 0.0
-            msg.sliding_norm = float(np.linalg.norm(output.s))
+            msg.sliding_norm = math.hypot(*output.s)
             msg.weight = self._weight
             msg.saturated = bool(output.torque_limited)
         elif self._q is not None and self._target is not None:
             x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
-            msg.distance = float(np.linalg.norm(x - self._target))
+            msg.distance = float(np.linalg.norm(x - np.array(self._target)))
         self._state_pub.publish(msg)
 
 
 def main(args=None):
-    # The 1 kHz loop and its 1 kHz input: the EventsExecutor at a fraction of the CPU.
+    # The 1 kHz cycles: the EventsExecutor at a fraction of the CPU.
     return run_node(Controller, NODE_NAME, EventsExecutor, args)
 
 

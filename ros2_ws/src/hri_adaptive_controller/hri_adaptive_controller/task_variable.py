@@ -291,6 +291,47 @@ def task_variable(dx, shaped: ShapedPotential) -> TaskVariable:
     return TaskVariable(r, slope * e, hessian, slope)
 
 
+def task_term(dx1: float, dx2: float,
+              shaped: ShapedPotential) -> tuple[float, float, float, float, float]:
+    """`task_variable` for one dx in plain floats, the controller's per-cycle path (eq. 12').
+
+    dx1, dx2: dx (m), finite (checked by the caller at its boundary). Returns (g1, g2, h11,
+    h12, h22): delta_eps = dQ/d(dx) (m/s) and the entries of its symmetric Hessian (1/s), equal
+    to `task_variable` (its reference) to rounding. The only place the control step evaluates
+    the task's potential: a different task term changes this function alone.
+    """
+    k, v_max, shape = shaped.task_gain, shaped.max_task_speed, shaped.shape
+    r = math.hypot(dx1, dx2)
+    if r == 0.0:
+        task = task_variable((dx1, dx2), shaped)
+        hessian = task.hessian
+        return 0.0, 0.0, float(hessian[0, 0]), float(hessian[0, 1]), float(hessian[1, 1])
+    e1, e2 = dx1 / r, dx2 / r
+    if r >= shaped.split:
+        c, rho = shaped.outer_scale, shaped.outer_scale * r + shaped.offset
+    else:
+        c, rho = shaped.inner_scale, shaped.inner_scale * r
+    mapped = (rho * e1, rho * e2)
+    g1, g2 = potential_gradient(mapped, shape).tolist()
+    argument = k * (c * (g1 * e1 + g2 * e2)) / v_max
+    slope = v_max * math.tanh(argument)
+    sech2 = _sech_squared(argument)
+    curvature = 0.0
+    if sech2 > 0.0:
+        (p11, p12), (p21, p22) = potential_hessian(mapped, shape).tolist()
+        curvature_p = c * c * ((e1 * p11 + e2 * p21) * e1 + (e1 * p12 + e2 * p22) * e2)
+        curvature = k * curvature_p * sech2
+    tangential = slope / r
+    h11 = curvature * e1 * e1 + tangential * (1.0 - e1 * e1)
+    h12 = curvature * e1 * e2 - tangential * e1 * e2
+    h22 = curvature * e2 * e2 + tangential * (1.0 - e2 * e2)
+    return (slope * e1, slope * e2, _clip_hessian(h11), _clip_hessian(h12), _clip_hessian(h22))
+
+
+def _clip_hessian(value: float) -> float:
+    return -MAX_TASK_HESSIAN if value < -MAX_TASK_HESSIAN else min(value, MAX_TASK_HESSIAN)
+
+
 def task_potential(distance: float, shaped: ShapedPotential) -> float:
     """Shaped potential Q at r = distance (m^2/s), the P of eq. 21 for this controller.
 

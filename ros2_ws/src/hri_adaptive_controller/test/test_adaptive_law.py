@@ -211,3 +211,73 @@ def test_bad_step_arguments_are_rejected():
         ctrl.step(np.zeros(3), *args[1:], 1.0, 0.0, FOLLOW, 1e-3)
     with pytest.raises(ValueError, match='theta_hat0'):
         AdaptiveController(DEFAULT_GAINS, np.zeros(6))
+
+
+# -- the lean step (the node's 1 kHz path) against the reference step -------------------------
+
+FOLLOW_SAFE = TaskShape(1, 1.576, 30.78, 0.183, 0.271)
+KEEP_OUT = TaskShape(-1, 40.0, 30.0, 0.05, 0.12)  # S = -1: region r <= d1 or r >= d2
+LEAN_SHAPES = (None, FOLLOW, AVOID, FOLLOW_SAFE, KEEP_OUT)
+
+
+def assert_lean_equals_reference(lean, reference):
+    close = {'rtol': 1e-12, 'atol': 1e-12}
+    assert lean.fault == reference.fault and lean.fault_reason == reference.fault_reason
+    np.testing.assert_allclose(lean.tau, reference.tau, **close)
+    np.testing.assert_allclose(lean.tau_requested, reference.tau_requested, **close)
+    np.testing.assert_allclose(lean.s, reference.s, **close)
+    np.testing.assert_allclose(lean.theta_hat, reference.theta_hat, **close)
+    assert lean.torque_limited == reference.torque_limited
+    assert lean.task_gain == reference.task_gain
+    if reference.fault:
+        return
+    np.testing.assert_allclose(lean.qdot_r, reference.reference.qdot_r, **close)
+    assert lean.distance == pytest.approx(reference.distance, rel=1e-12, abs=1e-12)
+    for name in ('lyapunov', 'task_potential', 'lyapunov_rate'):
+        value, expected = getattr(lean, name), getattr(reference, name)
+        assert (value is None) == (expected is None), name
+        if expected is not None:
+            assert value == pytest.approx(expected, rel=1e-12, abs=1e-12), name
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_lean_step_equals_the_reference_step_on_random_states(seed):
+    rng = np.random.default_rng(seed)
+    theta0 = THETA * rng.uniform(0.5, 1.5, 7)
+    reference, lean = controller(theta_hat0=theta0), controller(theta_hat0=theta0)
+    for i in range(300):
+        # q2 near 0 or +-pi/2...: the damped pseudo-inverse and its derivative are exercised.
+        q = np.array([rng.uniform(-math.pi, math.pi),
+                      rng.choice([rng.uniform(-0.4, 0.4), rng.uniform(-2.4, 2.4)])])
+        dq = rng.normal(0.0, 1.0, 2)
+        tip = np.array([PARAMS.l1 * math.cos(q[0]) + PARAMS.l2 * math.cos(q.sum()),
+                        PARAMS.l1 * math.sin(q[0]) + PARAMS.l2 * math.sin(q.sum())])
+        # Targets from on the tip (dx = 0 exactly, once in a while) to far outside every region.
+        x_d = tip - rng.choice([0.0, 1e-9, 0.02, 0.2, 0.5]) * rng.normal(size=2)
+        xdot_d, xddot_d = rng.normal(0.0, 0.1, 2), rng.normal(0.0, 0.5, 2)
+        a, da = float(rng.uniform(0.0, 1.0)), float(rng.normal(0.0, 1.0))
+        shape = LEAN_SHAPES[i % len(LEAN_SHAPES)]
+        monitor = i % 3 == 0
+        truth = THETA if i % 2 else None
+        friction = (PARAMS.b1, PARAMS.b2) if i % 2 else None
+        expected = reference.step(q, dq, x_d, xdot_d, xddot_d, a, da, shape, 1e-3,
+                                  theta_true=truth, friction=friction, monitor=monitor)
+        out = lean.step_lean(tuple(q), tuple(dq), tuple(x_d), tuple(xdot_d), tuple(xddot_d),
+                             a, da, shape, 1e-3, monitor=monitor, theta_true=truth,
+                             friction=friction)
+        assert_lean_equals_reference(out, expected)
+    np.testing.assert_allclose(lean.theta_hat, reference.theta_hat, rtol=1e-12, atol=1e-12)
+
+
+def test_lean_step_faults_like_the_reference():
+    args = ((0.0, 0.0), (0.0, 0.0), (0.3, 0.0), (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, 1e-3)
+    undamped = DampingSettings(threshold=0.05, max_damping=0.0)
+    expected = controller(damping=undamped).step(*(np.array(v) for v in args[:5]), *args[5:])
+    out = controller(damping=undamped).step_lean(*args)
+    assert out.fault and 'singular' in out.fault_reason
+    assert_lean_equals_reference(out, expected)
+    # A non-finite input that slipped past the caller's checks: zero torque, theta_hat kept.
+    ctrl = controller(theta_hat0=THETA * 0.7)
+    out = ctrl.step_lean((math.nan, 1.0), *args[1:])
+    assert out.fault and 'non-finite' in out.fault_reason and out.tau == (0.0, 0.0)
+    np.testing.assert_array_equal(ctrl.theta_hat, THETA * 0.7)

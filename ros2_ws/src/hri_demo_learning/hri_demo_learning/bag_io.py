@@ -18,7 +18,14 @@ x_r). Three layouts are read:
 - every failure is a `BagError` (a `ValueError`) with a one-line reason.
 
 Messages are deserialised with the rosbags typestore of ROS 2 Jazzy; types it lacks are
-registered from the bag's own message definitions.
+registered from the bag's own message definitions. `read_demonstration` takes a fast path for
+the two types a demonstration is made of, JointState and PointStamped: `read_bag` keeps their
+raw CDR bytes, and `joint_state_positions` / `point_stamped_xy` read the numbers straight into
+numpy arrays. The first message of a topic gives the byte layout (a small CDR walk); every
+message with the same length and the same bytes where the layout could differ (encoding,
+frame_id, joint names, sequence lengths) has that layout and is read by one fancy-indexed
+view; any other message is deserialised with rosbags, which stays the reference (the unit
+tests hold the two equal on the fixture bags and on a crash-recovered bag).
 """
 
 import os
@@ -246,11 +253,20 @@ class BagWriter:
 
 @dataclass
 class TopicMessages:
-    """The messages of one topic: type, bag timestamps (receive time, ns) and messages."""
+    """The messages of one topic: type, bag timestamps (receive time, ns) and messages.
+
+    For a type `read_bag` was asked to keep raw, `raw` holds each message's CDR bytes and
+    `messages` stays empty; otherwise `messages` holds the deserialised messages.
+    """
 
     msgtype: str
     timestamps_ns: list[int] = field(default_factory=list)
     messages: list = field(default_factory=list)
+    raw: list = field(default_factory=list)
+
+    @property
+    def count(self) -> int:
+        return len(self.messages) + len(self.raw)
 
     def times(self) -> np.ndarray:
         """Bag timestamps as an array (N,) of seconds since the epoch."""
@@ -269,10 +285,10 @@ class BagContents:
 
     @property
     def message_count(self) -> int:
-        return sum(len(t.messages) for t in self.topics.values())
+        return sum(t.count for t in self.topics.values())
 
     def counts(self) -> dict[str, int]:
-        return {name: len(t.messages) for name, t in self.topics.items()}
+        return {name: t.count for name, t in self.topics.items()}
 
 
 def _one_line(err: BaseException) -> str:
@@ -308,7 +324,17 @@ def _deserialize(typestore: Typestore, data: bytes | memoryview, msgtype: str,
                        f'as {msgtype} ({_one_line(err)})') from None
 
 
-def _read_closed(path: Path, wanted: set[str] | None, typestore: Typestore) -> BagContents:
+def _keep(series: TopicMessages, typestore: Typestore, data, raw_types: frozenset,
+          topic: str, index: int, path: Path) -> None:
+    """Append one message to `series`: its raw bytes for raw_types, else deserialised."""
+    if series.msgtype in raw_types:
+        series.raw.append(data)
+    else:
+        series.messages.append(_deserialize(typestore, data, series.msgtype, topic, index, path))
+
+
+def _read_closed(path: Path, wanted: set[str] | None, typestore: Typestore,
+                 raw_types: frozenset = frozenset()) -> BagContents:
     """Read a cleanly closed bag (folder with metadata.yaml, or a complete .mcap file)."""
     topics: dict[str, TopicMessages] = {}
     try:
@@ -332,8 +358,7 @@ def _read_closed(path: Path, wanted: set[str] | None, typestore: Typestore) -> B
             for index, (connection, stamp, data) in enumerate(reader.messages(connections)):
                 series = topics[connection.topic]
                 series.timestamps_ns.append(stamp)
-                series.messages.append(_deserialize(typestore, data, connection.msgtype,
-                                                    connection.topic, index, path))
+                _keep(series, typestore, data, raw_types, connection.topic, index, path)
     except BagError:
         raise
     except Exception as err:  # noqa: BLE001 - rosbags/struct/zstd raise many types here
@@ -344,7 +369,7 @@ def _read_closed(path: Path, wanted: set[str] | None, typestore: Typestore) -> B
 
 
 def _recover_mcap(path: Path, wanted: set[str] | None, typestore: Typestore,
-                  topics: dict[str, TopicMessages]) -> int:
+                  topics: dict[str, TopicMessages], raw_types: frozenset = frozenset()) -> int:
     """Read an MCAP file without footer up to its last complete chunk; return bytes used."""
     size = path.stat().st_size
     used = 0
@@ -363,8 +388,7 @@ def _recover_mcap(path: Path, wanted: set[str] | None, typestore: Typestore,
                                           schema.data.decode('utf-8', errors='replace'))
                 series = topics.setdefault(channel.topic, TopicMessages(msgtype))
                 series.timestamps_ns.append(message.log_time)
-                series.messages.append(_deserialize(typestore, message.data, msgtype,
-                                                    channel.topic, index, path))
+                _keep(series, typestore, message.data, raw_types, channel.topic, index, path)
         except (EndOfFile, McapError):
             # The normal end of a killed recording: the last record was cut short (a record
             # longer than the whole file counts as cut short too).
@@ -384,10 +408,11 @@ def _sort_by_time(topics: dict[str, TopicMessages]) -> None:
         if np.any(order != np.arange(order.size)):
             series.timestamps_ns = [series.timestamps_ns[i] for i in order]
             series.messages = [series.messages[i] for i in order]
+            series.raw = [series.raw[i] for i in order]
 
 
 def _read_unclosed(path: Path, mcap_files: list[Path], wanted: set[str] | None,
-                   typestore: Typestore) -> BagContents:
+                   typestore: Typestore, raw_types: frozenset = frozenset()) -> BagContents:
     """Read .mcap files without metadata.yaml: complete ones normally, others recovered."""
     topics: dict[str, TopicMessages] = {}
     recovered = False
@@ -398,15 +423,16 @@ def _read_unclosed(path: Path, mcap_files: list[Path], wanted: set[str] | None,
         size = mcap_file.stat().st_size
         size_total += size
         if _has_mcap_end(mcap_file):
-            part = _read_closed(mcap_file, wanted, typestore)
+            part = _read_closed(mcap_file, wanted, typestore, raw_types)
             for name, series in part.topics.items():
                 merged = topics.setdefault(name, TopicMessages(series.msgtype))
                 merged.timestamps_ns.extend(series.timestamps_ns)
                 merged.messages.extend(series.messages)
+                merged.raw.extend(series.raw)
             used_total += size
         else:
             recovered = True
-            used_total += _recover_mcap(mcap_file, wanted, typestore, topics)
+            used_total += _recover_mcap(mcap_file, wanted, typestore, topics, raw_types)
     _sort_by_time(topics)
     contents = BagContents(path, topics, recovered, used_total, size_total)
     if recovered and contents.message_count == 0 and wanted is None:
@@ -416,17 +442,21 @@ def _read_unclosed(path: Path, mcap_files: list[Path], wanted: set[str] | None,
 
 
 def read_bag(path: str | os.PathLike, topics: Iterable[str] | None = None,
-             typestore: Typestore | None = None) -> BagContents:
+             typestore: Typestore | None = None,
+             raw_types: Iterable[str] = ()) -> BagContents:
     """Read the messages of a bag (a rosbag2 folder or a bare .mcap file) per topic.
 
-    `topics` restricts the topics deserialised (None: all). Bag timestamps are kept in ns
-    (the recorder stores the receive time there). Raises BagError with a one-line reason for
-    a path that does not exist or cannot be read, something that is not a bag, a bag without
-    messages, and a truncated or corrupt bag (see the module docstring for crash recovery).
+    `topics` restricts the topics read (None: all); messages of the types in `raw_types`
+    are kept as raw CDR bytes (TopicMessages.raw), the others deserialised. Bag timestamps
+    are kept in ns (the recorder stores the receive time there). Raises BagError with a
+    one-line reason for a path that does not exist or cannot be read, something that is not a
+    bag, a bag without messages, and a truncated or corrupt bag (see the module docstring for
+    crash recovery).
     """
     bag = Path(path)
     typestore = typestore if typestore is not None else jazzy_typestore()
     wanted = set(topics) if topics is not None else None
+    raw_types = frozenset(raw_types)
     if not bag.exists():
         raise BagError(f'bag path does not exist: {bag}')
     if not os.access(bag, os.R_OK) or (bag.is_dir() and not os.access(bag, os.X_OK)):
@@ -440,16 +470,16 @@ def read_bag(path: str | os.PathLike, topics: Iterable[str] | None = None,
             if unreadable:
                 raise BagError(f'bag file is not readable (permission denied): {unreadable[0]}')
             if (bag / 'metadata.yaml').is_file():
-                contents = _read_closed(bag, wanted, typestore)
+                contents = _read_closed(bag, wanted, typestore, raw_types)
             elif mcap_files:
-                contents = _read_unclosed(bag, mcap_files, wanted, typestore)
+                contents = _read_unclosed(bag, mcap_files, wanted, typestore, raw_types)
             else:
                 raise BagError(f'{bag} is not a bag: no metadata.yaml and no .mcap file in it')
         elif bag.is_file():
             if bag.suffix != '.mcap':
                 _check_mcap_magic(bag)
                 raise BagError(f'{bag} is not a bag: an MCAP file must end in .mcap')
-            contents = _read_unclosed(bag, [bag], wanted, typestore)
+            contents = _read_unclosed(bag, [bag], wanted, typestore, raw_types)
         else:
             raise BagError(f'{bag} is not a bag: neither a folder nor a file')
     except PermissionError as err:
@@ -484,28 +514,182 @@ class Demonstration:
     recovered: bool = False
 
 
-def _point_array(series: TopicMessages) -> np.ndarray:
-    return np.array([[m.point.x, m.point.y] for m in series.messages], dtype=float)
+# Raw CDR fast path ---------------------------------------------------------------------------
+# A CDR message starts with a 4-byte encapsulation header (byte 1: 0x01 = plain CDR, little
+# endian); alignment counts from the byte after it. Header = stamp (int32 sec, uint32 nanosec),
+# frame_id (uint32 length including the NUL, then the characters).
+_CDR_LE = 1
+_FRAME_LENGTH = (12, 16)  # byte range of the frame_id length word
 
 
-def _joint_positions(series: TopicMessages, path: Path) -> np.ndarray:
-    """(N, 2) joint angles [joint1, joint2] in rad from JointState messages."""
-    rows = []
-    for index, msg in enumerate(series.messages):
-        names = list(msg.name)
-        position = np.asarray(msg.position, dtype=float)
-        if all(n in names for n in JOINT_NAMES):
-            idx = [names.index(n) for n in JOINT_NAMES]
-        elif not names and position.size >= 2:
-            idx = [0, 1]
-        else:
-            raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has no '
-                           f'positions for {", ".join(JOINT_NAMES)} (names {names})')
-        if position.size <= max(idx):
-            raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has '
-                           f'{position.size} positions for {len(names)} names')
-        rows.append(position[idx])
-    return np.array(rows, dtype=float).reshape(-1, 2)
+@dataclass(frozen=True)
+class CdrLayout:
+    """Where the wanted float64 values are in messages laid out like `template`.
+
+    size: bytes per message; checks: byte ranges that must equal the template's for a message
+    to share the layout (encoding, string and sequence lengths, joint names); offsets: byte
+    offset of each wanted float64.
+    """
+
+    template: bytes
+    size: int
+    checks: tuple[tuple[int, int], ...]
+    offsets: tuple[int, ...]
+
+
+def _u32(data: bytes, at: int) -> int:
+    if at + 4 > len(data):
+        raise IndexError('message too short')
+    return int.from_bytes(data[at:at + 4], 'little')
+
+
+def _aligned(position: int, size: int) -> int:
+    return 4 + -(-(position - 4) // size) * size
+
+
+def _after_header(data: bytes) -> int:
+    """Offset just after a std_msgs/Header (stamp and frame_id) at the start of a message."""
+    return 16 + _u32(data, 12)
+
+
+def point_stamped_layout(data: bytes) -> CdrLayout | None:
+    """The layout of a PointStamped message (x, y wanted); None if not plain little-endian."""
+    try:
+        if data[1] != _CDR_LE:
+            return None
+        point = _aligned(_after_header(data), 8)
+        size = point + 24
+    except IndexError:
+        return None
+    if size != len(data):
+        return None
+    return CdrLayout(bytes(data), size, ((0, 2), _FRAME_LENGTH), (point, point + 8))
+
+
+def joint_state_layout(data: bytes, joints: Sequence[str] = JOINT_NAMES) -> CdrLayout | None:
+    """The layout of a JointState message with the positions of `joints` wanted.
+
+    None if the message is not plain little-endian CDR or does not name every joint.
+    """
+    try:
+        if data[1] != _CDR_LE:
+            return None
+        position = _aligned(_after_header(data), 4)
+        names_start, names = position, []
+        count = _u32(data, position)
+        position += 4
+        for _ in range(count):
+            position = _aligned(position, 4)
+            length = _u32(data, position)
+            names.append(bytes(data[position + 4:position + 3 + length]).decode(
+                'utf-8', errors='replace'))
+            position += 4 + length
+        checks = [(0, 2), _FRAME_LENGTH, (names_start, position)]
+        sequences = []
+        for _ in range(3):  # position, velocity, effort
+            position = _aligned(position, 4)
+            checks.append((position, position + 4))
+            count = _u32(data, position)
+            position += 4
+            if count:
+                position = _aligned(position, 8)
+            sequences.append((position, count))
+            position += 8 * count
+    except IndexError:
+        return None
+    if position != len(data) or not all(joint in names for joint in joints):
+        return None
+    start, count = sequences[0]
+    index = [names.index(joint) for joint in joints]
+    if count <= max(index):
+        return None
+    return CdrLayout(bytes(data), position, tuple(checks),
+                     tuple(start + 8 * i for i in index))
+
+
+def read_float64s(raw: Sequence, layout: CdrLayout) -> tuple[np.ndarray, np.ndarray]:
+    """The layout's float64 values of every message in `raw` that shares it.
+
+    Returns (values (N, len(offsets)), NaN in rows that do not share the layout; matched (N,)
+    bool). One pass over a (N, size) byte table: no per-message Python beyond its length.
+    """
+    count = len(raw)
+    values = np.full((count, len(layout.offsets)), np.nan)
+    lengths = np.fromiter(map(len, raw), dtype=np.int64, count=count)
+    candidates = np.flatnonzero(lengths == layout.size)
+    matched = np.zeros(count, dtype=bool)
+    if candidates.size == 0:
+        return values, matched
+    chosen = raw if candidates.size == count else [raw[i] for i in candidates]
+    table = np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(-1, layout.size)
+    template = np.frombuffer(layout.template, dtype=np.uint8)
+    same = np.ones(candidates.size, dtype=bool)
+    for start, end in layout.checks:
+        same &= np.all(table[:, start:end] == template[start:end], axis=1)
+    rows = candidates[same]
+    matched[rows] = True
+    for column, offset in enumerate(layout.offsets):
+        values[rows, column] = np.ascontiguousarray(
+            table[same, offset:offset + 8]).view('<f8')[:, 0]
+    return values, matched
+
+
+def _decoded(series: TopicMessages, typestore: Typestore, topic: str, path: Path):
+    """Yield (index, message) deserialised by rosbags: the messages, or the raw bytes'."""
+    if series.messages:
+        yield from enumerate(series.messages)
+    for index, data in enumerate(series.raw):
+        yield index, _deserialize(typestore, data, series.msgtype, topic, index, path)
+
+
+def _point_array(series: TopicMessages, topic: str, path: Path,
+                 typestore: Typestore | None = None) -> np.ndarray:
+    """(N, 2) x, y (m) of PointStamped messages: raw bytes by the fast path, else rosbags."""
+    layout = point_stamped_layout(series.raw[0]) if series.raw else None
+    if layout is None:
+        typestore = typestore if typestore is not None else jazzy_typestore()
+        return np.array([[m.point.x, m.point.y] for _, m in _decoded(
+            series, typestore, topic, path)], dtype=float).reshape(-1, 2)
+    values, matched = read_float64s(series.raw, layout)
+    if not matched.all():
+        typestore = typestore if typestore is not None else jazzy_typestore()
+        for index in np.flatnonzero(~matched):
+            msg = _deserialize(typestore, series.raw[index], series.msgtype, topic, index, path)
+            values[index] = (msg.point.x, msg.point.y)
+    return values
+
+
+def _joint_row(msg, index: int, path: Path) -> list[float]:
+    """[joint1, joint2] positions (rad) of one deserialised JointState."""
+    names = list(msg.name)
+    position = np.asarray(msg.position, dtype=float)
+    if all(n in names for n in JOINT_NAMES):
+        idx = [names.index(n) for n in JOINT_NAMES]
+    elif not names and position.size >= 2:
+        idx = [0, 1]
+    else:
+        raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has no '
+                       f'positions for {", ".join(JOINT_NAMES)} (names {names})')
+    if position.size <= max(idx):
+        raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has '
+                       f'{position.size} positions for {len(names)} names')
+    return position[idx].tolist()
+
+
+def _joint_positions(series: TopicMessages, topic: str, path: Path,
+                     typestore: Typestore | None = None) -> np.ndarray:
+    """(N, 2) joint angles [joint1, joint2] in rad from JointState messages (raw bytes by
+    the fast path where their layout allows, else rosbags)."""
+    layout = joint_state_layout(series.raw[0]) if series.raw else None
+    typestore = typestore if typestore is not None else jazzy_typestore()
+    if layout is None:
+        return np.array([_joint_row(m, i, path) for i, m in _decoded(
+            series, typestore, topic, path)], dtype=float).reshape(-1, 2)
+    values, matched = read_float64s(series.raw, layout)
+    for index in np.flatnonzero(~matched):
+        msg = _deserialize(typestore, series.raw[index], series.msgtype, topic, index, path)
+        values[index] = _joint_row(msg, index, path)
+    return values
 
 
 def end_effector_positions(joint_angles: np.ndarray, l1: float, l2: float) -> np.ndarray:
@@ -520,21 +704,24 @@ def end_effector_positions(joint_angles: np.ndarray, l1: float, l2: float) -> np
 def read_demonstration(path: str | os.PathLike, l1: float = 0.35, l2: float = 0.30,
                        position_topic: str = POSITION_TOPIC,
                        joint_state_topic: str = JOINT_STATE_TOPIC,
-                       reference_topic: str = REFERENCE_TOPIC) -> Demonstration:
+                       reference_topic: str = REFERENCE_TOPIC,
+                       fast: bool = True) -> Demonstration:
     """Read a demonstration bag into receive times, positions x_i and references x_r.
 
     Positions come from `position_topic` (PointStamped) when the bag has it, else from
     `joint_state_topic` through the forward kinematics with link lengths l1, l2 (m). x_r is
     the last `reference_topic` message received at or before each sample; samples received
     before the first reference take the first one. Raises BagError (one line) when the bag
-    cannot be read or lacks the topics, or when a value is not finite.
+    cannot be read or lacks the topics, or when a value is not finite. fast=False reads every
+    message through the rosbags deserialiser (the reference of the raw CDR fast path).
     """
     if not (np.isfinite(l1) and np.isfinite(l2) and l1 > 0.0 and l2 > 0.0):
         raise BagError(f'link lengths must be finite and > 0 m, got l1={l1}, l2={l2}')
     wanted = (position_topic, joint_state_topic, reference_topic)
-    contents = read_bag(path, topics=wanted)
+    contents = read_bag(path, topics=wanted,
+                        raw_types=(JOINT_STATE, POINT_STAMPED) if fast else ())
     bag = contents.path
-    present = {name: s for name, s in contents.topics.items() if s.messages}
+    present = {name: s for name, s in contents.topics.items() if s.count}
     if not present:
         available = read_bag(path).topics
         raise BagError(f'bag {bag} has none of the topics {", ".join(wanted)} '
@@ -550,20 +737,21 @@ def read_demonstration(path: str | os.PathLike, l1: float = 0.35, l2: float = 0.
         if source.msgtype != POINT_STAMPED:
             raise BagError(f'bag {bag}: {position_topic} is {source.msgtype}, '
                            f'not {POINT_STAMPED}')
-        positions = _point_array(source)
+        positions = _point_array(source, position_topic, bag)
         source_topic = position_topic
     elif joint_state_topic in present:
         source = present[joint_state_topic]
         if source.msgtype != JOINT_STATE:
             raise BagError(f'bag {bag}: {joint_state_topic} is {source.msgtype}, '
                            f'not {JOINT_STATE}')
-        positions = end_effector_positions(_joint_positions(source, bag), l1, l2)
+        positions = end_effector_positions(
+            _joint_positions(source, joint_state_topic, bag), l1, l2)
         source_topic = joint_state_topic
     else:
         raise BagError(f'bag {bag} has no end-effector positions: neither {position_topic} '
                        f'nor {joint_state_topic} messages')
     stamps = np.asarray(source.timestamps_ns, dtype=np.int64)
-    reference_points = _point_array(reference)
+    reference_points = _point_array(reference, reference_topic, bag)
     if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(reference_points))):
         raise BagError(f'bag {bag} is corrupt: non-finite positions or references')
     reference_stamps = np.asarray(reference.timestamps_ns, dtype=np.int64)

@@ -3,13 +3,16 @@
 Integrates the arm of `dynamics.py` with RK4 in fixed steps of 1/rate_hz s (default 1 ms).
 A timer at rate_hz runs as many steps as real time has advanced since the last tick (the
 timer drops late ticks; at most `max_catch_up_steps` per tick, the rest are dropped and
-counted), then publishes the state once:
+counted), and publishes the state after every step it integrated, those caught up after a
+late tick included (simulation.RealTimeStepper):
 
 * /joint_states (sensor_msgs/JointState): joint1, joint2; position (rad), velocity (rad/s),
   effort = the drive torque applied (N m, the human's J^T f not included);
-* /ee_position (geometry_msgs/PointStamped, frame `base_frame`): forward kinematics (m).
+* /ee_position (geometry_msgs/PointStamped, frame `base_frame`): forward kinematics (m), of
+  the newest state only (once per tick: a late tick's caught-up steps are not repeated here).
 The header stamp is the time the state stands for: the ROS time of the first tick plus the
-simulated time, which follows real time.
+simulated time of that step, which follows real time. With `realtime_priority` > 0 the process
+asks for SCHED_FIFO at that priority (hri_core.realtime) and logs once whether it got it.
 
 Inputs (reliable, depth 10); the most recent valid joint command chooses the drive mode:
 * /effort_controller/commands (std_msgs/Float64MultiArray [tau1, tau2], N m): clipped at
@@ -29,11 +32,11 @@ import sys
 import time
 
 import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -47,9 +50,12 @@ from hri_core.node_common import (
     load_defaults,
     run_node,
 )
+from hri_core.realtime import MAX_PRIORITY, request_sched_fifo
 from scara_sim.simulation import (
     FixedStepClock,
+    RealTimeStepper,
     ScaraSimulator,
+    StepState,
     VelocityLoop,
     joint_command_from_values,
 )
@@ -91,6 +97,8 @@ PARAMETERS = {
     'max_catch_up_steps': ParameterSpec(
         int, 'most steps one timer tick may run to catch up with real time; the rest are '
         'dropped and counted', 1, 10000, read_only=True),
+    'realtime_priority': ParameterSpec(int, 'SCHED_FIFO priority to ask for (0: off)',
+                                       low=0, high=MAX_PRIORITY, read_only=True),
     **ARM_PARAMETERS,
     **ARRAY_PARAMETERS,
     'initial_q': ParameterSpec(list, 'joint positions at start (rad)', size=2,
@@ -138,7 +146,7 @@ class ScaraSim(Node):
         self._timed_out = False
         self._force = np.zeros(2)
         self._force_time = -math.inf
-        self._step_clock: FixedStepClock | None = None
+        self._stepper: RealTimeStepper | None = None
         self._stamp0 = 0
         self._reported = (0, 0, 0)
         self._last_report = time.monotonic()
@@ -161,6 +169,10 @@ class ScaraSim(Node):
             f'simulating at {rate_hz:g} Hz (RK4, dt {1e3 / rate_hz:g} ms) from q = '
             f'{np.round(self._sim.q, 4).tolist()} rad; effort limit {self._effort_limit:g} '
             f'N m, command timeout {self._command_timeout:g} s')
+        scheduling = request_sched_fifo(values['realtime_priority'])
+        log = self.get_logger().info if scheduling.granted or not scheduling.priority else (
+            self.get_logger().warning)
+        log(scheduling.description)
 
     # Parameters -------------------------------------------------------------------------
 
@@ -253,41 +265,51 @@ class ScaraSim(Node):
 
     def _on_tick(self) -> None:
         now = time.monotonic()
-        if self._step_clock is None:
-            self._step_clock = FixedStepClock(self._sim.dt, self._max_catch_up, now)
+        if self._stepper is None:
+            self._stepper = RealTimeStepper(self._sim, FixedStepClock(
+                self._sim.dt, self._max_catch_up, now))
             self._stamp0 = self.get_clock().now().nanoseconds
-            self._publish()
-            return
-        steps = self._step_clock.steps_due(now)
-        if steps == 0:
+            sim = self._sim
+            state = StepState(0.0, tuple(sim.q.tolist()), tuple(sim.dq.tolist()),
+                              tuple(sim.applied_effort.tolist()))
+            self._publish_joint_state(state)
+            self._publish_tip(state)
             return
         mode, command = self._drive(now)
-        force = self._force if now - self._force_time <= self._wrench_timeout else np.zeros(2)
-        for _ in range(steps):
-            self._sim.step(mode, command, force)
-        self._publish()
+        force = self._force if now - self._force_time <= self._wrench_timeout else (0.0, 0.0)
+        states = self._stepper.advance(now, mode, command, force)
+        for state in states:
+            self._publish_joint_state(state)
+        if states:
+            self._publish_tip(states[-1])
         if now - self._last_report >= self._report_period:
             self._report(now)
 
-    def _publish(self) -> None:
-        sim = self._sim
-        sim_time = self._step_clock.sim_time if self._step_clock else 0.0
-        stamp = Time(nanoseconds=self._stamp0 + round(sim_time * 1e9)).to_msg()
+    def _stamp(self, state: StepState) -> TimeMsg:
+        stamp = TimeMsg()
+        stamp.sec, stamp.nanosec = divmod(self._stamp0 + round(state.sim_time * 1e9), 10 ** 9)
+        return stamp
+
+    def _publish_joint_state(self, state: StepState) -> None:
+        stamp = self._stamp(state)
         joint = self._joint_msg
         joint.header.stamp = stamp
-        joint.position = sim.q.tolist()
-        joint.velocity = sim.dq.tolist()
-        joint.effort = sim.applied_effort.tolist()
+        joint.position = state.q
+        joint.velocity = state.dq
+        joint.effort = state.effort
         self._joint_pub.publish(joint)
-        tip = forward_kinematics(sim.q, sim.params.l1, sim.params.l2)
+
+    def _publish_tip(self, state: StepState) -> None:
+        stamp = self._stamp(state)
+        tip = forward_kinematics(state.q, self._sim.params.l1, self._sim.params.l2).tolist()
         point = self._ee_msg
         point.header.stamp = stamp
-        point.point.x, point.point.y = float(tip[0]), float(tip[1])
+        point.point.x, point.point.y = tip
         self._ee_pub.publish(point)
 
     def _report(self, now: float) -> None:
         """Log late ticks and dropped steps since the last report, if there were any."""
-        clock = self._step_clock
+        clock = self._stepper.clock
         late, dropped, ticks = (clock.late_ticks - self._reported[0],
                                 clock.dropped - self._reported[1],
                                 clock.ticks - self._reported[2])
@@ -300,9 +322,9 @@ class ScaraSim(Node):
 
     def summary(self) -> str:
         """One line on the whole run's timing."""
-        clock = self._step_clock
-        if clock is None:
+        if self._stepper is None:
             return 'no step run'
+        clock = self._stepper.clock
         return (f'{clock.integrated} steps integrated in {clock.ticks} ticks '
                 f'({clock.sim_time:.1f} s): {clock.late_ticks} late ticks caught up, '
                 f'{clock.dropped} steps dropped')

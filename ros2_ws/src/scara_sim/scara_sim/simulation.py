@@ -15,7 +15,13 @@ a joint outside its limits is clamped to the limit and its velocity into the lim
 `FixedStepClock` maps real elapsed time onto those steps: a periodic timer's late ticks are
 dropped, not made up, so each tick runs as many steps as real time has advanced, at most
 `max_catch_up` (the rest are dropped and counted: the simulation then lags real time by that
-much instead of running ever further behind).
+much instead of running ever further behind). `RealTimeStepper` puts the two together and
+returns the state after every step it integrated, each with the simulated time it stands for,
+so that the node publishes every step, those caught up after a late tick included.
+
+`ScaraSimulator.step` runs at 1 kHz: it computes in plain floats (the scalar RK4 of
+hri_core.dynamics) rather than through the array functions below, which are the reference
+the unit tests compare it with.
 
 No ROS import: the scara_sim node wires this to topics.
 """
@@ -25,7 +31,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hri_core.dynamics import ScaraParameters, jacobian, rk4_step
+from hri_core.dynamics import (
+    ScaraParameters,
+    _rk4_step_scalar,
+    _scalar_constants,
+    jacobian,
+)
 
 COMMAND_MODES = ('idle', 'effort', 'velocity')
 
@@ -129,6 +140,7 @@ class ScaraSimulator:
     velocity_loop: VelocityLoop
     dt: float = 1e-3
     applied_effort: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    _constants: tuple = field(default=(None, ()), init=False, repr=False)
 
     def __post_init__(self):
         self.q = joint_command_from_values(self.q)
@@ -156,12 +168,58 @@ class ScaraSimulator:
         raise ValueError(f'unknown command mode {mode!r}; expected one of {COMMAND_MODES}')
 
     def step(self, mode: str, command, force) -> None:
-        """Advance one step of dt with the drive in `mode` and the human force (2,) in N."""
-        tau = self.actuator_torque(mode, command)
-        tau_total = tau + human_joint_torque(self.q, force, self.params.l1, self.params.l2)
-        q, dq = rk4_step(self.q, self.dq, tau_total, self.dt, self.params)
-        self.q, self.dq = clamp_to_joint_limits(q, dq, self.lower, self.upper)
-        self.applied_effort = tau
+        """Advance one step of dt with the drive in `mode` and the human force (2,) in N.
+
+        The same equations as human_joint_torque, hri_core.dynamics.rk4_step and
+        clamp_to_joint_limits, in plain floats. Raises ValueError if the state becomes
+        non-finite (a command or force is checked where it arrives).
+        """
+        if mode == 'effort':
+            limit = self.effort_limit
+            t1, t2 = (min(max(float(value), -limit), limit) for value in command)
+        elif mode == 'idle':
+            t1 = t2 = 0.0
+        else:
+            t1, t2 = self.actuator_torque(mode, command).tolist()
+        params = self.params
+        if self._constants[0] is not params:  # the node may swap the parameters at run time
+            self._constants = (params, _scalar_constants(params))
+        q1, q2 = self.q.tolist()
+        v1, v2 = self.dq.tolist()
+        f1, f2 = force
+        l1, l2 = params.l1, params.l2
+        s1, c1 = math.sin(q1), math.cos(q1)
+        s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
+        # tau + J^T f
+        torque = (t1 + (-l1 * s1 - l2 * s12) * f1 + (l1 * c1 + l2 * c12) * f2,
+                  t2 - l2 * s12 * f1 + l2 * c12 * f2)
+        q1, q2, v1, v2 = _rk4_step_scalar((q1, q2, v1, v2), torque, self.dt,
+                                          self._constants[1])
+        if not math.isfinite(q1 + q2 + v1 + v2):
+            raise ValueError(f'the simulated state became non-finite (torque {torque})')
+        (low1, low2), (high1, high2) = self.lower.tolist(), self.upper.tolist()
+        # An inelastic stop: a joint at a limit keeps only velocity that leaves it.
+        if q1 <= low1:
+            q1, v1 = low1, max(v1, 0.0)
+        elif q1 >= high1:
+            q1, v1 = high1, min(v1, 0.0)
+        if q2 <= low2:
+            q2, v2 = low2, max(v2, 0.0)
+        elif q2 >= high2:
+            q2, v2 = high2, min(v2, 0.0)
+        self.q, self.dq = np.array((q1, q2)), np.array((v1, v2))
+        self.applied_effort = np.array((t1, t2))
+
+
+@dataclass(frozen=True)
+class StepState:
+    """The arm after one integrated step: sim_time (s since the clock's start) it stands for,
+    q (rad), dq (rad/s), effort (N m, the drive torque applied): pairs of floats."""
+
+    sim_time: float
+    q: tuple[float, float]
+    dq: tuple[float, float]
+    effort: tuple[float, float]
 
 
 @dataclass
@@ -209,3 +267,31 @@ class FixedStepClock:
     def sim_time(self) -> float:
         """Real time (s since `start`) that the state after the last tick stands for."""
         return self.accounted * self.dt
+
+
+@dataclass
+class RealTimeStepper:
+    """A ScaraSimulator kept in step with real time by a FixedStepClock.
+
+    `advance(now, mode, command, force)` integrates the steps due at `now` (s, the clock's
+    time base) and returns one StepState per integrated step, in order, each stamped with its
+    own simulated time: the caller publishes every one, including those caught up after a late
+    tick. Steps dropped beyond `max_catch_up` are skipped in time and not returned.
+    """
+
+    sim: ScaraSimulator
+    clock: FixedStepClock
+
+    def advance(self, now: float, mode: str, command, force) -> list[StepState]:
+        steps = self.clock.steps_due(now)
+        if steps == 0:
+            return []
+        sim, dt = self.sim, self.sim.dt
+        first = self.clock.accounted - steps + 1  # index of the first integrated step
+        states = []
+        for k in range(steps):
+            sim.step(mode, command, force)
+            states.append(StepState((first + k) * dt, tuple(sim.q.tolist()),
+                                    tuple(sim.dq.tolist()),
+                                    tuple(sim.applied_effort.tolist())))
+        return states

@@ -3,9 +3,16 @@
 import numpy as np
 import pytest
 
-from hri_core.dynamics import ScaraParameters, forward_kinematics, jacobian, kinetic_energy
+from hri_core.dynamics import (
+    ScaraParameters,
+    forward_kinematics,
+    jacobian,
+    kinetic_energy,
+    rk4_step,
+)
 from scara_sim.simulation import (
     FixedStepClock,
+    RealTimeStepper,
     ScaraSimulator,
     VelocityLoop,
     clamp_to_joint_limits,
@@ -141,3 +148,46 @@ def test_fixed_step_clock_counts_late_ticks_and_bounds_catch_up():
     assert clock.idle_ticks == 2
     with pytest.raises(ValueError, match='max_catch_up must be >= 1'):
         FixedStepClock(dt=1e-3, max_catch_up=0, start=0.0)
+
+
+def test_float_step_equals_the_array_functions():
+    rng = np.random.default_rng(5)
+    sim = make_simulator()
+    for i in range(500):
+        # Near and beyond the limits now and then, so that the stop is exercised too.
+        q = rng.uniform(LOWER - 0.05, UPPER + 0.05) if i % 5 == 0 else rng.uniform(-2.0, 2.0, 2)
+        sim.q, sim.dq = np.clip(q, LOWER, UPPER), rng.normal(0.0, 2.0, 2)
+        command, force = rng.normal(0.0, 15.0, 2), rng.normal(0.0, 20.0, 2)
+        mode = ('effort', 'idle')[i % 2]
+        tau = clip_torque(command, sim.effort_limit) if mode == 'effort' else np.zeros(2)
+        total = tau + human_joint_torque(sim.q, force, sim.params.l1, sim.params.l2)
+        q_next, dq_next = rk4_step(sim.q, sim.dq, total, sim.dt, sim.params)
+        q_next, dq_next = clamp_to_joint_limits(q_next, dq_next, LOWER, UPPER)
+        sim.step(mode, command, force)
+        np.testing.assert_allclose(sim.q, q_next, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(sim.dq, dq_next, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(sim.applied_effort, tau)
+
+
+def test_stepper_returns_every_integrated_step_with_its_own_time():
+    stepper = RealTimeStepper(make_simulator(), FixedStepClock(1e-3, 20, start=5.0))
+    rng = np.random.default_rng(2)
+    now, returned = 5.0, []
+    for _ in range(400):
+        # Ticks mostly on time, some late by up to 30 ms (beyond max_catch_up: dropped).
+        now += 1e-3 if rng.uniform() < 0.9 else rng.uniform(1e-3, 0.03)
+        before = stepper.sim.q.copy()
+        states = stepper.advance(now, 'effort', [1.0, -0.5], [0.0, 0.0])
+        returned.extend(states)
+        if states:
+            np.testing.assert_array_equal(states[-1].q, stepper.sim.q)
+        else:
+            np.testing.assert_array_equal(before, stepper.sim.q)
+    clock = stepper.clock
+    assert clock.late_ticks > 0 and clock.dropped > 0
+    assert len(returned) == clock.integrated
+    times = np.array([s.sim_time for s in returned])
+    assert np.all(np.diff(times) > 0.0) and times[-1] == pytest.approx(clock.sim_time)
+    # Each step stands for its own millisecond: consecutive steps 1 ms apart unless dropped.
+    gaps = np.round(np.diff(times) / 1e-3).astype(int)
+    assert gaps.min() == 1 and gaps.sum() - (gaps.size) == clock.dropped

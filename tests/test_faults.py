@@ -23,7 +23,7 @@ from hri_interfaces.msg import ControllerState
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_bringup.processes import wait_for, wait_until_logged
+from hri_bringup.processes import READY_LINES, wait_for, wait_until_logged
 from hri_core.dynamics import ScaraParameters, kinetic_energy
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import MONITOR_QOS
@@ -235,15 +235,8 @@ def test_event_manager_killed_means_zero_weight_until_a_task_state_comes_again(l
     assert processes['controller'].alive()
 
 
-NODE_READY_LINES = {
-    'scara_sim': 'simulating at',
-    'hand_sim': 'hand profile',
-    'demonstrator': 'demonstration around',
-    'recorder': 'recording /joint_states',
-    'learner': 'learned task',
-    'event_manager': 'task(s) loaded',
-    'controller': 'control at',
-}
+# Every node's ready line, but the recorder's once it records /joint_states.
+NODE_READY_LINES = {**READY_LINES, 'recorder': 'recording /joint_states'}
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])

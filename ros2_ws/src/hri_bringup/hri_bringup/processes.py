@@ -55,7 +55,7 @@ READY_LINES: dict[str, str] = {
     'recorder': 'recording into',
     'learner': 'learned task',
     'event_manager': 'task(s) loaded',
-    'controller': 'control at',
+    'controller': 'control on each /joint_states',
 }
 
 

@@ -274,8 +274,9 @@ def learn_task(bags: Sequence[str], shifts: Sequence[float] | None, task_name: s
     max_iterations: the fit's stopping rule; l1, l2: m, link lengths for bags with joint
     states only, and the reach l1 + l2; combine: True for eq. 4's combination, False for
     repetitions of one demonstration (averaged x_d); rest_fraction: of the peak speed;
-    max_task_speed: m/s, the controller's cap; max_cost: largest fit cost C. Returns the LearnedTask with the paths written. Raises LearningError (one
-    line) for bad input, a bag it cannot learn from, or an output it cannot write.
+    max_task_speed: m/s, the controller's cap; max_cost: largest fit cost C. Returns the
+    LearnedTask with the paths written. Raises LearningError (one line) for bad input, a bag
+    it cannot learn from, or an output it cannot write.
     """
     bags = [str(bag) for bag in bags]
     if not bags:

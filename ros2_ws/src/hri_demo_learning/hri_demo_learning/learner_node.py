@@ -4,9 +4,9 @@ Once up, it learns one task with `learning.learn_task` (eq. 3-11, the task gain 
 reach check) from the bags in `bags`, bag i moved outward by `shifts[i]` (eq. 4; with
 `combine` false the bags are repetitions of one demonstration, with one averaged x_d), writes
 `<output_dir>/<task_name>.yaml` and a figure `<task_name>.png` next to it, publishes the task
-on hri_core.topics.TASK (/hri/task, reliable, transient local) and logs one summary line. Its parameters and their defaults are in
-config/learner.yaml; `bags` has no default (required) and `shifts` none either (unset: no
-shift).
+on hri_core.topics.TASK (/hri/task, reliable, transient local) and logs one summary line.
+Its parameters and their defaults are in config/learner.yaml; `bags` has no default
+(required) and `shifts` none either (unset: no shift).
 
 With `once` it exits 0 once the task is saved and delivered: it gives running subscribers of
 /hri/task DISCOVERY_WINDOW s from its start to match and waits for their acknowledgment;

@@ -350,8 +350,8 @@ def potential_hessian(dx, shape):
 # Task gain K and reach (the pull K |dP/dz| a task exerts, in m/s).
 
 PULL_FRACTION = 0.05
-"""A task's pull K |dP/dz| below this fraction of the controller's max_task_speed counts as
-vanished (the reach criterion, `reach_shortfall`)."""
+"""A task's pull K |dP/dz| below this fraction of min(the controller's max_task_speed, its own
+strongest pull within reach) counts as vanished (the reach criterion, `reach_shortfall`)."""
 
 PULL_ONSET = 0.15
 """m: the reach criterion starts this far outside the region. Every P of eq. 2 rises from its
@@ -413,14 +413,17 @@ def reach_shortfall(shape, k, max_task_speed, reach, onset=PULL_ONSET,
 
     shape: TaskShape; k: task gain K (m^2/s), or 0 for `default_task_gain`; max_task_speed:
     the controller's speed cap (m/s); reach: m, the arm's reach (l1 + l2 for the SCARA);
-    onset: m; fraction: of max_task_speed.
-    The criterion (S = +1): the pull K |dP/dz| is at least fraction * max_task_speed at every
-    distance from d2 + onset out to d2 + reach, and no further than 2 reach, the farthest the
-    hand can be from an end-effector within reach of it (so a region open to the workspace,
-    d2 = 2 m, has nothing to check). Toward x_r (d1 > 0) P grows like exp(a (d1^2 - r^2)) and
-    cannot saturate; S = -1 tasks push the arm off a ridge where the pull is 0 by
-    construction: neither is checked. Returns None when the task passes, else a one-line reason
-    naming the nearest distance where the pull is too weak.
+    onset: m; fraction: dimensionless.
+    The criterion (S = +1): over the distances from d2 + onset out to d2 + reach (and no
+    further than 2 reach, the farthest the hand can be from an end-effector within reach of
+    it, so a region open to the workspace, d2 = 2 m, has nothing to check), the pull
+    K |dP/dz| never falls below `fraction` of min(max_task_speed, its largest value there).
+    The pull is measured against the task's own speed, not max_task_speed alone, so that a
+    task demonstrated slowly (small K) is judged like the same path demonstrated briskly.
+    Toward x_r (d1 > 0) P grows like exp(a (d1^2 - r^2)) and cannot saturate; S = -1 tasks
+    push the arm off a ridge where the pull is 0 by construction: neither is checked.
+    Returns None when the task passes, else a one-line reason naming the nearest distance
+    where the pull is too weak.
     """
     if not (math.isfinite(k) and k >= 0.0):
         raise ValueError(f'k must be finite and >= 0 m^2/s, got {k}')
@@ -428,16 +431,25 @@ def reach_shortfall(shape, k, max_task_speed, reach, onset=PULL_ONSET,
     if band is None:
         return None
     log_k = math.log(k) if k > 0.0 else default_task_gain(shape, max_task_speed, reach, onset)
-    floor = math.log(fraction * max_task_speed)
-    for start, end in (band,):
-        radii = np.linspace(start, end, _REACH_PROBES)
-        weak = log_k + log_potential_slope(radii, shape) < floor
-        if np.any(weak):
-            r = float(radii[np.argmax(weak)])
-            pull = math.exp(min(log_k + float(log_potential_slope(r, shape)), 700.0))
-            return (f'its pull K |dP/dz| is {pull:.2g} m/s at {r:.3f} m from x_r, below '
-                    f'{100 * fraction:g} % of max_task_speed {max_task_speed:g} m/s with '
-                    f'{f"K = {k:.4g} m^2/s" if k > 0.0 else "the default K"}: the arm would '
-                    f'not move there, within {reach:g} m of the region [{shape.d1:.3f}, '
-                    f'{shape.d2:.3f}] m')
-    return None
+    radii = np.linspace(band[0], band[1], _REACH_PROBES)
+    log_pull = log_k + log_potential_slope(radii, shape)
+    strongest = float(np.max(log_pull))
+    if strongest == -math.inf:
+        return (f'it has no pull from {band[0]:.3f} to {band[1]:.3f} m from x_r: the arm '
+                f'would not move there, within {reach:g} m of the region [{shape.d1:.3f}, '
+                f'{shape.d2:.3f}] m')
+    floor = math.log(fraction) + min(math.log(max_task_speed), strongest)
+    weak = log_pull < floor
+    if not np.any(weak):
+        return None
+    index = int(np.argmax(weak))
+    reference = min(math.log(max_task_speed), strongest)
+
+    def speed(log_value):
+        return math.exp(min(log_value, 700.0))
+
+    return (f'its pull K |dP/dz| is {speed(log_pull[index]):.2g} m/s at {radii[index]:.3f} m '
+            f'from x_r, below {100 * fraction:g} % of {speed(reference):.2g} m/s '
+            f'(the smaller of max_task_speed and its strongest pull within reach) with '
+            f'{f"K = {k:.4g} m^2/s" if k > 0.0 else "the default K"}: the arm would not move '
+            f'there, within {reach:g} m of the region [{shape.d1:.3f}, {shape.d2:.3f}] m')

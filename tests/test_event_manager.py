@@ -115,3 +115,49 @@ def test_unknown_initial_task_exits_with_reason(live_loop):
     log = process.log()
     assert "initial_task 'dance' is not a known task" in log
     assert 'Traceback' not in log
+
+
+# Follow tasks whose pull dies far from their region (a fit from a demonstration that started
+# 0.1 m from x_r, and the demo's follow row with a1 x 10): the arm would never move toward a
+# still hand 0.27 m away.
+DEAF_FOLLOW = TaskParameters(name='deaf_follow', s=1, a1=1000.0, a2=237.8, d1=0.0, d2=0.033,
+                             n=3)
+DEAF_FOLLOW_STEEP = TaskParameters(name='follow', s=1, a1=329.7, a2=1000.0, d1=0.0, d2=0.041,
+                                   n=3)
+
+
+def test_a_task_that_does_not_reach_is_refused_and_current_kept(manager, probe):
+    process, states, events = manager
+    tasks = probe.publisher('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
+    tasks.publish(DEAF_FOLLOW)
+    assert wait_for(lambda: 'would not move' in process.log(), 10.0), process.log()
+    time.sleep(1.1)  # past the warning's throttle
+    tasks.publish(DEAF_FOLLOW_STEEP)  # under the active task's name: no switch either
+    assert wait_for(lambda: process.log().count('would not move') >= 2, 10.0), process.log()
+    warnings = [line for line in process.log().splitlines() if 'would not move' in line]
+    assert "task 'deaf_follow' on /hri/task rejected" in warnings[0], warnings
+    assert "task 'follow' on /hri/task rejected" in warnings[1], warnings
+    assert all("keeping task 'follow'" in line for line in warnings), warnings
+    events.publish(TaskEvent(name='go_deaf', task='deaf_follow'))
+    assert wait_for(lambda: "unknown task 'deaf_follow'" in process.log(), 5.0), process.log()
+    assert states[-1].task.name == 'follow' and states[-1].phase == 'active'
+    assert math.isclose(states[-1].task.a1, 1.291)
+    assert process.alive()
+
+
+def test_a_task_file_that_does_not_reach_is_refused_at_start(live_loop, tmp_path):
+    tasks = tmp_path / 'tasks'
+    tasks.mkdir()
+    (tasks / 'deaf_follow.yaml').write_text(
+        'name: deaf_follow\ns: 1\na1: 1000.0\na2: 237.8\nd1: 0.0\nd2: 0.033\nn: 3\n'
+        'cost: 0.0\niterations: 0\n')
+    (tasks / 'follow.yaml').write_text(
+        'name: follow\ns: 1\na1: 1.291\na2: 13.66\nd1: 0.0\nd2: 0.041\nn: 3\n'
+        'cost: 0.0\niterations: 2468\n')
+    process = live_loop({'event_manager': {'tasks_dir': str(tasks), 'initial_task': ''}},
+                        nodes=['event_manager'])['event_manager']
+    assert wait_for(lambda: 'task(s) loaded' in process.log(), 20.0), process.log()
+    log = process.log()
+    assert "task 'deaf_follow' from" in log and 'refused' in log, log
+    assert '1 task(s) loaded (follow)' in log, log
+    assert 'Traceback' not in log

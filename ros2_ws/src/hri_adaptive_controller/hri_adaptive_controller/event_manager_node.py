@@ -1,7 +1,11 @@
 """The `event_manager` node: holds the learned tasks and ramps a(E, t) to switch between them.
 
 Tasks come from the YAML files in `tasks_dir` at start and from /hri/task at any time (a task
-with a known name replaces the old one; an invalid one is rejected with a warning). An event
+with a known name replaces the old one; an invalid one is rejected with a warning). A task whose
+pull K |dP/dz| would vanish within `reach` (m, the arm's l1 + l2) of its region, i.e. fall
+below 5 % of the controller's `max_task_speed` there (`hri_core.potential.reach_shortfall`; a
+task without K gets `default_task_gain`), is refused the same way, with a one-line warning
+naming it, and the current task is kept: such a task would leave the arm still. An event
 on /hri/events names the task to switch to; `EventWeightSchedule` (eq. 13) fades the weight
 out, swaps the task while a = 0, and fades it in again. The node publishes TaskState on every
 change, at `publish_rate_hz` (>= 100 Hz) during a ramp, and every `heartbeat_period` otherwise.
@@ -43,6 +47,7 @@ from hri_core.node_common import (
     load_defaults,
     run_node,
 )
+from hri_core.potential import reach_shortfall
 from hri_core.task_file import TaskRecord, load_task_directory
 from hri_core.task_message import task_message, task_record
 
@@ -61,6 +66,12 @@ PARAMETERS = {
                                      low=100.0, high=1000.0, read_only=True),
     'heartbeat_period': ParameterSpec(float, 'TaskState period when nothing changes (s)',
                                       low=0.01, high=60.0),
+    'max_task_speed': ParameterSpec(float, "the controller's max_task_speed (m/s), the "
+                                    'reference of the reach check', low=1e-3, high=10.0,
+                                    read_only=True),
+    'reach': ParameterSpec(float, "the arm's reach l1 + l2 (m): a task must pull the arm "
+                           'this far outside its region', low=0.01, high=100.0,
+                           read_only=True),
 }
 
 
@@ -71,6 +82,8 @@ class EventManager(Node):
         super().__init__(NODE_NAME)
         values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         self._heartbeat_period = values['heartbeat_period']
+        self._max_task_speed = values['max_task_speed']
+        self._reach = values['reach']
         self._revisions = count()
         # Schedule keys are (name, revision): a new revision of the active task is a switch.
         self._tasks: dict[str, tuple[str, int]] = {}
@@ -82,6 +95,11 @@ class EventManager(Node):
         for path, reason in rejected:
             self.get_logger().warning(f'task file {path} rejected: {reason}')
         for record in loaded.values():
+            shortfall = self._reach_shortfall(record)
+            if shortfall is not None:
+                self.get_logger().warning(f'task {record.name!r} from {values["tasks_dir"]} '
+                                          f'refused: {shortfall}')
+                continue
             self._store(record)
         initial = values['initial_task']
         if initial and initial not in self._tasks:
@@ -112,12 +130,22 @@ class EventManager(Node):
         self._records[key] = record
         return key
 
+    def _reach_shortfall(self, record: TaskRecord) -> str | None:
+        """Why the task's pull vanishes within reach of its region (one line), or None."""
+        try:
+            return reach_shortfall(record.shape, record.k, self._max_task_speed, self._reach)
+        except ValueError as error:
+            return str(error)
+
     def _on_task(self, msg: TaskParameters) -> None:
         try:
             record = task_record(msg)
+            shortfall = self._reach_shortfall(record)
+            if shortfall is not None:
+                raise ValueError(shortfall)
         except ValueError as error:
             current = self._schedule.evaluate(time.monotonic()).active_task
-            keeping = current[0] if current else 'no task'
+            keeping = f'task {current[0]!r}' if current else 'no task'
             self.get_logger().warning(
                 f'task {msg.name!r} on /hri/task rejected: {error}; keeping {keeping}',
                 throttle_duration_sec=WARNING_THROTTLE)
@@ -126,7 +154,8 @@ class EventManager(Node):
         key = self._store(record)
         self.get_logger().info(
             f'task {record.name!r} {"replaced" if replaced else "added"}: s={record.s} '
-            f'd1={record.d1:.3f} d2={record.d2:.3f} a1={record.a1:.4g} a2={record.a2:.4g}')
+            f'd1={record.d1:.3f} d2={record.d2:.3f} a1={record.a1:.4g} a2={record.a2:.4g} '
+            f'K={record.k:.4g}{" (default)" if record.k == 0.0 else ""}')
         state = self._schedule.evaluate(time.monotonic())
         if replaced and record.name in (_name(state.active_task), _name(state.pending_task)):
             self._switch(key, f'task_updated:{record.name}')

@@ -344,3 +344,112 @@ def potential_hessian(dx, shape):
     outer = e[..., :, None] * e[..., None, :]
     hessian = alpha[..., None, None] * np.eye(2) + beta[..., None, None] * outer
     return np.clip(hessian, -POTENTIAL_CEILING, POTENTIAL_CEILING)
+
+
+# ---------------------------------------------------------------------------------------------
+# Task gain K and reach (the pull K |dP/dz| a task exerts, in m/s).
+
+PULL_FRACTION = 0.05
+"""A task's pull K |dP/dz| below this fraction of min(the controller's max_task_speed, its own
+strongest pull within reach) counts as vanished (the reach criterion, `reach_shortfall`)."""
+
+PULL_ONSET = 0.15
+"""m: the reach criterion starts this far outside the region. Every P of eq. 2 rises from its
+zero set like (r - d)^N, so near the region its pull is weak by construction (the approach,
+where the arm slows down; the controller's region margin takes it in); what the criterion
+catches is a pull that dies *far* from the region, where P has saturated."""
+
+_REACH_PROBES = 400
+
+
+def log_potential_slope(distance, shape):
+    """log |dP/dr| of eq. 2 at r = distance (m), uncapped; -inf where the slope is 0.
+
+    distance: (...,) m, >= 0. Returns (...,) of log(1/m). dP/dr = 2 r P'(r^2) is |dP/dz|, the
+    magnitude of the gradient of the radial potential; computed from logarithms, so it is exact
+    where the capped ``potential_gradient`` is not (Table I's avoid row near x_r).
+    """
+    d = _as_distance(distance)
+    _, l_d1, _, _, _ = _radial_log_terms_array(d * d, shape)
+    with np.errstate(divide='ignore'):
+        return np.where(d > 0.0, _LOG2 + np.log(np.where(d > 0.0, d, 1.0)) + l_d1, -np.inf)
+
+
+def _reach_band(shape, reach, onset):
+    """(start, end) (m) of the distances the reach criterion checks, or None (see
+    `reach_shortfall`)."""
+    if shape.s != 1:
+        return None
+    start, end = shape.d2 + onset, min(shape.d2 + reach, 2.0 * reach)
+    return (start, end) if end > start else None
+
+
+def default_task_gain(shape, max_task_speed, reach, onset=PULL_ONSET):
+    """log of the task gain K (m^2/s) of a task that was given none (a file without `k`, k = 0).
+
+    K = max_task_speed / min |dP/dr| over the distances `onset` (m) outside the region's
+    boundaries that the arm can be at (<= 2 reach, m): the pull there, at the weaker boundary,
+    is max_task_speed (m/s). Returns log K, since K itself may lie outside a double's range for
+    a potential as steep as Table I's avoid row. Raises ValueError when P is flat (zero slope)
+    at every such distance.
+    """
+    if shape.s == 1:
+        probes = [shape.d2 + onset, shape.d1 - min(onset, 0.5 * shape.d1)]
+    else:
+        probes = [shape.d1 + min(onset, 0.5 * (shape.d2 - shape.d1)),
+                  shape.d2 - min(onset, 0.5 * (shape.d2 - shape.d1))]
+    probes = np.array([p for p in probes if 0.0 < p <= 2.0 * reach])
+    slopes = log_potential_slope(probes, shape) if probes.size else np.array([])
+    slopes = slopes[np.isfinite(slopes)]
+    if slopes.size == 0:
+        raise ValueError(f'the potential is flat {onset} m from its region boundaries '
+                         f'(d1={shape.d1}, d2={shape.d2}): no task gain gives it a pull')
+    return math.log(max_task_speed) - float(np.min(slopes))
+
+
+def reach_shortfall(shape, k, max_task_speed, reach, onset=PULL_ONSET,
+                    fraction=PULL_FRACTION):
+    """Where a task's pull vanishes within the robot's reach of its region, or None.
+
+    shape: TaskShape; k: task gain K (m^2/s), or 0 for `default_task_gain`; max_task_speed:
+    the controller's speed cap (m/s); reach: m, the arm's reach (l1 + l2 for the SCARA);
+    onset: m; fraction: dimensionless.
+    The criterion (S = +1): over the distances from d2 + onset out to d2 + reach (and no
+    further than 2 reach, the farthest the hand can be from an end-effector within reach of
+    it, so a region open to the workspace, d2 = 2 m, has nothing to check), the pull
+    K |dP/dz| never falls below `fraction` of min(max_task_speed, its largest value there).
+    The pull is measured against the task's own speed, not max_task_speed alone, so that a
+    task demonstrated slowly (small K) is judged like the same path demonstrated briskly.
+    Toward x_r (d1 > 0) P grows like exp(a (d1^2 - r^2)) and cannot saturate; S = -1 tasks
+    push the arm off a ridge where the pull is 0 by construction: neither is checked.
+    Returns None when the task passes, else a one-line reason naming the nearest distance
+    where the pull is too weak.
+    """
+    if not (math.isfinite(k) and k >= 0.0):
+        raise ValueError(f'k must be finite and >= 0 m^2/s, got {k}')
+    band = _reach_band(shape, reach, onset)
+    if band is None:
+        return None
+    log_k = math.log(k) if k > 0.0 else default_task_gain(shape, max_task_speed, reach, onset)
+    radii = np.linspace(band[0], band[1], _REACH_PROBES)
+    log_pull = log_k + log_potential_slope(radii, shape)
+    strongest = float(np.max(log_pull))
+    if strongest == -math.inf:
+        return (f'it has no pull from {band[0]:.3f} to {band[1]:.3f} m from x_r: the arm '
+                f'would not move there, within {reach:g} m of the region [{shape.d1:.3f}, '
+                f'{shape.d2:.3f}] m')
+    floor = math.log(fraction) + min(math.log(max_task_speed), strongest)
+    weak = log_pull < floor
+    if not np.any(weak):
+        return None
+    index = int(np.argmax(weak))
+    reference = min(math.log(max_task_speed), strongest)
+
+    def speed(log_value):
+        return math.exp(min(log_value, 700.0))
+
+    return (f'its pull K |dP/dz| is {speed(log_pull[index]):.2g} m/s at {radii[index]:.3f} m '
+            f'from x_r, below {100 * fraction:g} % of {speed(reference):.2g} m/s '
+            f'(the smaller of max_task_speed and its strongest pull within reach) with '
+            f'{f"K = {k:.4g} m^2/s" if k > 0.0 else "the default K"}: the arm would not move '
+            f'there, within {reach:g} m of the region [{shape.d1:.3f}, {shape.d2:.3f}] m')

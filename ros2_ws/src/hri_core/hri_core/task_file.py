@@ -9,6 +9,13 @@
     n: 3                  # exponent N of eq. 2, >= 3
     cost: 0.0012          # fit cost C of eq. 8, >= 0
     iterations: 12        # fit iterations used, >= 0
+    k: 0.42               # task gain K, m^2/s, >= 0; optional, 0 when missing (see below)
+
+`k` is the task gain K of eq. 13: the task moves the arm at K |dP/dz| (m/s, capped by the
+controller). The learner fits it to the demonstration's speeds. A file without `k` (Table I's
+rows, written before K was learned) loads with k = 0, which means "not given": consumers use
+`hri_core.potential.default_task_gain` (the pull is the controller's max_task_speed
+PULL_ONSET = 0.05 m outside the region).
 
 The learner writes these files (atomically: a temporary file in the same folder, then
 os.replace), the event manager loads a folder of them, and a person may write one by hand
@@ -30,8 +37,12 @@ import yaml
 
 from hri_core.potential import TaskShape
 
-TASK_KEYS = ('name', 's', 'a1', 'a2', 'd1', 'd2', 'n', 'cost', 'iterations')
+TASK_KEYS = ('name', 's', 'a1', 'a2', 'd1', 'd2', 'n', 'cost', 'iterations', 'k')
 """The keys of a task file, in the order they are written."""
+
+OPTIONAL_TASK_KEYS = {'k': 0.0}
+"""Keys a task file may leave out, with the value they then take (k = 0: no task gain
+given)."""
 
 TASK_FILE_SUFFIX = '.yaml'
 MAX_TASK_FILE_BYTES = 65536
@@ -50,7 +61,8 @@ class TaskRecord:
     """One learned task: TaskShape's parameters plus its name and how the fit went.
 
     name: safe file name; s: +1/-1; a1, a2: 1/m^2; d1, d2: m; n: N >= 3; cost: C of eq. 8,
-    >= 0; iterations: >= 0. Raises ValueError with the reason when a value is invalid.
+    >= 0; iterations: >= 0; k: task gain K, m^2/s, >= 0 (0: not given). Raises ValueError
+    with the reason when a value is invalid.
     """
 
     name: str
@@ -62,6 +74,7 @@ class TaskRecord:
     n: int
     cost: float
     iterations: int
+    k: float = 0.0
 
     def __post_init__(self):
         if not is_safe_task_name(self.name):
@@ -77,6 +90,10 @@ class TaskRecord:
                 or cost < 0.0:
             raise ValueError(f'cost must be a finite number >= 0, got {cost!r}')
         object.__setattr__(self, 'cost', float(cost))
+        k = self.k
+        if isinstance(k, bool) or not isinstance(k, Real) or not math.isfinite(k) or k < 0.0:
+            raise ValueError(f'k must be a finite number >= 0 (m^2/s; 0: not given), got {k!r}')
+        object.__setattr__(self, 'k', float(k))
         shape = TaskShape(self.s, self.a1, self.a2, self.d1, self.d2, self.n)
         for key in ('s', 'a1', 'a2', 'd1', 'd2', 'n'):
             object.__setattr__(self, key, getattr(shape, key))
@@ -126,7 +143,8 @@ def _read_task_record(path):
     if not isinstance(content, dict):
         kind = 'empty' if content is None else type(content).__name__
         raise ValueError(f'not a mapping of task parameters (got {kind})')
-    missing = [key for key in TASK_KEYS if key not in content]
+    missing = [key for key in TASK_KEYS
+               if key not in content and key not in OPTIONAL_TASK_KEYS]
     if missing:
         raise ValueError(f'missing keys: {", ".join(missing)}')
     unknown = sorted(str(key) for key in content if key not in TASK_KEYS)
@@ -144,6 +162,7 @@ def _read_task_record(path):
         values[key] = _integer(key, content[key])
     for key in ('a1', 'a2', 'd1', 'd2', 'cost'):
         values[key] = _coerce_number(key, content[key])
+    values['k'] = _coerce_number('k', content.get('k', OPTIONAL_TASK_KEYS['k']))
     return TaskRecord(**values)
 
 

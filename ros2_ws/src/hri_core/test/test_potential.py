@@ -258,3 +258,56 @@ def test_single_point_path_is_cheap():
         potential_hessian(z, shape)
         samples.append(time.perf_counter() - start)
     assert np.median(samples) < 100e-6
+
+
+# -- reach (hri_core.potential.reach_shortfall) --------------------------------------------
+
+from hri_core.potential import (  # noqa: E402
+    default_task_gain,
+    log_potential_slope,
+    reach_shortfall,
+)
+
+REACH = 0.65  # m, l1 + l2 of the sim's arm
+V_MAX = 0.25  # m/s, the controller's max_task_speed
+
+
+@pytest.mark.parametrize('name', sorted(TABLE_I))
+def test_table_one_rows_reach_with_the_default_gain(name):
+    assert reach_shortfall(TABLE_I[name], 0.0, V_MAX, REACH) is None
+
+
+@pytest.mark.parametrize(('a1', 'a2', 'd2'), [(1000.0, 237.8, 0.033), (329.7, 1000.0, 0.041)])
+@pytest.mark.parametrize('k', [0.0, 0.01, 1.0, 1e4])
+def test_deaf_follow_rows_do_not_reach_with_any_gain(a1, a2, d2, k):
+    reason = reach_shortfall(TaskShape(1, a1, a2, 0.0, d2), k, V_MAX, REACH)
+    assert reason is not None and 'the arm would not move there' in reason
+
+
+def test_the_reach_verdict_does_not_depend_on_a_slow_gain():
+    # The demo's follow row (a1 capped by the workspace): a demonstration 10 times slower
+    # gives a 10 times smaller K and the same verdict.
+    shape = TaskShape(1, 6.27, 1000.0, 0.0, 0.041)
+    assert reach_shortfall(shape, 0.1, V_MAX, REACH) is None
+    assert reach_shortfall(shape, 0.01, V_MAX, REACH) is None
+
+
+def test_a_region_open_to_the_workspace_has_nothing_to_check():
+    assert reach_shortfall(TaskShape(1, 33.0, 1e-3, 0.183, 2.0), 1e-9, V_MAX, REACH) is None
+
+
+def test_log_slope_is_exact_where_the_gradient_is_capped():
+    avoid = TABLE_I['avoid']
+    log_slope = log_potential_slope(np.array([0.05, 0.1]), avoid)
+    assert np.all(log_slope > math.log(POTENTIAL_CEILING))
+    moderate = TABLE_I['follow']
+    r = np.array([0.1, 0.3, 0.5])
+    gradient = np.abs(potential_gradient(np.stack([r, 0 * r], axis=1), moderate)[:, 0])
+    np.testing.assert_allclose(np.exp(log_potential_slope(r, moderate)), gradient, rtol=1e-9)
+
+
+def test_default_gain_makes_the_pull_max_task_speed_at_the_onset():
+    follow = TABLE_I['follow']
+    log_k = default_task_gain(follow, V_MAX, REACH)
+    pull = math.exp(log_k + float(log_potential_slope(follow.d2 + 0.15, follow)))
+    assert pull == pytest.approx(V_MAX)

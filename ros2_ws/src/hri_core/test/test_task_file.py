@@ -132,3 +132,18 @@ def test_load_task_directory_keeps_good_files_and_lists_rejects(tmp_path):
 def test_load_task_directory_of_a_missing_folder(tmp_path):
     assert load_task_directory(tmp_path / 'absent') == ({}, [(tmp_path / 'absent',
                                                               'not a directory')])
+
+
+def test_a_file_without_k_loads_with_k_zero_and_k_is_written(tmp_path):
+    path = tmp_path / 'follow.yaml'
+    path.write_text('name: follow\ns: 1\na1: 1.291\na2: 13.66\nd1: 0.0\nd2: 0.041\nn: 3\n'
+                    'cost: 0.0\niterations: 2468\n')
+    assert load_task_file(path).k == 0.0
+    learned = TaskRecord(**{**FOLLOW.__dict__, 'k': 0.42})
+    assert load_task_file(save_task_file(learned, tmp_path / 'out')).k == 0.42
+
+
+@pytest.mark.parametrize('k', [-0.1, float('nan'), float('inf'), True])
+def test_a_bad_k_is_rejected(k):
+    with pytest.raises(ValueError, match='k must be a finite number >= 0'):
+        TaskRecord(**{**FOLLOW.__dict__, 'k': k})

@@ -28,11 +28,23 @@ def _desired_spans(shape, right):
     return [(start, end) for start, end in spans if end > start]
 
 
-def plot_task_fit(distance, energy, shape, path, title=''):
+def _scaled_curves(d, grid, shape):
+    """P/||P|| over the samples d and on the grid, both scaled by ||P|| over the samples."""
+    log_samples = log_potential(d, shape)
+    if not np.any(np.isfinite(log_samples)):
+        return np.zeros_like(d), np.zeros_like(grid)
+    top = float(np.max(log_samples))
+    log_norm = top + 0.5 * np.log(np.sum(np.exp(2.0 * (log_samples - top))))
+    return (np.exp(log_samples - log_norm),
+            np.exp(np.minimum(log_potential(grid, shape) - log_norm, _MAX_LOG)))
+
+
+def plot_task_fit(distance, energy, shape, path, title='', reference=None):
     """Write a PNG of the fit: P_d/||P_d|| (points) and P/||P|| (line) against |x - x_r|.
 
     distance: (N,) m; energy: (N,) P_d, not all zero; shape: TaskShape of the fitted P;
-    path: PNG file to write (its folder is created); title: figure title.
+    path: PNG file to write (its folder is created); title: figure title; reference: None, or
+    (TaskShape, label) of another P drawn the same way (dashed), e.g. the paper's row.
     Returns the Path written. Raises ValueError for unusable input.
     """
     d = np.asarray(distance, dtype=float)
@@ -50,15 +62,7 @@ def plot_task_fit(distance, energy, shape, path, title=''):
 
     right = 1.1 * float(np.max(d)) if np.max(d) > 0.0 else 1.0
     grid = np.linspace(0.0, right, _GRID_POINTS)
-    log_samples = log_potential(d, shape)
-    if np.any(np.isfinite(log_samples)):
-        top = float(np.max(log_samples))
-        log_norm = top + 0.5 * np.log(np.sum(np.exp(2.0 * (log_samples - top))))
-        fitted_samples = np.exp(log_samples - log_norm)
-        fitted_grid = np.exp(np.minimum(log_potential(grid, shape) - log_norm, _MAX_LOG))
-    else:
-        fitted_samples = np.zeros_like(d)
-        fitted_grid = np.zeros_like(grid)
+    fitted_samples, fitted_grid = _scaled_curves(d, grid, shape)
     demonstrated = e / norm_d
 
     figure = Figure(figsize=(6.4, 4.2), dpi=120)
@@ -72,6 +76,11 @@ def plot_task_fit(distance, energy, shape, path, title=''):
     axes.plot(grid, fitted_grid, color='tab:red', linewidth=1.8,
               label=rf'fit $P/\|P\|$: S={shape.s:+d}, $a_1$={shape.a1:.4g}, '
                     rf'$a_2$={shape.a2:.4g}')
+    if reference is not None:
+        reference_shape, reference_label = reference
+        _, reference_grid = _scaled_curves(d, grid, reference_shape)
+        axes.plot(grid, reference_grid, color='tab:gray', linewidth=1.5, linestyle='--',
+                  label=reference_label)
     ceiling = max(float(np.max(demonstrated)), float(np.max(fitted_samples)))
     axes.set_xlim(0.0, right)
     axes.set_ylim(-0.05 * ceiling, 1.15 * ceiling)

@@ -1,18 +1,21 @@
 """The `learner` node: demonstration bags in, a learned task (TaskParameters + YAML) out.
 
-Once up, it learns one task with `learning.learn_task` (eq. 3-11) from the bags in `bags`,
-bag i moved outward by `shifts[i]` (eq. 4), writes `<output_dir>/<task_name>.yaml` and a
-figure `<task_name>.png` next to it, publishes the task on hri_core.topics.TASK (/hri/task,
-reliable, transient local) and logs one summary line. Its parameters and their defaults are in
-config/learner.yaml; `bags` has no default (required) and `shifts` none either (unset: no
-shift).
+Once up, it learns one task with `learning.learn_task` (eq. 3-11, the task gain K and the
+reach check) from the bags in `bags`, bag i moved outward by `shifts[i]` (eq. 4; with
+`combine` false the bags are repetitions of one demonstration, with one averaged x_d), writes
+`<output_dir>/<task_name>.yaml` and a figure `<task_name>.png` next to it, publishes the task
+on hri_core.topics.TASK (/hri/task, reliable, transient local) and logs one summary line.
+Its parameters and their defaults are in config/learner.yaml; `bags` has no default
+(required) and `shifts` none either (unset: no shift).
 
 With `once` it exits 0 once the task is saved and delivered: as soon as every matched
 subscriber of /hri/task has acknowledged it, or, with none matched, once DISCOVERY_WINDOW s
 from its start have passed (time for running subscribers to match; the fit usually takes
 longer); it logs a warning if a subscriber has not acknowledged within ACK_TIMEOUT s.
 Otherwise it stays up so that late joiners get the task. A bag it cannot learn from, or a bad
-parameter, gives one error line and exit code 1, and no task file.
+parameter, gives one error line and exit code 1, and no task file; so does a demonstration the
+model does not describe (fit cost above `max_cost`) or a task whose pull would vanish within the
+arm's reach (l1 + l2) of its region.
 """
 
 import sys
@@ -53,8 +56,16 @@ PARAMETERS = {
     'n': ParameterSpec(int, 'exponent N of eq. 2', 3, 15),
     'tolerance': ParameterSpec(float, 'stopping tolerance of the fit', 1e-15, 1e-2),
     'max_iterations': ParameterSpec(int, 'cap on the fit iterations', 1, 100000),
-    'stationary_speed': ParameterSpec(float, 'a sample slower than this is at rest (m/s, '
-                                      'eq. 3, 5)', 1e-5, 1.0),
+    'stationary_speed': ParameterSpec(float, 'a sample slower than this is at rest whatever '
+                                      'the pace (m/s, eq. 3, 5)', 1e-5, 1.0),
+    'rest_fraction': ParameterSpec(float, 'a sample slower than this fraction of the '
+                                   "demonstration's peak speed is at rest", 0.0, 0.5),
+    'combine': ParameterSpec(bool, 'true: the bags are combined by eq. 4 (shifts); false: '
+                             'they repeat one demonstration and share its averaged x_d'),
+    'max_cost': ParameterSpec(float, 'largest fit cost C (eq. 8) of a task it publishes',
+                              1e-6, 2.0),
+    'max_task_speed': ParameterSpec(float, "the controller's max_task_speed (m/s), the "
+                                    'reference of the reach check', 1e-3, 10.0),
     'workspace_radius': ParameterSpec(float, 'd2 of a desired region open outward (m)',
                                       0.01, 100.0),
     'once': ParameterSpec(bool, 'exit 0 after saving and delivering the task'),
@@ -92,7 +103,9 @@ class Learner(Node):
                 n=values['n'], stationary_speed=values['stationary_speed'],
                 workspace_radius=values['workspace_radius'], method=values['method'],
                 tolerance=values['tolerance'], max_iterations=values['max_iterations'],
-                l1=values['l1'], l2=values['l2'])
+                l1=values['l1'], l2=values['l2'], combine=values['combine'],
+                rest_fraction=values['rest_fraction'], max_task_speed=values['max_task_speed'],
+                max_cost=values['max_cost'])
         except LearningError as error:
             raise StartupError(str(error)) from None
         task = learned.record
@@ -100,6 +113,7 @@ class Learner(Node):
         self.get_logger().info(
             f"learned task '{task.name}' from {len(values['bags'])} bag(s): S={task.s:+d} "
             f'd1={task.d1:.3f} m d2={task.d2:.3f} m a1={task.a1:.4g} a2={task.a2:.4g} 1/m^2 '
+            f'K={task.k:.4g} m^2/s '
             f'C={task.cost:.3g} iterations={task.iterations} ({learned.method}'
             f'{"" if learned.converged else ", not converged"}, fit {learned.fit_seconds:.3f} '
             f's, total {learned.total_seconds:.2f} s) -> {learned.task_file}, {learned.figure}')

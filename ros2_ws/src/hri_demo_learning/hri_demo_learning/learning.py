@@ -7,18 +7,27 @@
    the forward kinematics with the link lengths l1, l2 (m), and the reference x_r (m, (2,)),
    the one in force when the person let go; x_r must not move during the demonstration;
 2. its task energy P_d (eq. 3, `task_energy.demonstration_energy`, m^2) against the distance
-   |x_i - x_r| (m);
-3. the profiles, bag i moved outward by shifts[i] (m), concatenated into one (eq. 4);
+   |x_i - x_r| (m); with `combine` false the bags are repetitions of one demonstration, all
+   with one x_r, and share one target x_d, the mean of their rest positions (Sec. II-B: "if
+   the same demonstration is repeated, the average position can be used");
+3. the profiles, bag i moved outward by shifts[i] (m), concatenated into one (eq. 4; shifts
+   belong to a combination, so repetitions take none);
 4. the task type S and the desired region [d1, d2] (m) identified from it (eq. 5, 6);
 5. the steepness a1, a2 (1/m^2) of the potential of eq. 1, 2 with exponent N = n fitted by
    the cost C of eq. 7, 8 (`method` 'trf', or the paper's Gauss-Newton iteration of eq. 9-11,
-   'gauss_newton');
-6. the task written as `<output_dir>/<task_name>.yaml` (hri_core.task_file) and its Fig. 3-style
+   'gauss_newton'), a1 capped so that P still pulls `reach` m (default l1 + l2) outside the
+   region (`performance_learning.reach_steepness_limit`); a cost above `max_cost` means the
+   model does not describe the demonstration: refused;
+6. the task gain K (m^2/s) fitted to the demonstration's speeds (`task_gain.fit_task_gain`),
+   and the task refused if its pull K |dP/dz| falls below 5 % of `max_task_speed` anywhere
+   within `reach` of its region (`hri_core.potential.reach_shortfall`);
+7. the task written as `<output_dir>/<task_name>.yaml` (hri_core.task_file) and its Fig. 3-style
    figure as `<task_name>.png` next to it.
 
-`learn_from_bags` runs steps 1-5 alone (nothing written; the benchmark times it). Every input
-the task cannot be learned from, or output that cannot be written, raises `LearningError` with
-a one-line reason, and then no task file is written.
+`learn_from_bags` runs steps 1-6 alone (nothing written; the benchmark times it), and
+`learn_from_demonstrations` steps 2-6 on arrays. Every input the task cannot be learned from,
+or output that cannot be written, raises `LearningError` with a one-line reason, and then no
+task file is written.
 """
 
 import math
@@ -30,17 +39,46 @@ from pathlib import Path
 
 import numpy as np
 
+from hri_core.potential import reach_shortfall
 from hri_core.task_file import TaskRecord, is_safe_task_name, save_task_file
 from hri_demo_learning.bag_io import BagError, read_demonstration
 from hri_demo_learning.identification import identify_task_region
-from hri_demo_learning.performance_learning import METHODS, fit_task_parameters
+from hri_demo_learning.performance_learning import (
+    METHODS,
+    FitResult,
+    fit_task_parameters,
+    reach_steepness_limit,
+)
 from hri_demo_learning.task_energy import (
+    DEFAULT_REST_FRACTION,
     EnergyProfile,
     combine_energy_profiles,
     demonstration_energy,
 )
+from hri_demo_learning.task_gain import fit_task_gain
 
-REFERENCE_TOLERANCE = 1e-3  # m: how far x_r may wander during one demonstration
+REFERENCE_TOLERANCE = 1e-3  # m: how far x_r may wander during one demonstration (or differ
+# between repetitions of one)
+
+DEFAULT_MAX_COST = 0.1
+"""Largest fit cost C (eq. 8) a learned task may have. C = 1 - cos of the angle between P_d and
+P over the samples (both normalised), so 0.1 is an angle of 26 deg. Good fits of the simulated
+demonstrations give 0.001-0.01 and Table I's own a1, a2 score 0.05-0.17 on them; a
+demonstration that is no function of the distance to x_r (out and back) gives 0.3 or more."""
+
+DEFAULT_MAX_TASK_SPEED = 0.25
+"""m/s: the controller's max_task_speed, the speed the reach criterion is measured against."""
+
+
+@dataclass(frozen=True)
+class Demonstration:
+    """One demonstration as arrays: times (M,) s, positions (M, 2) m, reference x_r (2,) m,
+    source (a name for messages, e.g. the bag)."""
+
+    times: np.ndarray
+    positions: np.ndarray
+    reference: np.ndarray
+    source: str
 
 
 class LearningError(Exception):
@@ -63,6 +101,9 @@ class LearnedTask:
     total_seconds: float
     task_file: Path | None = None
     figure: Path | None = None
+    targets: tuple = ()  # x_d (2,) m of each demonstration (all equal with combine false)
+    fit: FitResult | None = None
+    a1_max: float | None = None  # 1/m^2, the reach's cap on a1 (None: none)
 
 
 def _one_line(text) -> str:
@@ -81,43 +122,106 @@ def check_fixed_reference(references: np.ndarray, x_r: np.ndarray, bag) -> None:
                             f'demonstration; a demonstration needs one fixed x_r (eq. 3)')
 
 
-def learn_from_bags(bags: list[str], shifts: list[float], task_name: str, n: int,
-                    stationary_speed: float, workspace_radius: float, method: str,
-                    tolerance: float, max_iterations: int, l1: float, l2: float) -> LearnedTask:
-    """Learn one task from demonstration bags (eq. 3-11) without writing it.
+def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float],
+                              task_name: str, *, n: int, stationary_speed: float,
+                              workspace_radius: float, method: str, tolerance: float,
+                              max_iterations: int, reach: float, combine: bool = True,
+                              rest_fraction: float = DEFAULT_REST_FRACTION,
+                              max_task_speed: float = DEFAULT_MAX_TASK_SPEED,
+                              max_cost: float = DEFAULT_MAX_COST) -> LearnedTask:
+    """Learn one task from demonstrations given as arrays (steps 2-6 of the module docstring).
 
-    One shift (m) per bag. Raises LearningError (one line).
+    One shift (m) per demonstration (all 0 with combine false); reach: m, how far outside the
+    region the task must still pull (l1 + l2); max_task_speed: m/s; max_cost: largest C.
+    Raises LearningError (one line).
     """
     started = time.perf_counter()
-    profiles = []
+    sources = ', '.join(demo.source for demo in demos)
+    if not combine and any(shift != 0.0 for shift in shifts):
+        raise LearningError('parameter shifts belongs to a combination (eq. 4): repetitions '
+                            '(combine false) share one x_d and take no shift')
+    energies = []
+    for demo in demos:
+        try:
+            energy = demonstration_energy(demo.times, demo.positions, demo.reference,
+                                          stationary_speed=stationary_speed,
+                                          rest_fraction=rest_fraction)
+        except ValueError as err:
+            raise LearningError(f'bag {demo.source}: {_one_line(err)}') from None
+        energies.append(energy)
+    if not combine and len(demos) > 1:
+        references = np.array([demo.reference for demo in demos])
+        spread = float(np.max(np.hypot(*(references - references[0]).T)))
+        if spread > REFERENCE_TOLERANCE:
+            raise LearningError(f'repeated demonstrations ({sources}) need one x_r, theirs '
+                                f'differ by {spread:.3f} m; learn them as a combination '
+                                '(combine true) instead')
+        target = np.mean([energy.target for energy in energies], axis=0)
+        energies = [demonstration_energy(demo.times, demo.positions, demo.reference,
+                                         stationary_speed=stationary_speed,
+                                         rest_fraction=rest_fraction, target=target)
+                    for demo in demos]
+    try:
+        profile = combine_energy_profiles([energy.profile for energy in energies], shifts)
+        region = identify_task_region(profile.distance, profile.energy, profile.moving,
+                                      workspace_radius=workspace_radius, n=n)
+        a1_max = reach_steepness_limit(region.s, region.d1, region.d2, reach)
+        fit = fit_task_parameters(profile.distance, profile.energy, region.s, region.d1,
+                                  region.d2, n=n, method=method, tolerance=tolerance,
+                                  max_iterations=max_iterations, a1_max=a1_max)
+        if fit.cost > max_cost:
+            raise ValueError(f'the potential of eq. 1, 2 does not describe the demonstration: '
+                             f'best fit cost C = {fit.cost:.3g} > max_cost {max_cost:g} '
+                             f'(S={region.s:+d}, d1={region.d1:.3f} m, d2={region.d2:.3f} m)')
+        record = TaskRecord(name=task_name, s=region.s, a1=fit.a1, a2=fit.a2, d1=region.d1,
+                            d2=region.d2, n=n, cost=fit.cost, iterations=fit.iterations)
+        k = fit_task_gain(profile.distance, profile.speed, profile.moving, record.shape)
+        shortfall = reach_shortfall(record.shape, k, max_task_speed, reach)
+        if shortfall is not None:
+            raise ValueError(f'the task does not reach: {shortfall}')
+        record = replace(record, k=k)
+    except ValueError as err:
+        raise LearningError(f'cannot learn {task_name!r} from {sources}: '
+                            f'{_one_line(err)}') from None
+    return LearnedTask(record=record, profile=profile, method=method, converged=fit.converged,
+                       fit_message=fit.message, fit_seconds=fit.seconds,
+                       total_seconds=time.perf_counter() - started,
+                       targets=tuple(energy.target for energy in energies), fit=fit,
+                       a1_max=a1_max)
+
+
+def learn_from_bags(bags: list[str], shifts: list[float], task_name: str, n: int,
+                    stationary_speed: float, workspace_radius: float, method: str,
+                    tolerance: float, max_iterations: int, l1: float, l2: float, *,
+                    combine: bool = True, rest_fraction: float = DEFAULT_REST_FRACTION,
+                    max_task_speed: float = DEFAULT_MAX_TASK_SPEED,
+                    max_cost: float = DEFAULT_MAX_COST) -> LearnedTask:
+    """Learn one task from demonstration bags (eq. 3-11, K, reach) without writing it.
+
+    One shift (m) per bag; the reach is l1 + l2. Raises LearningError (one line).
+    """
+    started = time.perf_counter()
+    demos = []
     for bag in bags:
         try:
             demo = read_demonstration(bag, l1=l1, l2=l2)
             x_r = demo.references[-1]  # the reference in force when the person let go
             energy = demonstration_energy(demo.times, demo.positions, x_r,
-                                          stationary_speed=stationary_speed)
+                                          stationary_speed=stationary_speed,
+                                          rest_fraction=rest_fraction)
             check_fixed_reference(demo.references[demo.times >= energy.times[0]], x_r,
                                   demo.path)
         except BagError as err:
             raise LearningError(str(err)) from None
         except ValueError as err:
             raise LearningError(f'bag {bag}: {_one_line(err)}') from None
-        profiles.append(energy.profile)
-    try:
-        profile = combine_energy_profiles(profiles, shifts)
-        region = identify_task_region(profile.distance, profile.energy, profile.moving,
-                                      workspace_radius=workspace_radius, n=n)
-        fit = fit_task_parameters(profile.distance, profile.energy, region.s, region.d1,
-                                  region.d2, n=n, method=method, tolerance=tolerance,
-                                  max_iterations=max_iterations)
-        record = TaskRecord(name=task_name, s=region.s, a1=fit.a1, a2=fit.a2, d1=region.d1,
-                            d2=region.d2, n=n, cost=fit.cost, iterations=fit.iterations)
-    except ValueError as err:
-        raise LearningError(f'cannot learn {task_name!r} from {", ".join(bags)}: '
-                            f'{_one_line(err)}') from None
-    return LearnedTask(record=record, profile=profile, method=method, converged=fit.converged,
-                       fit_message=fit.message, fit_seconds=fit.seconds,
-                       total_seconds=time.perf_counter() - started)
+        demos.append(Demonstration(demo.times, demo.positions, x_r, str(bag)))
+    learned = learn_from_demonstrations(
+        demos, shifts, task_name, n=n, stationary_speed=stationary_speed,
+        workspace_radius=workspace_radius, method=method, tolerance=tolerance,
+        max_iterations=max_iterations, reach=l1 + l2, combine=combine,
+        rest_fraction=rest_fraction, max_task_speed=max_task_speed, max_cost=max_cost)
+    return replace(learned, total_seconds=time.perf_counter() - started)
 
 
 def default_task_name(bags: list[str]) -> str:
@@ -156,7 +260,10 @@ def _checked_shifts(shifts: Sequence[float] | None, bag_count: int) -> list[floa
 def learn_task(bags: Sequence[str], shifts: Sequence[float] | None, task_name: str,
                output_dir: str | Path, *, n: int, stationary_speed: float,
                workspace_radius: float, method: str, tolerance: float, max_iterations: int,
-               l1: float, l2: float) -> LearnedTask:
+               l1: float, l2: float, combine: bool = True,
+               rest_fraction: float = DEFAULT_REST_FRACTION,
+               max_task_speed: float = DEFAULT_MAX_TASK_SPEED,
+               max_cost: float = DEFAULT_MAX_COST) -> LearnedTask:
     """Learn one task from demonstration bags (eq. 3-11) and write its file and figure.
 
     bags: bag folders or .mcap files; shifts: m, one per bag (None: no shift); task_name: a
@@ -165,8 +272,11 @@ def learn_task(bags: Sequence[str], shifts: Sequence[float] | None, task_name: s
     stationary_speed: m/s below which a sample is at rest (eq. 3, 5); workspace_radius: m, d2
     of a region open outward; method: one of performance_learning.METHODS; tolerance,
     max_iterations: the fit's stopping rule; l1, l2: m, link lengths for bags with joint
-    states only. Returns the LearnedTask with the paths written. Raises LearningError (one
-    line) for bad input, a bag it cannot learn from, or an output it cannot write.
+    states only, and the reach l1 + l2; combine: True for eq. 4's combination, False for
+    repetitions of one demonstration (averaged x_d); rest_fraction: of the peak speed;
+    max_task_speed: m/s, the controller's cap; max_cost: largest fit cost C. Returns the
+    LearnedTask with the paths written. Raises LearningError (one line) for bad input, a bag
+    it cannot learn from, or an output it cannot write.
     """
     bags = [str(bag) for bag in bags]
     if not bags:
@@ -185,7 +295,8 @@ def learn_task(bags: Sequence[str], shifts: Sequence[float] | None, task_name: s
     learned = learn_from_bags(
         bags, shifts, name, n=n, stationary_speed=stationary_speed,
         workspace_radius=workspace_radius, method=method, tolerance=tolerance,
-        max_iterations=max_iterations, l1=l1, l2=l2)
+        max_iterations=max_iterations, l1=l1, l2=l2, combine=combine,
+        rest_fraction=rest_fraction, max_task_speed=max_task_speed, max_cost=max_cost)
     output_dir = Path(output_dir)
     try:
         output_dir.mkdir(parents=True, exist_ok=True)

@@ -19,6 +19,15 @@ Two solvers, both keeping a1, a2 within ``STEEPNESS_BOUNDS`` = [1e-3, 1e3] 1/m^2
 a > 0; the bounds also stop undamped steps from running away). A result on a bound is named in
 FitResult.message: the data favour a value beyond it (e.g. a2 -> inf for a follow push).
 
+Reach (the paper: the unsaturated part of P must cover the workspace). Beyond d2 both factors of
+eq. 1 saturate toward 1, and P's slope far out is carried by the slower one, of order
+a1 exp(-a1 (r^2 - d1^2)). For S = +1, ``reach_steepness_limit`` caps a1 at
+ln(1 / PULL_FRACTION) / ((d2 + reach)^2 - d1^2) = 3.0 / ((d2 + reach)^2 - d1^2), so that
+factor keeps at least 5 % of its slope out to `reach` (m, l1 + l2) beyond the region; a2 may
+stay steep (it shapes the edge). Table I's rows lie within the cap (a1 (d2 + 0.65)^2 = 0.62
+for follow, 1.28 for follow_safe, against 3.0); a fit of a follow push from 0.27 m without it
+gives a1 = 33, a1 (d2 + 0.65)^2 = 16: no pull beyond 0.5 m.
+
 * ``'trf'`` (default): scipy.optimize.least_squares, trust-region reflective with bounds, on A
   directly. Iterations are its function evaluations (each is one trial step; the Jacobian is
   analytic, so there are no hidden ones). A log parameterisation a = exp(u) was tried and
@@ -42,7 +51,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hri_core.potential import TaskShape, log_potential, normalised_potential
+from hri_core.potential import (
+    PULL_FRACTION,
+    PULL_ONSET,
+    TaskShape,
+    log_potential,
+    normalised_potential,
+)
 from hri_demo_learning.identification import DEFAULT_INITIAL_STEEPNESS
 
 STEEPNESS_BOUNDS = (1e-3, 1e3)
@@ -55,6 +70,18 @@ DEFAULT_MAX_ITERATIONS = 200
 """Cap on iterations: trial steps of 'trf', updates of 'gauss_newton'."""
 
 METHODS = ('trf', 'gauss_newton')
+
+
+def reach_steepness_limit(s, d1, d2, reach):
+    """Upper bound on a1 (1/m^2) that keeps P's pull alive out to d2 + reach (m, reach > 0)
+    beyond the region (module docstring); None for S = -1, and for a region the arm cannot
+    leave outward (d2 + PULL_ONSET beyond 2 reach, e.g. avoid's d2 = 2 m), where nothing
+    limits a1."""
+    if not (math.isfinite(reach) and reach > 0.0):
+        raise ValueError(f'reach must be > 0 m, got {reach}')
+    if s != 1 or d2 + PULL_ONSET >= 2.0 * reach:
+        return None
+    return math.log(1.0 / PULL_FRACTION) / ((d2 + reach) ** 2 - d1 ** 2)
 
 
 @dataclass(frozen=True)
@@ -75,7 +102,18 @@ class FitResult:
     condition: float = math.nan
 
 
-def _check_fit_input(distance, energy, tolerance, max_iterations, method, initial):
+def _bounds(a1_max):
+    """(low (2,), high (2,)) 1/m^2: STEEPNESS_BOUNDS with a1's upper bound lowered to a1_max."""
+    low, high = STEEPNESS_BOUNDS
+    top = np.array([high, high])
+    if a1_max is not None:
+        if not (math.isfinite(a1_max) and a1_max > low):
+            raise ValueError(f'a1_max must be > {low} 1/m^2, got {a1_max}')
+        top[0] = min(high, a1_max)
+    return np.array([low, low]), top
+
+
+def _check_fit_input(distance, energy, tolerance, max_iterations, method, initial, bounds):
     d = np.asarray(distance, dtype=float)
     e = np.asarray(energy, dtype=float)
     if d.ndim != 1 or e.shape != d.shape:
@@ -99,7 +137,8 @@ def _check_fit_input(distance, energy, tolerance, max_iterations, method, initia
     low, high = STEEPNESS_BOUNDS
     if a.shape != (2,) or not np.all(np.isfinite(a)) or np.any(a < low) or np.any(a > high):
         raise ValueError(f'initial (a1, a2) must lie in [{low}, {high}], got {initial!r}')
-    return d, e / np.linalg.norm(e), a
+    # A start beyond a lowered bound starts on it.
+    return d, e / np.linalg.norm(e), np.clip(a, *bounds)
 
 
 def _log_factor_sensitivity(u, a, d):
@@ -138,7 +177,7 @@ def _condition(jacobian, a):
     return float(singular[0] / singular[-1]) if singular[-1] > 0.0 else math.inf
 
 
-def _fit_trust_region(d, target, s, d1, d2, n, tolerance, max_iterations, a0):
+def _fit_trust_region(d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds):
     def residual(a):
         return target - normalised_potential(d, TaskShape(s, a[0], a[1], d1, d2, n))
 
@@ -148,21 +187,21 @@ def _fit_trust_region(d, target, s, d1, d2, n, tolerance, max_iterations, a0):
     # Imported here: scipy.optimize costs the learner 0.4 s at start-up, wasted on a bad
     # parameter or bag.
     from scipy.optimize import least_squares
-    result = least_squares(residual, a0, jac=jacobian, bounds=STEEPNESS_BOUNDS, method='trf',
+    result = least_squares(residual, a0, jac=jacobian, bounds=bounds, method='trf',
                            xtol=tolerance, ftol=tolerance, gtol=tolerance,
                            max_nfev=max_iterations)
-    a = np.clip(result.x, *STEEPNESS_BOUNDS)
+    a = np.clip(result.x, *bounds)
     return a, int(result.nfev), result.status > 0, result.message
 
 
-def _blocked(gradient, a):
+def _blocked(gradient, a, bounds):
     """Coordinates on a bound whose descent direction (-gradient) points out of the box."""
-    low, high = STEEPNESS_BOUNDS
+    low, high = bounds
     return ((a <= low) & (gradient > 0.0)) | ((a >= high) & (gradient < 0.0))
 
 
-def _fit_gauss_newton(d, target, s, d1, d2, n, tolerance, max_iterations, a0):
-    low, high = STEEPNESS_BOUNDS
+def _fit_gauss_newton(d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds):
+    low, high = bounds
     a = a0.copy()
     message = f'max_iterations ({max_iterations}) reached'
     converged = False
@@ -172,7 +211,7 @@ def _fit_gauss_newton(d, target, s, d1, d2, n, tolerance, max_iterations, a0):
         p, jac = normalised_potential_jacobian(d, TaskShape(s, a[0], a[1], d1, d2, n))
         j_r = -jac
         gradient = j_r.T @ (target - p)                                  # eq. 9
-        free = ~_blocked(gradient, a)
+        free = ~_blocked(gradient, a, bounds)
         step = np.zeros(2)
         if np.any(free):
             j_free = j_r[:, free]
@@ -189,30 +228,32 @@ def _fit_gauss_newton(d, target, s, d1, d2, n, tolerance, max_iterations, a0):
     return a, iterations, converged, message
 
 
-def _bound_note(a):
+def _bound_note(a, bounds):
     """Message suffix naming the parameters that ended on a bound (within 1e-6 relative)."""
-    low, high = STEEPNESS_BOUNDS
+    low, high = bounds
     at_low = a <= low * (1.0 + 1e-6)
     at_high = a >= high * (1.0 - 1e-6)
     notes = [f'a{k + 1} at its {"lower" if at_low[k] else "upper"} bound '
-             f'{low if at_low[k] else high:g}'
+             f'{low[k] if at_low[k] else high[k]:.4g}'
              for k in range(a.size) if at_low[k] or at_high[k]]
     return f' ({"; ".join(notes)}: the data favour a value beyond it)' if notes else ''
 
 
 def fit_task_parameters(distance, energy, s, d1, d2, n=3, method='trf',
                         tolerance=DEFAULT_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
-                        initial=DEFAULT_INITIAL_STEEPNESS):
+                        initial=DEFAULT_INITIAL_STEEPNESS, a1_max=None):
     """Fit a1, a2 of eq. 1, 2 to the task energy by minimising C (eq. 7-11).
 
     distance: (N,) m to x_r; energy: (N,) P_d (eq. 3 or 4), not all zero; s, d1, d2 from
     identification; n: N of eq. 2; method: 'trf' (default, damped, bounded) or 'gauss_newton'
     (the paper's plain eq. 9-11); tolerance: stop test;
-    max_iterations: cap on iterations (trial steps); initial: (a1, a2) start, 1/m^2.
-    Returns a FitResult. Raises ValueError (one-line reason) for unusable input.
+    max_iterations: cap on iterations (trial steps); initial: (a1, a2) start, 1/m^2;
+    a1_max: upper bound of a1 below STEEPNESS_BOUNDS' (1/m^2, e.g. `reach_steepness_limit`),
+    None for none. Returns a FitResult. Raises ValueError (one-line reason) for unusable input.
     """
+    bounds = _bounds(a1_max)
     d, target, a0 = _check_fit_input(distance, energy, tolerance, max_iterations, method,
-                                     initial)
+                                     initial, bounds)
     # The support of P (where P > 0) depends on s, d1, d2 only, not on a1, a2.
     if not np.any(np.isfinite(log_potential(d, TaskShape(s, a0[0], a0[1], d1, d2, n)))):
         raise ValueError(f'P is zero on every sample for S={s}, d1={d1}, d2={d2}: no a1, a2 '
@@ -220,14 +261,14 @@ def fit_task_parameters(distance, energy, s, d1, d2, n=3, method='trf',
     start = time.perf_counter()
     if method == 'gauss_newton':
         a, iterations, converged, message = _fit_gauss_newton(
-            d, target, s, d1, d2, n, tolerance, max_iterations, a0)
+            d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds)
     else:
         a, iterations, converged, message = _fit_trust_region(
-            d, target, s, d1, d2, n, tolerance, max_iterations, a0)
+            d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds)
     seconds = time.perf_counter() - start
     shape = TaskShape(s, float(a[0]), float(a[1]), d1, d2, n)
     _, jac = normalised_potential_jacobian(d, shape)
     return FitResult(a1=shape.a1, a2=shape.a2, cost=task_cost(d, target, shape),
                      iterations=iterations, method=method, converged=bool(converged),
-                     message=message + _bound_note(a), seconds=seconds,
+                     message=message + _bound_note(a, bounds), seconds=seconds,
                      condition=_condition(jac, a))

@@ -12,13 +12,20 @@ Made precise here:
 * Speed is estimated with a smoothing differentiator, not a raw finite difference: the samples
   (uneven rates allowed; duplicate stamps averaged) are resampled linearly to a uniform grid at
   their median interval, differentiated with a Savitzky-Golay filter (cubic, window
-  ``smoothing_window`` s) and interpolated back to the sample times. A sample moves when its
-  speed exceeds ``stationary_speed`` (m/s), otherwise it is at rest.
-* The demonstration starts at its first moving sample: samples at rest before it (the person has
-  not started yet) are dropped, so that the start position is not mistaken for a goal.
-* x_d is the mean position of the final rest segment (the samples at rest after the last moving
-  sample). For a repeated demonstration the x_d of all repetitions are averaged
-  (``repeated_demonstration_energy``).
+  ``smoothing_window`` s) and interpolated back to the sample times.
+* Rest is judged against the demonstration's own pace, so that the same path demonstrated
+  slowly or briskly gives the same task: a sample is slow when its speed is below
+  max(``stationary_speed``, ``rest_fraction`` x the demonstration's peak speed). The floor
+  ``stationary_speed`` (0.004 m/s) stays above the speed that sensor noise fakes (0.1 mm of
+  position noise at 100 Hz reads as at most 0.0025 m/s); the relative part (5 % of the peak)
+  makes a minimum-jerk push leave its last 0.5 mm, whatever its duration, for the rest, where
+  an absolute 0.01 m/s would leave 0.4 mm of a 2 s push and 9 mm of a 15 s one.
+* The motion runs from the first to the last sample that is not slow. Samples before it (the
+  person has not started yet) are dropped, so that the start position is not mistaken for a
+  goal; every sample within it counts as moving, also a slow stretch or a pause on the way
+  (it is not where the person stopped); the samples after it are the final rest.
+* x_d is the mean position of the final rest. For a repeated demonstration the x_d of all
+  repetitions are averaged (``repeated_demonstration_energy``).
 * T is the minimum of ||x_i - x_d||^2 over the moving samples, so P_d >= 0 everywhere and it
   rises from 0 where the motion ends.
 
@@ -34,8 +41,11 @@ import numpy as np
 
 from hri_core.validation import positive
 
-DEFAULT_STATIONARY_SPEED = 0.01
-"""m/s: a sample slower than this is at rest (eq. 3's ||dx/dt|| = 0)."""
+DEFAULT_STATIONARY_SPEED = 0.004
+"""m/s: a sample slower than this is at rest (eq. 3's ||dx/dt|| = 0), whatever the pace."""
+
+DEFAULT_REST_FRACTION = 0.05
+"""A sample slower than this fraction of the demonstration's peak speed is at rest."""
 
 DEFAULT_SMOOTHING_WINDOW = 0.25
 """s: Savitzky-Golay window of the speed estimate. Its derivative gain is >= 0.94 of the true one
@@ -53,12 +63,14 @@ class EnergyProfile:
     """Task energy against distance to the reference: the input of identification and fit.
 
     distance: (N,) m, |x_i - x_r| (plus the shift C_i in a combination); energy: (N,) m^2, P_d
-    (eq. 3, 4); moving: (N,) bool, True where the speed exceeds the stationary speed.
+    (eq. 3, 4); moving: (N,) bool, True for the samples of the motion, False for the final
+    rest; speed: (N,) m/s, the smoothed speed (None when not known).
     """
 
     distance: np.ndarray
     energy: np.ndarray
     moving: np.ndarray
+    speed: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -80,7 +92,7 @@ class TaskEnergy:
     @property
     def profile(self):
         """The EnergyProfile (distance, energy, moving) of this demonstration."""
-        return EnergyProfile(self.distance, self.energy, self.moving)
+        return EnergyProfile(self.distance, self.energy, self.moving, self.speed)
 
 
 def _check_demonstration(times, positions):
@@ -99,9 +111,11 @@ def _check_demonstration(times, positions):
     return t, x
 
 
-def _check_speed_parameters(stationary_speed, smoothing_window):
+def _check_speed_parameters(stationary_speed, smoothing_window, rest_fraction):
     positive(stationary_speed, 'stationary_speed', 'm/s')
     positive(smoothing_window, 'smoothing_window', 's')
+    if not (math.isfinite(rest_fraction) and 0.0 <= rest_fraction < 1.0):
+        raise ValueError(f'rest_fraction must be in [0, 1), got {rest_fraction}')
 
 
 def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
@@ -141,52 +155,66 @@ def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
     return np.interp(t, grid, speed)
 
 
-def _demonstration_span(speed, stationary_speed, smoothing_window):
-    """Moving mask, first and last moving index; ValueError without motion or final rest."""
-    moving = speed > stationary_speed
-    if not np.any(moving):
+def rest_threshold(speed, stationary_speed=DEFAULT_STATIONARY_SPEED,
+                   rest_fraction=DEFAULT_REST_FRACTION):
+    """Speed (m/s) below which a sample is at rest: max(stationary_speed, rest_fraction x the
+    peak of speed (N,) m/s)."""
+    return max(stationary_speed, rest_fraction * float(np.max(speed)))
+
+
+def _demonstration_span(speed, stationary_speed, smoothing_window, rest_fraction):
+    """Moving mask (first..last fast sample), first and last index; ValueError without motion
+    or final rest."""
+    threshold = rest_threshold(speed, stationary_speed, rest_fraction)
+    fast = speed > threshold
+    if not np.any(fast):
         raise ValueError(f'no sample moving: the speed never exceeds stationary_speed '
                          f'{stationary_speed} m/s')
-    first = int(np.argmax(moving))
-    last = moving.size - 1 - int(np.argmax(moving[::-1]))
-    if last == moving.size - 1:
+    first = int(np.argmax(fast))
+    last = fast.size - 1 - int(np.argmax(fast[::-1]))
+    if last == fast.size - 1:
         raise ValueError(f'no sample at rest after the motion: the demonstration must end with '
-                         f'the robot held still (speed < {stationary_speed} m/s) for at least '
+                         f'the robot held still (speed < {threshold:.3g} m/s) for at least '
                          f'{smoothing_window} s')
+    moving = np.zeros(fast.size, dtype=bool)
+    moving[first:last + 1] = True
     return moving, first, last
 
 
 def rest_position(times, positions, stationary_speed=DEFAULT_STATIONARY_SPEED,
-                  smoothing_window=DEFAULT_SMOOTHING_WINDOW):
+                  smoothing_window=DEFAULT_SMOOTHING_WINDOW, rest_fraction=DEFAULT_REST_FRACTION):
     """Target x_d of eq. 3: mean position of the final rest segment of a demonstration.
 
     times: (N,) s; positions: (N, 2) m. Returns (2,) m. Raises ValueError when no sample moves
     or the demonstration does not end at rest.
     """
-    _check_speed_parameters(stationary_speed, smoothing_window)
+    _check_speed_parameters(stationary_speed, smoothing_window, rest_fraction)
     t, x = _check_demonstration(times, positions)
     speed = estimate_speed(t, x, smoothing_window)
-    _, _, last = _demonstration_span(speed, stationary_speed, smoothing_window)
+    _, _, last = _demonstration_span(speed, stationary_speed, smoothing_window, rest_fraction)
     return x[last + 1:].mean(axis=0)
 
 
 def demonstration_energy(times, positions, reference, stationary_speed=DEFAULT_STATIONARY_SPEED,
-                         smoothing_window=DEFAULT_SMOOTHING_WINDOW, target=None):
+                         smoothing_window=DEFAULT_SMOOTHING_WINDOW, target=None,
+                         rest_fraction=DEFAULT_REST_FRACTION):
     """Task energy P_d of one demonstration (eq. 3).
 
     times: (N,) s; positions: (N, 2) m; reference: x_r, (2,) m; stationary_speed: m/s;
-    target: x_d, (2,) m, or None to take the mean of the final rest segment.
+    target: x_d, (2,) m, or None to take the mean of the final rest segment; rest_fraction:
+    of the peak speed (module docstring).
     Returns a TaskEnergy over the samples from the first moving one to the end.
     Raises ValueError (one-line reason) for too few samples, non-finite input, no sample
     moving, or no rest at the end.
     """
-    _check_speed_parameters(stationary_speed, smoothing_window)
+    _check_speed_parameters(stationary_speed, smoothing_window, rest_fraction)
     t, x = _check_demonstration(times, positions)
     x_r = np.asarray(reference, dtype=float)
     if x_r.shape != (2,) or not np.all(np.isfinite(x_r)):
         raise ValueError(f'reference must be a finite (2,) position, got {reference!r}')
     speed = estimate_speed(t, x, smoothing_window)
-    moving, first, last = _demonstration_span(speed, stationary_speed, smoothing_window)
+    moving, first, last = _demonstration_span(speed, stationary_speed, smoothing_window,
+                                              rest_fraction)
     if target is None:
         x_d = x[last + 1:].mean(axis=0)
     else:
@@ -204,7 +232,8 @@ def demonstration_energy(times, positions, reference, stationary_speed=DEFAULT_S
 
 def repeated_demonstration_energy(demonstrations, reference,
                                   stationary_speed=DEFAULT_STATIONARY_SPEED,
-                                  smoothing_window=DEFAULT_SMOOTHING_WINDOW):
+                                  smoothing_window=DEFAULT_SMOOTHING_WINDOW,
+                                  rest_fraction=DEFAULT_REST_FRACTION):
     """Task energies (eq. 3) of repetitions of one demonstration with a shared, averaged x_d.
 
     demonstrations: sequence of (times (N_k,) s, positions (N_k, 2) m), all with the same
@@ -214,10 +243,11 @@ def repeated_demonstration_energy(demonstrations, reference,
     """
     if len(demonstrations) == 0:
         raise ValueError('no demonstrations given')
-    targets = [rest_position(t, x, stationary_speed, smoothing_window)
+    targets = [rest_position(t, x, stationary_speed, smoothing_window, rest_fraction)
                for t, x in demonstrations]
     x_d = np.mean(targets, axis=0)
-    return [demonstration_energy(t, x, reference, stationary_speed, smoothing_window, x_d)
+    return [demonstration_energy(t, x, reference, stationary_speed, smoothing_window, x_d,
+                                 rest_fraction)
             for t, x in demonstrations]
 
 
@@ -236,7 +266,7 @@ def combine_energy_profiles(profiles: Sequence, shifts: Sequence[float]):
     if len(shifts) != len(profiles):
         raise ValueError(f'one shift per profile needed: {len(profiles)} profiles, '
                          f'{len(shifts)} shifts')
-    distances, energies, movings = [], [], []
+    distances, energies, movings, speeds = [], [], [], []
     for index, (profile, shift) in enumerate(zip(profiles, shifts, strict=True)):
         if not math.isfinite(shift):
             raise ValueError(f'shift {index} must be finite, got {shift}')
@@ -246,5 +276,7 @@ def combine_energy_profiles(profiles: Sequence, shifts: Sequence[float]):
         distances.append(distance)
         energies.append(np.asarray(profile.energy, dtype=float))
         movings.append(np.asarray(profile.moving, dtype=bool))
+        speeds.append(None if profile.speed is None else np.asarray(profile.speed, dtype=float))
+    speed = None if any(v is None for v in speeds) else np.concatenate(speeds)
     return EnergyProfile(np.concatenate(distances), np.concatenate(energies),
-                         np.concatenate(movings))
+                         np.concatenate(movings), speed)

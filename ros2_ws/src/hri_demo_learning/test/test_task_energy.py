@@ -11,6 +11,7 @@ from hri_demo_learning.task_energy import (
     estimate_speed,
     repeated_demonstration_energy,
     rest_position,
+    rest_threshold,
 )
 
 REFERENCE = np.array([0.45, 0.10])
@@ -54,8 +55,9 @@ def test_speed_estimate_follows_the_push_and_ignores_tremor(seed):
     middle = (times > HOLD_BEFORE + 0.3) & (times < HOLD_BEFORE + DURATION - 0.3)
     assert np.max(np.abs(speed[middle] - truth[middle])) < 0.05 * np.max(truth)
     resting = (times < HOLD_BEFORE - 0.1) | (times > HOLD_BEFORE + DURATION + 0.2)
-    # The raw tremor speed is 2 pi f A = 0.025-0.038 m/s: it must be filtered out.
-    assert np.max(speed[resting]) < DEFAULT_STATIONARY_SPEED
+    # The raw tremor speed is 2 pi f A = 0.025-0.038 m/s: it must be filtered out, below the
+    # speed that decides rest for this push (5 % of its peak, 0.0096 m/s).
+    assert np.max(speed[resting]) < rest_threshold(speed)
 
 
 def test_raw_finite_differences_would_see_tremor_as_motion():

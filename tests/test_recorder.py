@@ -70,7 +70,7 @@ def publish_at(rate_hz: float, seconds: float, step) -> int:
 # The test's publishers are reliable and keep every message for repair, so that nothing is
 # lost before the recorder (a shallow or best-effort publisher may drop messages on a loaded
 # machine, which is no loss of the recorder's): every message published must be in the bag.
-@pytest.mark.exclusive
+# Robust to load (it waits for the recorder to catch up), so it runs in the parallel phase.
 def test_records_every_topic_at_1khz_for_10s_without_loss(nodes, probe, tmp_path):
     bag = tmp_path / 'demo'
     reference = probe.publisher('/demo/reference', PointStamped, LATCHED)

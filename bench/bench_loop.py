@@ -84,9 +84,10 @@ def parse_arguments(argv=None) -> argparse.Namespace:
                         help='seconds of the echo floor (default: --duration; 0 skips it)')
     parser.add_argument('--load', type=int, default=0,
                         help='busy processes (normal priority) running during the measurements')
-    parser.add_argument('--realtime-priority', type=int, default=None,
-                        help="scara_sim's and the controller's realtime_priority (default: "
-                        'their config)')
+    parser.add_argument('--realtime-priority', type=int, default=50,
+                        help="scara_sim's and the controller's realtime_priority (0: off, "
+                        'their config default; the bench measures the loop as a machine that '
+                        'runs it alone would, with SCHED_FIFO)')
     parser.add_argument('--probe-priority', type=int, default=50,
                         help='SCHED_FIFO priority of this probe and of the echo node (0: off), '
                         'so that a starved probe does not measure itself')

@@ -23,9 +23,14 @@ Safety (the choices are argued in docs/design-notes.md):
   non-finite, wrong length, unknown joint names: joints are mapped by name; stamps going
   backwards are dropped), and while there is no valid target yet (non-finite targets, or
   farther than `max_target_distance` from the base, are dropped);
-- no TaskState yet, or none for `task_state_timeout` s (event_manager gone: it publishes a
-  heartbeat), means a = 0: the controller keeps the arm damped (Ks s with qdot_r = J+ xdot_d)
-  but no task force acts, until a TaskState arrives again;
+- a source restart is recognised (hri_core.stamp_gate): joint states or targets whose stamps
+  are more than `restart_jump` s behind the last used one are followed once
+  `restart_confirm` of them have advanced, and logged;
+- no TaskState yet means a = 0; none for `task_state_timeout` s (event_manager gone: it
+  publishes a heartbeat) fades the task out over `task_fade_time` with eq. 13's C2 ramp (a
+  second weight on a, so no torque step), and TaskStates coming again fade it back in; with
+  a = 0 the controller keeps the arm damped (Ks s with qdot_r = J+ xdot_d) but no task force
+  acts;
 - the hand's velocity xdot_d is estimated from the /target stamps with a first-order filter
   (`target_filter_time`); its acceleration is taken as 0.
 """
@@ -49,6 +54,14 @@ from hri_adaptive_controller.adaptive_law import (
     AdaptiveController,
     ControllerGains,
 )
+from hri_adaptive_controller.event_weight import (
+    PHASE_ACTIVE,
+    PHASE_FADING_IN,
+    PHASE_FADING_OUT,
+    PHASE_IDLE,
+    EventWeightSchedule,
+    WeightState,
+)
 from hri_core import topics
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
@@ -61,6 +74,7 @@ from hri_core.node_common import (
 )
 from hri_core.potential import TaskShape
 from hri_core.realtime import MAX_PRIORITY, request_sched_fifo
+from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
 from hri_core.velocity_estimator import VelocityEstimator
 
 PACKAGE = 'hri_adaptive_controller'
@@ -70,6 +84,8 @@ WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a command later than 1.5 periods after its joint state is a deadline miss
 WATCHDOG_CHECKS = 4  # watchdog checks per joint_state_timeout
 MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
+LINK = 'task_states'  # the link weight's one task: TaskStates arriving
+LINK_DOWN = WeightState(0.0, 0.0, 0.0, PHASE_IDLE, None, None)
 
 PARAMETERS = {
     'rate_hz': ParameterSpec(float, 'expected /joint_states rate, which paces control; '
@@ -100,8 +116,14 @@ PARAMETERS = {
                                   low=0.1, high=500.0),
     'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
                                          low=0.002, high=10.0),
-    'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: a = 0 (s)',
-                                        low=0.1, high=3600.0),
+    'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: the task fades '
+                                        'out over task_fade_time (s)', low=0.1, high=3600.0),
+    'task_fade_time': ParameterSpec(float, 'a full fade of the task when TaskStates stop or '
+                                    'return (s, the C2 ramp of eq. 13)', low=0.01, high=60.0),
+    'restart_jump': ParameterSpec(float, 'stamps this far behind the last used one start a '
+                                  'candidate source restart (s)', low=0.001, high=3600.0),
+    'restart_confirm': ParameterSpec(int, 'advancing messages that confirm a source restart',
+                                     low=1, high=1000),
     'target_filter_time': ParameterSpec(float, 'time constant of the hand velocity estimate (s)',
                                         low=0.001, high=5.0, read_only=True),
     'max_target_distance': ParameterSpec(float, 'targets farther than this from the base are '
@@ -145,11 +167,16 @@ class Controller(Node):
         self._joint_index = (None, None)  # (names of the last joint state, indices of ours)
         self._joint_time = -math.inf  # monotonic receive time of the latest joint state
         self._joint_stamp = -math.inf
+        self._joint_gate = StampGate(values['restart_jump'], values['restart_confirm'],
+                                     strict=False)
         self._target = self._target_velocity = None
-        self._target_stamp = None
+        self._target_gate = StampGate(values['restart_jump'], values['restart_confirm'])
         self._hand_velocity = VelocityEstimator(values['target_filter_time'])
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
+        # The link to the event_manager as a second weight on a (1 while TaskStates come):
+        # None until the first TaskState, which is used at once, as before.
+        self._link: EventWeightSchedule | None = None
         self._shape_key = None
         self._shape: TaskShape | None = None
         self._cycles = 0
@@ -223,11 +250,16 @@ class Controller(Node):
             return
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         previous = self._joint_stamp
-        if stamp < previous:
+        verdict = self._joint_gate.offer(stamp)
+        if verdict == DROPPED:
             self._warn('joint_state_stamp', 'joint state dropped: stamp went back '
-                       f'{previous - stamp:.4f} s')
+                       f'{self._joint_gate.behind(stamp):.4f} s')
             return
         now = time.monotonic()
+        if verdict == RESTARTED:
+            self.get_logger().info(f'joint states restarted {previous - stamp:.3f} s behind '
+                                   'the last one: following the new source')
+            previous = stamp  # theta_hat's dt from the receive times for this one
         # theta_hat advances by the time between the states (receive times if the stamps
         # stand still), bounded to 10 periods after a gap.
         dt = stamp - previous if stamp > previous else now - self._joint_time
@@ -248,12 +280,17 @@ class Controller(Node):
                        f'max_target_distance {self._values["max_target_distance"]:g} m')
             return
         stamp = stamp_seconds(msg.header.stamp)
-        if self._target_stamp is not None and stamp <= self._target_stamp:
+        verdict = self._target_gate.offer(stamp)
+        if verdict == DROPPED:
             self._warn('target_stamp', 'target dropped: stamp did not advance')
             return
+        if verdict == RESTARTED:
+            self.get_logger().info('targets restarted behind the last one: following the new '
+                                   'source')
+            self._hand_velocity.reset()
         # Plain float pairs: what the per-cycle step computes with.
         self._target_velocity = tuple(self._hand_velocity.update(position, stamp).tolist())
-        self._target, self._target_stamp = tuple(position.tolist()), stamp
+        self._target = tuple(position.tolist())
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -275,7 +312,12 @@ class Controller(Node):
                     return
             self._shape_key, self._shape = key, shape
         self._task_state = msg
-        self._task_time = time.monotonic()
+        self._task_time = now = time.monotonic()
+        if self._link is None:
+            self._link = EventWeightSchedule(self._values['task_fade_time'], LINK)
+        elif self._link.evaluate(now).phase in (PHASE_FADING_OUT, PHASE_IDLE):
+            self.get_logger().info('task states resumed: fading the task in')
+            self._link.request(LINK, now)
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
         changed = {p.name: p.value for p in parameters if p.name in GAIN_PARAMETERS}
@@ -340,24 +382,40 @@ class Controller(Node):
             self._next_state = due if due > now else now + self._state_period
             self._publish_state(now, output, command)
 
+    def _link_state(self, now: float) -> WeightState:
+        """The link weight at `now` (monotonic s): the first cycle more than
+        task_state_timeout s after the last TaskState starts its fade-out."""
+        if self._link is None:
+            return LINK_DOWN
+        state = self._link.evaluate(now)
+        if (now - self._task_time > self._values['task_state_timeout']
+                and state.phase in (PHASE_ACTIVE, PHASE_FADING_IN)):
+            self.get_logger().warning(
+                f'no TaskState for {self._values["task_state_timeout"]:g} s: fading the task '
+                f'out over {self._values["task_fade_time"]:g} s')
+            state = self._link.request(None, now)
+        return state
+
     def _step(self, now: float, dt: float, monitor: bool):
         self._weight = 0.0  # no task force acts unless the step below runs
         if self._target is None:
             self._status = 'no_target'
             return None
         task = self._task_state
-        if task is None or now - self._task_time > self._values['task_state_timeout']:
+        link = self._link_state(now)
+        if task is None or self._shape is None or link.weight == 0.0:
             weight, rate, shape = 0.0, 0.0, None
-            self._status = 'no_task_state'
         else:
             # First-order hold between TaskStates (they come at >= 100 Hz during a ramp, less
             # on a loaded machine): a follows its ramp instead of a staircase.
             held = min(now - self._task_time, MAX_WEIGHT_EXTRAPOLATION)
-            weight = min(max(task.weight + task.weight_rate * held, 0.0), 1.0)
-            rate, shape = task.weight_rate, self._shape
-            if shape is None:
-                weight, rate = 0.0, 0.0
-            self._status = 'ok'
+            task_weight = min(max(task.weight + task.weight_rate * held, 0.0), 1.0)
+            task_rate = task.weight_rate if held < MAX_WEIGHT_EXTRAPOLATION else 0.0
+            # a = a_task * a_link: both C2 ramps, so is their product.
+            weight = task_weight * link.weight
+            rate = task_rate * link.weight + task_weight * link.rate
+            shape = self._shape
+        self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
         self._weight = weight
         try:
             output = self._law.step_lean(self._q, self._dq, self._target,

@@ -21,6 +21,11 @@ class VelocityEstimator:
         self._last = None
         self.velocity = np.zeros(2)
 
+    def reset(self) -> None:
+        """Forget the past samples (a restarted source: its stamps start again); velocity 0."""
+        self._last = None
+        self.velocity = np.zeros(2)
+
     def update(self, position, stamp: float) -> np.ndarray:
         """Feed a position (2,) in m taken at `stamp` s; return the filtered velocity."""
         position = planar_vector(position, 'position', 'm')

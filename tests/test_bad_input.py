@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState, TaskEvent, TaskParameters, TaskState
 from rcl_interfaces.srv import GetParameters, SetParameters
@@ -190,6 +191,37 @@ def test_controller_maps_joints_by_name_and_drops_bad_joint_states(nodes, probe,
     warnings = [line for line in log.splitlines() if 'WARN' in line]
     assert len(warnings) < 15, warnings  # throttled: a few lines, not one per message
     assert 'Traceback' not in log
+
+
+def test_controller_follows_a_restarted_joint_state_source(nodes, probe, arm):
+    # The stand-in arm stops; a new source starts with stamps 30 s behind its last ones (a
+    # simulator whose clock starts again). The first restart_confirm - 1 of them are dropped
+    # as stale, then the controller follows the new source: it uses the new pose (distance
+    # to the hand no longer 0.1 m).
+    controller, states, commands = start_controller(nodes, probe)
+    arm.publishing_joints.clear()
+    time.sleep(0.05)
+    behind = probe.now()
+    behind.sec -= 30
+    restarted_from = len(states)
+    for i in range(60):
+        stamp = Time(sec=behind.sec, nanosec=behind.nanosec + 5_000_000 * i)
+        if stamp.nanosec >= 10 ** 9:
+            stamp.sec, stamp.nanosec = stamp.sec + 1, stamp.nanosec - 10 ** 9
+        arm.joints.publish(joint_state(probe, ['joint1', 'joint2'], Q_WRONG, stamp=stamp))
+        time.sleep(0.005)
+    assert wait_for(lambda: 'joint states restarted' in controller.log(), 5.0), \
+        controller.log()
+    new_pose = [s for s in states[restarted_from:] if s.status in ('ok', 'no_task_state')
+                and abs(s.distance - 0.1) > 1e-6]
+    assert len(new_pose) >= 5, [(s.status, s.distance) for s in states[restarted_from:]]
+    # Before the restart was confirmed the stale states were dropped (one throttled warning).
+    assert 'stamp went back' in controller.log()
+    arm.publishing_joints.set()  # the old source again: far ahead, used at once
+    time.sleep(0.5)
+    assert_all_finite(states, '/hri/controller_state')
+    assert_commands_safe(commands)
+    assert controller.alive()
 
 
 def test_controller_drops_bad_targets_and_task_states(nodes, probe, arm):

@@ -1,0 +1,103 @@
+"""Every node leaves on SIGINT and SIGTERM with exit code 0 within its deadline (the recorder
+closes its bag, the sim reports its steps).
+
+Not marked exclusive: the deadline is relative to a bare node's exit measured in the same test,
+so a busy machine slows both alike.
+"""
+
+import itertools
+import signal
+import sys
+import time
+
+import pytest
+from geometry_msgs.msg import PointStamped
+
+from hri_bringup.processes import (
+    READY_LINES,
+    NodeProcess,
+    node_environment,
+    wait_for,
+    wait_until_logged,
+)
+from hri_demo_learning.bag_io import read_bag
+from tests.common import PAPER_TASKS, REPO_ROOT
+from tests.fault_tools import RELIABLE
+
+pytestmark = pytest.mark.integration
+
+FOLLOW_BAG = REPO_ROOT / 'bags/fixtures/follow'
+STOP_DEADLINE = 2.0  # s from the signal to the process's exit
+
+
+# Every node's ready line, but the recorder's once it records /joint_states.
+NODE_READY_LINES = {**READY_LINES, 'recorder': 'recording /joint_states'}
+
+
+# A bare node on hri_core's run_node: how long this machine takes, right now, to end a
+# Python ROS 2 process on a signal (interpreter and middleware teardown).
+REFERENCE_NODE = ('from rclpy.node import Node\n'
+                  'from hri_core.node_common import run_node\n'
+                  'run_node(lambda: print("reference up", flush=True) or Node("reference"), '
+                  '"reference")\n')
+
+
+def exit_time(process: NodeProcess, sig: int) -> tuple[int | None, float]:
+    """Send `sig`; the exit code (None: still running after 5 s) and the seconds it took."""
+    process.send(sig)
+    sent = time.monotonic()
+    code = process.wait(5.0)
+    return code, round(time.monotonic() - sent, 2)
+
+
+def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path):
+    # Both signals take one path (hri_core.node_common.init_ros); the nodes get them in turn.
+    # Deadline: STOP_DEADLINE, or 3 times what a bare node takes to exit measured just
+    # before, whichever is longer (a busy machine slows every interpreter's teardown alike).
+    bag = tmp_path / 'bag'
+    processes = {
+        'scara_sim': nodes('scara_sim', 'scara_sim'),
+        'hand_sim': nodes('scara_sim', 'hand_sim', params={'profile': 'circle'}),
+        'demonstrator': nodes('scara_sim', 'demonstrator', params={'hold_time': 600.0}),
+        'recorder': nodes('hri_demo_learning', 'recorder', params={'output': str(bag)}),
+        'learner': nodes('hri_demo_learning', 'learner', params={
+            'bags': [str(FOLLOW_BAG)], 'task_name': 'follow', 'output_dir': str(tmp_path)}),
+        'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={
+            'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow'}),
+        'controller': nodes('hri_adaptive_controller', 'controller'),
+    }
+    reference = NodeProcess.from_command(
+        'reference', [sys.executable, '-c', REFERENCE_NODE], node_environment(ros_domain),
+        tmp_path)
+    signals = dict(zip(processes, itertools.cycle((signal.SIGINT, signal.SIGTERM))))
+    targets = probe.collect('/target', PointStamped, RELIABLE)
+    assert wait_until_logged({processes[name]: line for name, line in NODE_READY_LINES.items()},
+                             40.0), {
+        name: process.log() for name, process in processes.items()
+        if NODE_READY_LINES[name] not in process.log()}
+    assert wait_for(lambda: len(targets) > 10, 10.0)
+    try:
+        assert reference.wait_for_line('reference up', 10.0), reference.log()
+        time.sleep(1.0)  # every node in its loop, messages flowing
+        reference_code, reference_time = exit_time(reference, signal.SIGINT)
+        assert reference_code == 0, reference.log()
+    finally:
+        reference.stop()
+    deadline = max(STOP_DEADLINE, 3.0 * reference_time)
+    results = {}
+    for name, process in processes.items():
+        assert process.alive(), (name, process.log())
+        results[name] = exit_time(process, signals[name])
+    print({name: f'{signals[name].name}: exit {code} in {elapsed} s'
+           for name, (code, elapsed) in results.items()},
+          f'bare node {reference_time:.2f} s, deadline {deadline:.1f} s')
+    slow_or_failed = {name: result for name, result in results.items()
+                      if result[0] != 0 or result[1] > deadline}
+    assert not slow_or_failed, {name: processes[name].log() for name in slow_or_failed}
+    for name, process in processes.items():
+        assert 'Traceback' not in process.log(), (name, process.log())
+    assert (bag / 'metadata.yaml').is_file()
+    counts = read_bag(bag).counts()
+    assert counts['/joint_states'] > 500 and counts['/target'] > 10, counts
+    assert 'closed bag' in processes['recorder'].log()
+    assert 'steps integrated in' in processes['scara_sim'].log()

@@ -47,7 +47,7 @@ from hri_demo_learning.bag_io import (
     read_demonstration,
 )
 from hri_demo_learning.identification import identify_task_region
-from hri_demo_learning.learning import learn_from_bags
+from hri_demo_learning.learning import LearningError, learn_from_bags
 from hri_demo_learning.performance_learning import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_TOLERANCE,
@@ -107,14 +107,20 @@ def bench_fixtures(repeats: int) -> dict:
         order = METHODS if round_index % 2 == 0 else METHODS[::-1]
         for task, (bags, shifts) in TASKS.items():
             for method in order:
-                learned = learn_from_bags([str(b) for b in bags], shifts, task, method=method,
-                                          **LEARNER_SETTINGS)
+                try:
+                    learned = learn_from_bags([str(b) for b in bags], shifts, task,
+                                              method=method, **LEARNER_SETTINGS)
+                except LearningError as error:  # e.g. Gauss-Newton not converged in time
+                    learned = str(error)
                 runs[task][method].append(learned)
     result = {}
     for task, by_method in runs.items():
         result[task] = {}
         for method, learned in by_method.items():
             last = learned[-1]
+            if isinstance(last, str):
+                result[task][method] = {'refused': last}
+                continue
             result[task][method] = {
                 'iterations': last.record.iterations,
                 'cost': float(f'{last.record.cost:.6g}'),
@@ -124,8 +130,9 @@ def bench_fixtures(repeats: int) -> dict:
                 'd1': round(last.record.d1, 4),
                 'd2': round(last.record.d2, 4),
                 'samples': int(last.profile.distance.size),
-                'fit_s': min_median([x.fit_seconds for x in learned]),
-                'total_s': min_median([x.total_seconds for x in learned]),
+                'fit_s': min_median([x.fit_seconds for x in learned if not isinstance(x, str)]),
+                'total_s': min_median([x.total_seconds for x in learned
+                                       if not isinstance(x, str)]),
             }
     return result
 
@@ -319,6 +326,9 @@ def print_table(result: dict) -> None:
           f'{"fit s":>17s} {"total s":>15s}')
     for task, by_method in result['fixtures'].items():
         for method, r in by_method.items():
+            if 'refused' in r:
+                print(f'  {task:12s} {method:13s} refused: {r["refused"]}')
+                continue
             print(f'  {task:12s} {method:13s} {r["iterations"]:5d} {r["cost"]:10.4g} '
                   f'{"yes" if r["converged"] else "no":>5s} '
                   f'{r["fit_s"]["min"]:8.4f}/{r["fit_s"]["median"]:.4f} '

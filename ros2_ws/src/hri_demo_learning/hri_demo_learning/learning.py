@@ -169,6 +169,11 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
         fit = fit_task_parameters(profile.distance, profile.energy, region.s, region.d1,
                                   region.d2, n=n, method=method, tolerance=tolerance,
                                   max_iterations=max_iterations, a1_max=a1_max)
+        if fit.cost > max_cost and not fit.converged:
+            raise ValueError(f'the {method} fit did not converge in {fit.iterations} '
+                             f'iterations: cost C = {fit.cost:.3g} > max_cost {max_cost:g} '
+                             f'(S={region.s:+d}, d1={region.d1:.3f} m, d2={region.d2:.3f} m); '
+                             'raise max_iterations or use method trf')
         if fit.cost > max_cost:
             raise ValueError(f'the potential of eq. 1, 2 does not describe the demonstration: '
                              f'best fit cost C = {fit.cost:.3g} > max_cost {max_cost:g} '

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from rosbags.rosbag2 import Reader
 
 from hri_core.dynamics import forward_kinematics
 from hri_demo_learning.bag_io import (
@@ -414,3 +415,38 @@ def test_messages_of_another_layout_take_the_reference_path(tmp_path):
             writer.write(js, T0 + i * PERIOD, bytes(TYPES.serialize_cdr(msg, JOINT_STATE)))
     demo = assert_same_demonstration(bag)
     np.testing.assert_allclose(demo.positions, forward_kinematics(q, 0.35, 0.30))
+
+
+def rosbags_messages(bag: Path) -> dict[str, tuple[list[int], list[bytes]]]:
+    """{topic: (timestamps ns, raw CDR)} through rosbags' own reader (the reference)."""
+    messages: dict[str, tuple[list[int], list[bytes]]] = {}
+    with Reader(bag) as reader:
+        for connection, stamp, data in reader.messages():
+            stamps, payloads = messages.setdefault(connection.topic, ([], []))
+            stamps.append(stamp)
+            payloads.append(bytes(data))
+    return messages
+
+
+@pytest.mark.parametrize('bag', FIXTURE_BAGS, ids=[b.name for b in FIXTURE_BAGS])
+def test_mcap_walk_reads_what_rosbags_reads(bag):
+    kinds = {JOINT_STATE, POINT_STAMPED}
+    contents = read_bag(bag, raw_types=kinds)
+    reference = rosbags_messages(bag)
+    assert set(contents.topics) == set(reference)
+    for topic, (stamps, payloads) in reference.items():
+        series = contents.topics[topic]
+        assert series.timestamps_ns == stamps, topic
+        kept = series.raw if series.msgtype in kinds else [
+            bytes(TYPES.serialize_cdr(m, series.msgtype)) for m in series.messages]
+        assert [bytes(p) for p in kept] == payloads, topic
+
+
+def test_mcap_walk_reads_zstd_chunks_through_rosbags(tmp_path):
+    bag = tmp_path / 'zstd'
+    write_demo_bag(bag, count=500, flush_every=100, compression='zstd')
+    contents = read_bag(bag, raw_types={JOINT_STATE, POINT_STAMPED})
+    reference = rosbags_messages(bag)
+    for topic, (stamps, payloads) in reference.items():
+        assert contents.topics[topic].timestamps_ns == stamps
+        assert [bytes(p) for p in contents.topics[topic].raw] == payloads

@@ -141,7 +141,10 @@ def test_sim_killed_and_restarted_five_times_control_resumes_each_time(live_loop
         delay, stall, held = zero_for_good(
             states, killed_at,
             lambda s: s.status == 'stale_joint_states' and list(s.effort) == [0.0, 0.0])
-        assert delay <= allowed_delay(JOINT_STATE_TIMEOUT, stall), (restart, delay, stall)
+        assert delay <= allowed_delay(JOINT_STATE_TIMEOUT, stall), (
+            restart, delay, stall, [(round(stamp_seconds(s.header.stamp) - killed_at, 3),
+                                     s.status, list(s.effort)) for s in list(states)
+                                    if stamp_seconds(s.header.stamp) > killed_at - 0.05][:400:4])
         heard = len(joints)
         sim = nodes('scara_sim', 'scara_sim')
         assert wait_for(lambda heard=heard: len(joints) > heard, 30.0), sim.log()

@@ -4,10 +4,9 @@
 # `slow` (soak, multi-host); `scripts/test.sh --all` runs them too. Further arguments go to pytest.
 #
 # Two phases: first every test not marked `exclusive`, in HRI_TEST_WORKERS (default 2)
-# pytest-xdist workers (worksteal: an idle worker takes tests queued for a busy one, so a long
-# test late in the queue does not leave the other worker idle); then the `exclusive` ones (the 1 kHz closed loop, whose timing checks
-# need the CPUs to themselves: one loop takes about 1.8 of this machine's 2 cores) one at a
-# time. The exit code is non-zero if either phase fails.
+# pytest-xdist workers (worksteal: an idle worker takes tests queued for a busy one, so a
+# long test late in the queue does not leave the other worker idle); then the `exclusive` ones
+# (the 1 kHz closed loop, whose timing checks need the CPUs to themselves) one at a time. The exit code is non-zero if either phase fails.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)

@@ -9,6 +9,7 @@ from hri_core.dynamics import (
     dynamic_parameters,
     forward_dynamics,
     forward_kinematics,
+    forward_kinematics_pair,
     friction_torque,
     gravity_torque,
     jacobian,
@@ -138,6 +139,13 @@ def test_forward_kinematics_of_known_poses():
                                atol=1e-15)
     np.testing.assert_allclose(forward_kinematics([np.pi / 2, np.pi], 0.35, 0.30),
                                [0.0, 0.05], atol=1e-15)
+
+
+def test_forward_kinematics_pair_equals_the_array_version():
+    q, _, _, _ = random_states(11, 50)
+    for q1, q2 in q.tolist():
+        np.testing.assert_allclose(forward_kinematics_pair(q1, q2, 0.35, 0.30),
+                                   forward_kinematics([q1, q2], 0.35, 0.30), rtol=0, atol=1e-15)
 
 
 def test_jacobian_matches_finite_differences_of_forward_kinematics():

@@ -41,7 +41,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_core import topics
-from hri_core.dynamics import ScaraParameters, forward_kinematics
+from hri_core.dynamics import ScaraParameters, forward_kinematics_pair
 from hri_core.node_common import (
     REALTIME_PRIORITY,
     ParameterSpec,
@@ -298,10 +298,10 @@ class ScaraSim(Node):
 
     def _publish_tip(self, state: StepState) -> None:
         stamp = self._stamp(state)
-        tip = forward_kinematics(state.q, self._sim.params.l1, self._sim.params.l2).tolist()
+        params = self._sim.params
         point = self._ee_msg
         point.header.stamp = stamp
-        point.point.x, point.point.y = tip
+        point.point.x, point.point.y = forward_kinematics_pair(*state.q, params.l1, params.l2)
         self._ee_pub.publish(point)
 
     def _report(self, now: float) -> None:

@@ -39,6 +39,7 @@ TargetSample = tuple[np.ndarray, np.ndarray, np.ndarray]
 TargetTrajectory = Callable[[float], TargetSample]
 
 DEFAULT_INITIAL_Q = (0.0, math.pi / 2.0)  # rad: end-effector at (0.35, 0.30) m
+PEAK_RATIO = 1.875  # peak speed of a minimum-jerk move over its mean speed
 
 
 
@@ -66,6 +67,36 @@ def minimum_jerk_target(start, end, start_time: float, duration: float) -> Targe
     def sample(t: float) -> TargetSample:
         s, ds, dds = quintic_smoothstep((t - start_time) / duration)
         return start + s * step, (ds / duration) * step, (dds / duration ** 2) * step
+
+    return sample
+
+
+def path_target(start, moves: Sequence[tuple[float, Sequence[float], float]]) -> TargetTrajectory:
+    """A hand that starts at `start` (2,) m and makes minimum-jerk moves one after another.
+
+    moves: (start time s, end point (2,) m, peak speed m/s) each, in time order, each starting
+    where the previous one ended (and not before it ended). Between moves the hand is still.
+    """
+    point = planar_vector(start, 'start')
+    segments = []
+    for start_time, end, speed in moves:
+        end = planar_vector(end, 'end')
+        if not (math.isfinite(speed) and speed > 0.0):
+            raise ValueError(f'peak speed must be finite and > 0 m/s, got {speed}')
+        duration = max(PEAK_RATIO * float(np.linalg.norm(end - point)) / speed, 1e-9)
+        if segments and start_time < segments[-1][0] + segments[-1][1]:
+            raise ValueError(f'move at {start_time} s starts before the previous one ends')
+        segments.append((start_time, duration, minimum_jerk_target(point, end, start_time,
+                                                                   duration)))
+        point = end
+    hold = still_target(start)
+
+    def sample(t: float) -> TargetSample:
+        current = hold
+        for start_time, _, move in segments:
+            if t >= start_time:
+                current = move
+        return current(t)
 
     return sample
 

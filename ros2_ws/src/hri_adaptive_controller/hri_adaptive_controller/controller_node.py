@@ -106,12 +106,17 @@ PARAMETERS = {
     'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
-    'approach_distance': ParameterSpec(float,
-                                       'distance from the region where the reference slows '
-                                       'down (m)', low=0.001, high=0.5),
-    'region_margin': ParameterSpec(float,
-                                   'how far inside the learned region the task aims (m)',
-                                   low=0.0, high=0.1),
+    'approach_speed': ParameterSpec(float, 'least speed towards the region where the pull '
+                                    'K |dP/dz| is weaker (m/s; 0: none)', low=0.0, high=2.0),
+    'region_margin': ParameterSpec(float, 'how far inside the learned region the approach '
+                                   'speed fades out (m)', low=0.0, high=0.1),
+    'rest_gain': ParameterSpec(float, 'avoid tasks: rate of the return to the rest position '
+                               '(1/s)', low=0.0, high=100.0),
+    'rest_gate': ParameterSpec(float, "avoid tasks: the return fades in over this distance "
+                               "outside the region's edge (m)", low=0.001, high=1.0),
+    'rest_position': ParameterSpec(list, 'avoid tasks: rest position [x, y] (m); unset: '
+                                   'where the arm was when the task became active', size=2,
+                                   optional=True),
     'effort_limit': ParameterSpec(float, 'torque limit per joint (N m)',
                                   low=0.1, high=500.0),
     'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
@@ -133,17 +138,18 @@ PARAMETERS = {
     'gravity': ParameterSpec(float, 'gravity in the arm plane (m/s^2; 0 horizontal)',
                              low=0.0, high=20.0, read_only=True),
 }
-GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_distance',
-                   'region_margin', 'effort_limit')
+GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
+                   'region_margin', 'effort_limit', 'rest_gain', 'rest_gate')
 
 
 def gains_from(values: dict) -> ControllerGains:
     """ControllerGains from parameter values; ValueError with the reason if invalid."""
     return ControllerGains(
         ks=tuple(values['ks']), kp=values['kp'], adaptation=tuple(values['adaptation_gain']),
-        task_gain=None, approach_distance=values['approach_distance'],
+        task_gain=None, approach_speed=values['approach_speed'],
         region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
-        effort_limit=values['effort_limit'], damping=DEFAULT_GAINS.damping)
+        effort_limit=values['effort_limit'], rest_gain=values['rest_gain'],
+        rest_gate=values['rest_gate'], damping=DEFAULT_GAINS.damping)
 
 
 class Controller(Node):
@@ -179,6 +185,12 @@ class Controller(Node):
         self._link: EventWeightSchedule | None = None
         self._shape_key = None
         self._shape: TaskShape | None = None
+        # An avoid task's rest position: the parameter, or where the arm was when the task
+        # (its name and shape) became active; _rest_key is the task it was taken for.
+        fixed = values['rest_position']
+        self._fixed_rest = None if fixed is None else (float(fixed[0]), float(fixed[1]))
+        self._rest = self._fixed_rest
+        self._rest_key = None
         self._cycles = 0
         self._misses = 0
         self._window = (time.monotonic(), 0)
@@ -299,13 +311,14 @@ class Controller(Node):
                        f'task state dropped: weight {msg.weight}, rate {msg.weight_rate}')
             return
         key = (msg.task.name, msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1, msg.task.d2,
-               msg.task.n)
+               msg.task.n, msg.task.k)
         if key != self._shape_key:
             shape = None
             if msg.task.name:
                 try:
                     shape = TaskShape(msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1,
                                       msg.task.d2, msg.task.n)
+                    self._law.drive(shape, msg.task.k)  # checks K (or its default) once
                 except ValueError as error:
                     self._warn('task_state_task',
                                f'task state dropped: task {msg.task.name!r}: {error}')
@@ -415,12 +428,19 @@ class Controller(Node):
             weight = task_weight * link.weight
             rate = task_rate * link.weight + task_weight * link.rate
             shape = self._shape
+            if self._rest_key != self._shape_key:
+                self._rest_key = self._shape_key
+                if self._fixed_rest is None:
+                    x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
+                    self._rest = (float(x[0]), float(x[1]))
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
         self._weight = weight
         try:
             output = self._law.step_lean(self._q, self._dq, self._target,
                                          self._target_velocity, (0.0, 0.0), weight, rate,
-                                         shape, dt, monitor=monitor)
+                                         shape, dt, monitor=monitor,
+                                         k=0.0 if shape is None else task.task.k,
+                                         rest=self._rest)
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             self._status = f'fault: {type(error).__name__}'
             self._warn('internal', f'zero torque: control step failed: {error!r}')

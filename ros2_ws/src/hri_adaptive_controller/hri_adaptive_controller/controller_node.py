@@ -32,7 +32,12 @@ Safety (the choices are argued in docs/design-notes.md):
   a = 0 the controller keeps the arm damped (Ks s with qdot_r = J+ xdot_d) but no task force
   acts;
 - the hand's velocity xdot_d is estimated from the /target stamps with a first-order filter
-  (`target_filter_time`); its acceleration is taken as 0.
+  (`target_filter_time`); its acceleration is taken as 0; between targets the hand is held
+  to first order (x_d + xdot_d t, at most MAX_TARGET_EXTRAPOLATION), so a fast hand does not
+  step the task term at each /target;
+- the task's K comes with its TaskState (0: hri_core.potential.default_task_gain); an avoid
+  task returns the arm to `rest_position`, by default where the arm was when the task became
+  active (task_variable's module docstring).
 """
 
 import math
@@ -84,6 +89,10 @@ WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a command later than 1.5 periods after its joint state is a deadline miss
 WATCHDOG_CHECKS = 4  # watchdog checks per joint_state_timeout
 MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
+# s: longest first-order hold of the hand between /target messages (100 Hz): a hand at
+# 0.5 m/s moves 5 mm between two, which as a staircase steps the task term (and the torque,
+# by several N m) at each message.
+MAX_TARGET_EXTRAPOLATION = 0.05
 LINK = 'task_states'  # the link weight's one task: TaskStates arriving
 LINK_DOWN = WeightState(0.0, 0.0, 0.0, PHASE_IDLE, None, None)
 
@@ -176,6 +185,7 @@ class Controller(Node):
         self._joint_gate = StampGate(values['restart_jump'], values['restart_confirm'],
                                      strict=False)
         self._target = self._target_velocity = None
+        self._target_time = -math.inf  # monotonic receive time of the latest target
         self._target_gate = StampGate(values['restart_jump'], values['restart_confirm'])
         self._hand_velocity = VelocityEstimator(values['target_filter_time'])
         self._task_state: TaskState | None = None
@@ -303,6 +313,7 @@ class Controller(Node):
         # Plain float pairs: what the per-cycle step computes with.
         self._target_velocity = tuple(self._hand_velocity.update(position, stamp).tolist())
         self._target = tuple(position.tolist())
+        self._target_time = time.monotonic()
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -435,8 +446,12 @@ class Controller(Node):
                     self._rest = (float(x[0]), float(x[1]))
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
         self._weight = weight
+        # First-order hold of the hand between targets (see MAX_TARGET_EXTRAPOLATION).
+        held = min(max(now - self._target_time, 0.0), MAX_TARGET_EXTRAPOLATION)
+        (x1, x2), (v1, v2) = self._target, self._target_velocity
+        target = (x1 + v1 * held, x2 + v2 * held)
         try:
-            output = self._law.step_lean(self._q, self._dq, self._target,
+            output = self._law.step_lean(self._q, self._dq, target,
                                          self._target_velocity, (0.0, 0.0), weight, rate,
                                          shape, dt, monitor=monitor,
                                          k=0.0 if shape is None else task.task.k,

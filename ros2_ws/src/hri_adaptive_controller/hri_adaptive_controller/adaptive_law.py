@@ -156,11 +156,13 @@ DEFAULT_GAINS = ControllerGains(
     # pure closed loop follow enters its region 2.0 s after the event (0.05 m/s: 3.1 s).
     # Set approach_speed to 0 for K |dP/dz| alone.
     approach_speed=0.1,
-    # Region margin: 1 cm (at most a quarter of the region's width), the length over which the
+    # Region margin: 2 cm (at most a quarter of the region's width), the length over which the
     # floor fades out inside the region. The fade's jerk grows with the crossing speed squared
-    # over the margin squared: with 5 mm, a hand reaching in at 0.5 m/s gave a 2.4 N m step
-    # between two 1 ms cycles (Table I's avoid row, pure closed loop); with 1 cm, 0.61 N m.
-    region_margin=0.01,
+    # over the margin squared: a hand reaching in at 0.5 m/s steps the torque between two 1 ms
+    # cycles by 2.4 N m with 5 mm, 0.79 N m with 1 cm, 0.25 N m with 2 cm (Table I's avoid
+    # row, pure closed loop); on a loaded machine the node misses cycles, and two cycles' worth
+    # of change then come in one command, so the margin matters on the topics.
+    region_margin=0.02,
     # v_max: a speed that is safe near a person (ISO/TS 15066 reduced-speed practice).
     max_task_speed=0.25,
     # effort_limit: the simulated drives' limit (scara_sim effort_limit: 20 N m).

@@ -31,7 +31,7 @@ TABLE_I = {
     'follow_safe': TaskShape(1, 1.576, 30.78, 0.183, 0.271),
 }
 TRAP = TaskShape(-1, 4.0, 12.0, 0.1, 0.25)  # S = -1: desired region r <= d1 or r >= d2
-V_MAX, APPROACH_SPEED, MARGIN, REST_GAIN, REACH = 0.25, 0.1, 0.01, 2.0, L1 + L2
+V_MAX, APPROACH_SPEED, MARGIN, REST_GAIN, REACH = 0.25, 0.1, 0.02, 2.0, L1 + L2
 DAMPING = DampingSettings(threshold=0.05, max_damping=0.15)
 # Table I's rows (no K: the default gain), follow with a1, a2 x 4, and the rows the demo
 # learned (README's Table I), with their K.
@@ -169,10 +169,9 @@ def test_table_i_avoid_row_is_finite_and_smooth_despite_p0_of_1e124():
     assert np.max(np.abs(slopes[:, 0])) <= (1.0 + CAP_BAND) * V_MAX * (1 + 1e-12)
     # No jump anywhere: between samples 0.1 mm apart Q' changes by at most |Q''| 0.1 mm.
     assert np.max(np.abs(np.diff(slopes[:, 0]))) <= 1e-4 * np.max(np.abs(slopes[:, 1])) + 1e-12
-    # 1/s: no wall. The approach term's fade inside the region adds at most 15/8
-    # approach_speed / margin (the quintic smoothstep's steepest slope) to the pull's own.
-    assert np.max(np.abs(slopes[:, 1])) < 15 / 8 * APPROACH_SPEED / MARGIN + 5.0
-    assert np.max(np.abs(slopes[radii < 0.17, 1])) < 20.0
+    # 1/s: no wall anywhere, the approach term's fade at d1 included (its steepest slope is
+    # 15/8 approach_speed / margin = 9.4 1/s).
+    assert np.max(np.abs(slopes[:, 1])) < 20.0
 
 
 def test_approach_term_enters_the_region_and_stops_inside_it():

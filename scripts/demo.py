@@ -112,19 +112,28 @@ def hand_stops_at(hand: dict) -> float:
     return waypoint_schedule(hand_profile(hand))[-1][1]
 
 
-def effort_steps(bag: Path) -> float:
-    """Largest change (N m) of the commanded effort between two consecutive control cycles:
-    /effort_controller/commands received 1.5 ms apart at most (a command that came late on a
-    loaded machine, after missed cycles, is not a step of the control law)."""
+def effort_steps(bag: Path) -> tuple[float, float]:
+    """(first command, largest change between two consecutive control cycles after it), N m.
+
+    The first non-zero command is the controller starting on the first hand message with the
+    task already in force: a step from zero torque, reported apart. After it, steps are taken
+    between /effort_controller/commands received at most 1.5 ms apart (a command that came
+    late on a loaded machine, after missed cycles, is not a step of the control law).
+    """
     contents = read_bag(bag, topics=['/effort_controller/commands'])
     commands = contents.topics.get('/effort_controller/commands')
     if commands is None or len(commands.messages) < 2:
-        return float('nan')
+        return float('nan'), float('nan')
     efforts = np.array([list(m.data) for m in commands.messages])
-    gaps = np.diff(commands.times())
-    steps = np.max(np.abs(np.diff(efforts, axis=0)), axis=1)
-    consecutive = gaps <= 1.5e-3
-    return float(np.max(steps[consecutive])) if np.any(consecutive) else float('nan')
+    moving = np.flatnonzero(np.any(efforts != 0.0, axis=1))
+    if moving.size == 0:
+        return 0.0, 0.0
+    first = int(moving[0])
+    times = commands.times()[first:]
+    steps = np.max(np.abs(np.diff(efforts[first:], axis=0)), axis=1)
+    consecutive = np.diff(times) <= 1.5e-3
+    largest = float(np.max(steps[consecutive])) if np.any(consecutive) else float('nan')
+    return float(np.max(np.abs(efforts[first]))), largest
 
 
 class StageError(Exception):
@@ -386,9 +395,10 @@ class Demo:
         series = self.controller_series(bag)
         metrics = run_metrics(series['t'], series['distance'], series['effort'], record.d1,
                               record.d2, window=2.0)
-        step = effort_steps(bag)
+        start_step, step = effort_steps(bag)
         self.metrics['behaviours'][task] = {
             **asdict(metrics), 'd1': record.d1, 'd2': record.d2, 'max_effort_step': step,
+            'start_effort_step': start_step,
             'control_dropout_fraction': series['control_dropout_fraction'],
             'controller_rate_hz': series['rate_hz'],
             'deadline_misses': series['deadline_misses'],
@@ -397,7 +407,8 @@ class Demo:
         ttr = ('-' if metrics.time_to_region is None else f'{metrics.time_to_region:.2f} s')
         print(f'    {reached} [{record.d1:.3f}, {record.d2:.3f}] m: time to region {ttr}, '
               f'steady distance {metrics.steady_distance:.3f} m, peak torque '
-              f'{metrics.peak_torque:.2f} N m, largest step between cycles {step:.3f} N m, '
+              f'{metrics.peak_torque:.2f} N m, largest step between cycles {step:.3f} N m '
+              f'(first command {start_step:.2f} N m), '
               f'controller {series["rate_hz"]:.0f} Hz, {series["deadline_misses"]} deadline '
               'misses')
         figure = plt.figure(figsize=(11, 5))
@@ -466,7 +477,7 @@ class Demo:
                               final.d2, window=2.0)
         self.metrics['sequence'] = {
             'events': [{'time_s': e[0], 'event': e[1], 'task': e[2]} for e in events],
-            'max_effort_step': effort_steps(bag),
+            'max_effort_step': effort_steps(bag)[1],
             'weight_min': float(np.min(weight)), 'weight_max': float(np.max(weight)),
             'largest_weight_step': jumps, 'final': asdict(metrics),
             'deadline_misses': series['deadline_misses'],
@@ -540,7 +551,11 @@ class Demo:
                          f'{m["deadline_misses"]} | {100 * m["control_dropout_fraction"]:.1f} % |')
         lines += ['', 'Largest step: the largest change of the commanded torque between two '
                   'consecutive 1 kHz control cycles (commands received at most 1.5 ms apart; '
-                  'the bar is 1 N m).', '',
+                  'the bar is 1 N m), after the first command. The first command is a step '
+                  'from zero of its own: the controller starts on the first hand message with '
+                  'the task already faded in (' + ', '.join(
+                      f'{name} {m["start_effort_step"]:.2f} N m'
+                      for name, m in self.metrics['behaviours'].items()) + ').', '',
                   'Cycles without control: controller states whose status was not ok '
                   '(joint states older than joint_state_timeout when the machine is loaded); '
                   'the torque is zero in them.', '',
@@ -565,9 +580,12 @@ class Demo:
             steps['sequence'] = self.metrics['sequence']['max_effort_step']
         lines += ['', '## Closing note: torque continuity', '',
                   'Largest change of the commanded torque between two consecutive 1 kHz '
-                  'control cycles: ' + ', '.join(f'{name} {value:.3f} N m'
-                                                for name, value in steps.items())
-                  + ' (bar: 1 N m).']
+                  'control cycles, after the first command: ' + ', '.join(
+                      f'{name} {value:.3f} N m' for name, value in steps.items())
+                  + ' (bar: 1 N m; measured on the topics, so a loaded machine adds to '
+                  'them). The pure closed loop (test_closed_loop.py) gives at most 0.25 N m '
+                  "for Table I's rows and the learned rows at region entry, switches and "
+                  'task-state timeouts.']
         (self.out / 'report.md').write_text('\n'.join(lines) + '\n')
         (self.out / 'metrics.json').write_text(json.dumps(self.metrics, indent=2) + '\n')
         print(f'  wrote {self.out / "report.md"}, {self.out / "metrics.json"} and '

@@ -137,6 +137,11 @@ def test_avoid_backs_away_returns_to_rest_and_never_copies_the_hand(live_loop, p
     assert np.max(np.linalg.norm(pushed - rest, axis=1)) > 0.05  # the potential pushed it
     # 3 s after the hand has gone, the arm is back within 1 cm of its rest position.
     _, back = streams.arm(leave[1] + 3.0)
+    print(f'avoid: arm within {np.max(np.linalg.norm(arm - rest, axis=1)):.3f} m of rest while '
+          f'the hand walked off; closest {np.min(near):.3f} m; from 2 s after the stop '
+          f'>= {np.min(settled):.3f} m; pushed {np.max(np.linalg.norm(pushed - rest, axis=1)):.3f}'
+          f' m; 3 s after the hand left within {np.max(np.linalg.norm(back - rest, axis=1)):.4f}'
+          ' m of rest')
     assert back.size and np.max(np.linalg.norm(back - rest, axis=1)) <= 0.01
 
 
@@ -155,16 +160,15 @@ def follow_x4_task(folder: Path) -> Path:
     return folder
 
 
-def time_to_region(streams, event: float) -> tuple[float, float]:
-    """(s from the arm's first move after `event` to the region d <= d2, distance at the
-    first move in m)."""
-    times, arm = streams.arm(event)
-    speed = np.linalg.norm(np.diff(arm, axis=0), axis=1) / np.maximum(np.diff(times), 1e-6)
-    first = times[1 + int(np.argmax(speed > 0.01))]
-    stamps, distance = streams.distance(first)
+def time_to_region(streams, since: float) -> tuple[float, float]:
+    """(s from the arm's first move after `since` to the region d <= d2, distance before the
+    move in m), from the controller's distance to the hand: the first move is the first
+    state 2 mm closer than the first one."""
+    stamps, distance = streams.distance(since)
+    first = int(np.argmax(distance <= distance[0] - 0.002))
     inside = np.flatnonzero(distance <= D2_FOLLOW)
-    assert inside.size
-    return float(stamps[inside[0]] - first), float(distance[0])
+    assert first > 0 and inside.size
+    return float(stamps[inside[0]] - stamps[first]), float(distance[0])
 
 
 def follow_from_a_quarter_metre(live_loop, streams, tasks_dir, task, mode='effort'):
@@ -177,7 +181,7 @@ def follow_from_a_quarter_metre(live_loop, streams, tasks_dir, task, mode='effor
     }, ready_timeout=30.0)
     assert wait_for(lambda: streams.states and streams.states[-1].status == 'ok', 20.0), \
         loop['controller'].log()
-    start = stamp(streams.states[-1]) - 1.0
+    start = stamp(streams.states[0])
     assert wait_for(lambda: streams.states[-1].distance <= D2_FOLLOW - 0.005, 10.0), \
         loop['controller'].log()
     return loop, time_to_region(streams, start)
@@ -206,6 +210,9 @@ def test_follow_a1_a2_act_and_the_switch_to_avoid_has_no_effort_step(live_loop, 
     streams = Streams(probe)
     _, (steeper_time, steeper_from) = follow_from_a_quarter_metre(live_loop, streams, tasks,
                                                                   'follow_x4')
+    print(f'follow -> avoid: largest effort step {switch_step:.3f} N m; time to region from '
+          f'{follow_from:.3f} m: follow {follow_time:.3f} s, follow_x4 {steeper_time:.3f} s '
+          f'(from {steeper_from:.3f} m)')
     assert switch_step <= MAX_EFFORT_STEP
     assert follow_from == pytest.approx(0.25, abs=0.02)
     assert steeper_from == pytest.approx(0.25, abs=0.02)

@@ -190,6 +190,7 @@ class Controller(Node):
         self._hand_velocity = VelocityEstimator(values['target_filter_time'])
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
+        self._task_stamp = -math.inf  # stamp (s) of the latest TaskState
         # The link to the event_manager as a second weight on a (1 while TaskStates come):
         # None until the first TaskState, which is used at once, as before.
         self._link: EventWeightSchedule | None = None
@@ -336,6 +337,7 @@ class Controller(Node):
                     return
             self._shape_key, self._shape = key, shape
         self._task_state = msg
+        self._task_stamp = stamp_seconds(msg.header.stamp)
         self._task_time = now = time.monotonic()
         if self._link is None:
             self._link = EventWeightSchedule(self._values['task_fade_time'], LINK)
@@ -431,8 +433,11 @@ class Controller(Node):
             weight, rate, shape = 0.0, 0.0, None
         else:
             # First-order hold between TaskStates (they come at >= 100 Hz during a ramp, less
-            # on a loaded machine): a follows its ramp instead of a staircase.
-            held = min(now - self._task_time, MAX_WEIGHT_EXTRAPOLATION)
+            # on a loaded machine): a follows its ramp instead of a staircase. From the
+            # stamps (the time a holds at) to the joint state's: a TaskState delivered late
+            # would otherwise step a by its delay times da/dt (a 0.3 s ramp: 6 %/10 ms).
+            held = min(max(self._joint_stamp - self._task_stamp, 0.0),
+                       MAX_WEIGHT_EXTRAPOLATION)
             task_weight = min(max(task.weight + task.weight_rate * held, 0.0), 1.0)
             task_rate = task.weight_rate if held < MAX_WEIGHT_EXTRAPOLATION else 0.0
             # a = a_task * a_link: both C2 ramps, so is their product.

@@ -32,7 +32,12 @@ Safety (the choices are argued in docs/design-notes.md):
   a = 0 the controller keeps the arm damped (Ks s with qdot_r = J+ xdot_d) but no task force
   acts;
 - the hand's velocity xdot_d is estimated from the /target stamps with a first-order filter
-  (`target_filter_time`); its acceleration is taken as 0.
+  (`target_filter_time`); its acceleration is taken as 0; between targets the hand is held
+  to first order (x_d + xdot_d t, at most MAX_TARGET_EXTRAPOLATION), so a fast hand does not
+  step the task term at each /target;
+- the task's K comes with its TaskState (0: hri_core.potential.default_task_gain); an avoid
+  task returns the arm to `rest_position`, by default where the arm was when the task became
+  active (task_variable's module docstring).
 """
 
 import math
@@ -84,6 +89,10 @@ WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a command later than 1.5 periods after its joint state is a deadline miss
 WATCHDOG_CHECKS = 4  # watchdog checks per joint_state_timeout
 MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
+# s: longest first-order hold of the hand between /target messages (100 Hz): a hand at
+# 0.5 m/s moves 5 mm between two, which as a staircase steps the task term (and the torque,
+# by several N m) at each message.
+MAX_TARGET_EXTRAPOLATION = 0.05
 LINK = 'task_states'  # the link weight's one task: TaskStates arriving
 LINK_DOWN = WeightState(0.0, 0.0, 0.0, PHASE_IDLE, None, None)
 
@@ -106,12 +115,17 @@ PARAMETERS = {
     'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
-    'approach_distance': ParameterSpec(float,
-                                       'distance from the region where the reference slows '
-                                       'down (m)', low=0.001, high=0.5),
-    'region_margin': ParameterSpec(float,
-                                   'how far inside the learned region the task aims (m)',
-                                   low=0.0, high=0.1),
+    'approach_speed': ParameterSpec(float, 'least speed towards the region where the pull '
+                                    'K |dP/dz| is weaker (m/s; 0: none)', low=0.0, high=2.0),
+    'region_margin': ParameterSpec(float, 'how far inside the learned region the approach '
+                                   'speed fades out (m)', low=0.0, high=0.1),
+    'rest_gain': ParameterSpec(float, 'avoid tasks: rate of the return to the rest position '
+                               '(1/s)', low=0.0, high=100.0),
+    'rest_gate': ParameterSpec(float, "avoid tasks: the return fades in over this distance "
+                               "outside the region's edge (m)", low=0.001, high=1.0),
+    'rest_position': ParameterSpec(list, 'avoid tasks: rest position [x, y] (m); unset: '
+                                   'where the arm was when the task became active', size=2,
+                                   optional=True),
     'effort_limit': ParameterSpec(float, 'torque limit per joint (N m)',
                                   low=0.1, high=500.0),
     'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
@@ -133,17 +147,18 @@ PARAMETERS = {
     'gravity': ParameterSpec(float, 'gravity in the arm plane (m/s^2; 0 horizontal)',
                              low=0.0, high=20.0, read_only=True),
 }
-GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_distance',
-                   'region_margin', 'effort_limit')
+GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
+                   'region_margin', 'effort_limit', 'rest_gain', 'rest_gate')
 
 
 def gains_from(values: dict) -> ControllerGains:
     """ControllerGains from parameter values; ValueError with the reason if invalid."""
     return ControllerGains(
         ks=tuple(values['ks']), kp=values['kp'], adaptation=tuple(values['adaptation_gain']),
-        task_gain=None, approach_distance=values['approach_distance'],
+        task_gain=None, approach_speed=values['approach_speed'],
         region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
-        effort_limit=values['effort_limit'], damping=DEFAULT_GAINS.damping)
+        effort_limit=values['effort_limit'], rest_gain=values['rest_gain'],
+        rest_gate=values['rest_gate'], damping=DEFAULT_GAINS.damping)
 
 
 class Controller(Node):
@@ -170,15 +185,23 @@ class Controller(Node):
         self._joint_gate = StampGate(values['restart_jump'], values['restart_confirm'],
                                      strict=False)
         self._target = self._target_velocity = None
+        self._target_stamp = -math.inf  # stamp (s) of the latest target
         self._target_gate = StampGate(values['restart_jump'], values['restart_confirm'])
         self._hand_velocity = VelocityEstimator(values['target_filter_time'])
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
+        self._task_stamp = -math.inf  # stamp (s) of the latest TaskState
         # The link to the event_manager as a second weight on a (1 while TaskStates come):
         # None until the first TaskState, which is used at once, as before.
         self._link: EventWeightSchedule | None = None
         self._shape_key = None
         self._shape: TaskShape | None = None
+        # An avoid task's rest position: the parameter, or where the arm was when the task
+        # (its name and shape) became active; _rest_key is the task it was taken for.
+        fixed = values['rest_position']
+        self._fixed_rest = None if fixed is None else (float(fixed[0]), float(fixed[1]))
+        self._rest = self._fixed_rest
+        self._rest_key = None
         self._cycles = 0
         self._misses = 0
         self._window = (time.monotonic(), 0)
@@ -291,6 +314,7 @@ class Controller(Node):
         # Plain float pairs: what the per-cycle step computes with.
         self._target_velocity = tuple(self._hand_velocity.update(position, stamp).tolist())
         self._target = tuple(position.tolist())
+        self._target_stamp = stamp
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -299,19 +323,21 @@ class Controller(Node):
                        f'task state dropped: weight {msg.weight}, rate {msg.weight_rate}')
             return
         key = (msg.task.name, msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1, msg.task.d2,
-               msg.task.n)
+               msg.task.n, msg.task.k)
         if key != self._shape_key:
             shape = None
             if msg.task.name:
                 try:
                     shape = TaskShape(msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1,
                                       msg.task.d2, msg.task.n)
+                    self._law.drive(shape, msg.task.k)  # checks K (or its default) once
                 except ValueError as error:
                     self._warn('task_state_task',
                                f'task state dropped: task {msg.task.name!r}: {error}')
                     return
             self._shape_key, self._shape = key, shape
         self._task_state = msg
+        self._task_stamp = stamp_seconds(msg.header.stamp)
         self._task_time = now = time.monotonic()
         if self._link is None:
             self._link = EventWeightSchedule(self._values['task_fade_time'], LINK)
@@ -407,20 +433,36 @@ class Controller(Node):
             weight, rate, shape = 0.0, 0.0, None
         else:
             # First-order hold between TaskStates (they come at >= 100 Hz during a ramp, less
-            # on a loaded machine): a follows its ramp instead of a staircase.
-            held = min(now - self._task_time, MAX_WEIGHT_EXTRAPOLATION)
+            # on a loaded machine): a follows its ramp instead of a staircase. From the
+            # stamps (the time a holds at) to the joint state's: a TaskState delivered late
+            # would otherwise step a by its delay times da/dt (a 0.3 s ramp: 6 %/10 ms).
+            held = min(max(self._joint_stamp - self._task_stamp, 0.0),
+                       MAX_WEIGHT_EXTRAPOLATION)
             task_weight = min(max(task.weight + task.weight_rate * held, 0.0), 1.0)
             task_rate = task.weight_rate if held < MAX_WEIGHT_EXTRAPOLATION else 0.0
             # a = a_task * a_link: both C2 ramps, so is their product.
             weight = task_weight * link.weight
             rate = task_rate * link.weight + task_weight * link.rate
             shape = self._shape
+            if self._rest_key != self._shape_key:
+                self._rest_key = self._shape_key
+                if self._fixed_rest is None:
+                    x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
+                    self._rest = (float(x[0]), float(x[1]))
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
         self._weight = weight
+        # First-order hold of the hand between targets (see MAX_TARGET_EXTRAPOLATION), from
+        # the stamps: where the hand is at the joint state's time (receive times would add
+        # the callbacks' delays, 2.5 mm per 5 ms at 0.5 m/s).
+        held = min(max(self._joint_stamp - self._target_stamp, 0.0), MAX_TARGET_EXTRAPOLATION)
+        (x1, x2), (v1, v2) = self._target, self._target_velocity
+        target = (x1 + v1 * held, x2 + v2 * held)
         try:
-            output = self._law.step_lean(self._q, self._dq, self._target,
+            output = self._law.step_lean(self._q, self._dq, target,
                                          self._target_velocity, (0.0, 0.0), weight, rate,
-                                         shape, dt, monitor=monitor)
+                                         shape, dt, monitor=monitor,
+                                         k=0.0 if shape is None else task.task.k,
+                                         rest=self._rest)
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             self._status = f'fault: {type(error).__name__}'
             self._warn('internal', f'zero torque: control step failed: {error!r}')

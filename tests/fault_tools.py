@@ -9,8 +9,11 @@ and decodes them only when the test looks.
 import math
 import time
 
+import numpy as np
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+
+from hri_core.node_common import stamp_seconds
 
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -74,3 +77,20 @@ def assert_all_finite(messages: list, topic: str) -> None:
     """Every float of every message is finite (the topic names the failure)."""
     bad = [m for m in messages if not all(math.isfinite(v) for v in floats_of(m))]
     assert not bad, f'non-finite values on {topic}: {bad[:3]}'
+
+
+def effort_change_per_step(joint_states: list, step: float = 1e-3) -> float:
+    """Largest change (N m) of the applied torque per `step` s of the sim's clock.
+
+    A command the controller sends late (a busy machine) changes the torque by the sum of the
+    cycles it missed: each change is divided by the steps since the previous change.
+    """
+    stamps = np.array([stamp_seconds(m.header.stamp) for m in joint_states])
+    efforts = np.array([m.effort for m in joint_states])
+    order = np.argsort(stamps, kind='stable')
+    stamps, efforts = stamps[order], efforts[order]
+    changed = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
+    points = np.concatenate(([0], changed))
+    jumps = np.max(np.abs(np.diff(efforts[points], axis=0)), axis=1)
+    steps = np.maximum(np.round(np.diff(stamps[points]) / step), 1.0)
+    return float(np.max(jumps / steps)) if len(jumps) else 0.0

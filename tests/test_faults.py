@@ -28,7 +28,12 @@ from hri_core.dynamics import ScaraParameters, kinetic_energy
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import MONITOR_QOS
 from tests.common import PAPER_TASKS
-from tests.fault_tools import RawListener, assert_all_finite, lines_after
+from tests.fault_tools import (
+    RawListener,
+    assert_all_finite,
+    effort_change_per_step,
+    lines_after,
+)
 
 # The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
@@ -99,23 +104,6 @@ def allowed_delay(timeout: float, stall: float) -> float:
     the last message still queued for it as new (a stall of about 1 s happens now and then
     right after a peer is killed; see the report)."""
     return timeout + SLACK + (stall + timeout if stall > STALL else 0.0)
-
-
-def effort_change_per_step(joint_states: list, step: float = 1e-3) -> float:
-    """Largest change (N m) of the applied torque per `step` s of the sim's clock.
-
-    A command the controller sends late (a busy machine) changes the torque by the sum of the
-    cycles it missed: each change is divided by the steps since the previous change.
-    """
-    stamps = np.array([stamp_seconds(m.header.stamp) for m in joint_states])
-    efforts = np.array([m.effort for m in joint_states])
-    order = np.argsort(stamps, kind='stable')
-    stamps, efforts = stamps[order], efforts[order]
-    changed = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
-    points = np.concatenate(([0], changed))
-    jumps = np.max(np.abs(np.diff(efforts[points], axis=0)), axis=1)
-    steps = np.maximum(np.round(np.diff(stamps[points]) / step), 1.0)
-    return float(np.max(jumps / steps)) if len(jumps) else 0.0
 
 
 def ok_after(states: list, since: float) -> float | None:

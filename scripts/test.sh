@@ -4,9 +4,9 @@
 # `slow` (soak, multi-host); `scripts/test.sh --all` runs them too. Further arguments go to pytest.
 #
 # Two phases: first every test not marked `exclusive`, in HRI_TEST_WORKERS (default 2)
-# pytest-xdist workers; then the `exclusive` ones (the 1 kHz closed loop, whose timing checks
-# need the CPUs to themselves: one loop takes about 1.8 of this machine's 2 cores) one at a
-# time. The exit code is non-zero if either phase fails.
+# pytest-xdist workers (worksteal: an idle worker takes tests queued for a busy one, so a
+# long test late in the queue does not leave the other worker idle); then the `exclusive` ones
+# (the 1 kHz closed loop, whose timing checks need the CPUs to themselves) one at a time. The exit code is non-zero if either phase fails.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -36,7 +36,7 @@ phase() {
   fi
 }
 echo "[test] pytest, phase 1: tests not marked exclusive, ${HRI_TEST_WORKERS:-2} workers" >&2
-phase -n "${HRI_TEST_WORKERS:-2}" -m "${selection:+$selection and }not exclusive" "$@"
+phase -n "${HRI_TEST_WORKERS:-2}" --dist worksteal -m "${selection:+$selection and }not exclusive" "$@"
 echo "[test] pytest, phase 2: exclusive tests, one at a time" >&2
 phase -m "${selection:+$selection and }exclusive" "$@"
 if [ "$status" -ne 0 ]; then

@@ -22,11 +22,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState, TaskEvent, TaskParameters, TaskState
 from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.duration import Duration
 from rclpy.parameter import Parameter
+from rclpy.time import Time as RosTime
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -201,13 +202,10 @@ def test_controller_follows_a_restarted_joint_state_source(nodes, probe, arm):
     controller, states, commands = start_controller(nodes, probe)
     arm.publishing_joints.clear()
     time.sleep(0.05)
-    behind = probe.now()
-    behind.sec -= 30
+    behind = RosTime.from_msg(probe.now()) - Duration(seconds=30.0)
     restarted_from = len(states)
     for i in range(60):
-        stamp = Time(sec=behind.sec, nanosec=behind.nanosec + 5_000_000 * i)
-        if stamp.nanosec >= 10 ** 9:
-            stamp.sec, stamp.nanosec = stamp.sec + 1, stamp.nanosec - 10 ** 9
+        stamp = (behind + Duration(nanoseconds=5_000_000 * i)).to_msg()
         arm.joints.publish(joint_state(probe, ['joint1', 'joint2'], Q_WRONG, stamp=stamp))
         time.sleep(0.005)
     assert wait_for(lambda: 'joint states restarted' in controller.log(), 5.0), \

@@ -70,15 +70,16 @@ from hri_adaptive_controller.event_weight import (
 from hri_core import topics
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
+    REALTIME_PRIORITY,
     ParameterSpec,
     StartupError,
     declare_parameters,
     load_defaults,
+    request_realtime,
     run_node,
     stamp_seconds,
 )
 from hri_core.potential import TaskShape
-from hri_core.realtime import MAX_PRIORITY, request_sched_fifo
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
 from hri_core.velocity_estimator import VelocityEstimator
 
@@ -100,8 +101,7 @@ PARAMETERS = {
     'rate_hz': ParameterSpec(float, 'expected /joint_states rate, which paces control; '
                              'deadlines and the zero-torque rate (Hz)', low=10.0, high=2000.0,
                              read_only=True),
-    'realtime_priority': ParameterSpec(int, 'SCHED_FIFO priority to ask for (0: off)',
-                                       low=0, high=MAX_PRIORITY, read_only=True),
+    'realtime_priority': REALTIME_PRIORITY,
     'state_rate_hz': ParameterSpec(float, 'ControllerState rate (Hz)', low=1.0, high=1000.0,
                                    read_only=True),
     'mode': ParameterSpec(str, 'effort: torques (eq. 16); velocity: qdot_r (eq. 14)',
@@ -233,10 +233,7 @@ class Controller(Node):
             f'{values["mode"]} control on each /joint_states (expected at '
             f'{values["rate_hz"]:g} Hz) on {topic}; ks={values["ks"]} kp={values["kp"]:g} '
             f'effort_limit={values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
-        scheduling = request_sched_fifo(values['realtime_priority'])
-        log = self.get_logger().info if scheduling.granted or not scheduling.priority else (
-            self.get_logger().warning)
-        log(scheduling.description)
+        request_realtime(self, values['realtime_priority'])
 
     # -- inputs ----------------------------------------------------------------------------
     def _warn(self, kind: str, text: str) -> None:

@@ -42,6 +42,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
+from hri_core.realtime import MAX_PRIORITY, request_sched_fifo
+
 
 class StartupError(Exception):
     """A node cannot start; the message is a one-line reason."""
@@ -104,6 +106,22 @@ class ParameterSpec:
         if self.type is list:
             return float_array_problem(value, self.size)
         return ''
+
+
+REALTIME_PRIORITY = ParameterSpec(int, 'SCHED_FIFO priority to ask for (0: off)',
+                                  low=0, high=MAX_PRIORITY, read_only=True)
+"""The `realtime_priority` parameter of the nodes of the 1 kHz loop (see request_realtime)."""
+
+
+def request_realtime(node: Node, priority: int) -> bool:
+    """Ask for SCHED_FIFO at `priority` (hri_core.realtime; 0: off) for the node's process and
+    log the outcome once: info when granted or off, a warning when refused. True if granted."""
+    scheduling = request_sched_fifo(priority)
+    if scheduling.granted or not scheduling.priority:
+        node.get_logger().info(scheduling.description)
+    else:
+        node.get_logger().warning(scheduling.description)
+    return scheduling.granted
 
 
 def declare_parameters(node: Node, specs: dict[str, ParameterSpec],

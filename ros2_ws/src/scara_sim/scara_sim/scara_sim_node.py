@@ -43,14 +43,15 @@ from std_msgs.msg import Float64MultiArray
 from hri_core import topics
 from hri_core.dynamics import ScaraParameters, forward_kinematics
 from hri_core.node_common import (
+    REALTIME_PRIORITY,
     ParameterSpec,
     StartupError,
     declare_parameters,
     float_array_problem,
     load_defaults,
+    request_realtime,
     run_node,
 )
-from hri_core.realtime import MAX_PRIORITY, request_sched_fifo
 from scara_sim.simulation import (
     FixedStepClock,
     RealTimeStepper,
@@ -97,8 +98,7 @@ PARAMETERS = {
     'max_catch_up_steps': ParameterSpec(
         int, 'most steps one timer tick may run to catch up with real time; the rest are '
         'dropped and counted', 1, 10000, read_only=True),
-    'realtime_priority': ParameterSpec(int, 'SCHED_FIFO priority to ask for (0: off)',
-                                       low=0, high=MAX_PRIORITY, read_only=True),
+    'realtime_priority': REALTIME_PRIORITY,
     **ARM_PARAMETERS,
     **ARRAY_PARAMETERS,
     'initial_q': ParameterSpec(list, 'joint positions at start (rad)', size=2,
@@ -169,10 +169,7 @@ class ScaraSim(Node):
             f'simulating at {rate_hz:g} Hz (RK4, dt {1e3 / rate_hz:g} ms) from q = '
             f'{np.round(self._sim.q, 4).tolist()} rad; effort limit {self._effort_limit:g} '
             f'N m, command timeout {self._command_timeout:g} s')
-        scheduling = request_sched_fifo(values['realtime_priority'])
-        log = self.get_logger().info if scheduling.granted or not scheduling.priority else (
-            self.get_logger().warning)
-        log(scheduling.description)
+        request_realtime(self, values['realtime_priority'])
 
     # Parameters -------------------------------------------------------------------------
 

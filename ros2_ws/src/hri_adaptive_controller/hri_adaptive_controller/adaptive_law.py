@@ -75,7 +75,8 @@ class ControllerGains:
     None for each task's own K (0 = default_task_gain); approach_speed v_a (m/s, >= 0) and
     region_margin (m, >= 0): the approach term of task_variable; max_task_speed: v_max (m/s),
     the speed cap's knee; rest_gain (1/s, >= 0) and rest_gate (m, > 0): an avoid task's return
-    to rest; damping: pseudo-inverse damping; effort_limit (N m);
+    to rest; damping: pseudo-inverse damping; effort_limit (N m); max_effort_rate (N m/s,
+    > 0): the rate limit the callers apply after the clamp (effort_rate; not the law's own);
     theta_lower, theta_upper: projection box for theta_hat (7 values each).
     Raises ValueError with the reason for a value out of range.
     """
@@ -90,6 +91,7 @@ class ControllerGains:
     effort_limit: float
     rest_gain: float = 2.0
     rest_gate: float = 0.03
+    max_effort_rate: float = 1000.0
     damping: DampingSettings = field(default_factory=DampingSettings)
     theta_lower: tuple[float, ...] = DEFAULT_THETA_LOWER
     theta_upper: tuple[float, ...] = DEFAULT_THETA_UPPER
@@ -108,7 +110,7 @@ class ControllerGains:
         if self.task_gain is not None and not (
                 math.isfinite(self.task_gain) and self.task_gain > 0.0):
             raise ValueError(f'task_gain must be None or finite and > 0, got {self.task_gain}')
-        for name in ('max_task_speed', 'effort_limit', 'rest_gate'):
+        for name in ('max_task_speed', 'effort_limit', 'rest_gate', 'max_effort_rate'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
@@ -172,6 +174,11 @@ DEFAULT_GAINS = ControllerGains(
     # alone acts.
     rest_gain=2.0,
     rest_gate=0.03,
+    # Torque rate limit (effort_rate, after the clamp): 1000 N m/s = 1 N m per 1 ms cycle, the
+    # continuity bar of the torque. The law stays below it in the pure closed loop (at most
+    # 0.25 N m per cycle, Table I's and the demo's rows); on the topics it catches what a
+    # loaded machine adds (a command computed late carries several cycles' change).
+    max_effort_rate=1000.0,
     # J+ damping from 28 deg of the stretched arm on, up to lambda = 0.15 m: joint speeds stay
     # below 3 rad/s and torques below 10 N m when the target is out of reach (see
     # DampingSettings); the task region of the demos lies well inside.

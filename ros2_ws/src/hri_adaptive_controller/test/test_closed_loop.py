@@ -5,6 +5,8 @@ starts at q = (0, pi/2), end-effector (0.35, 0.30) m, at rest, with no task (a =
 event at t = 0 fades the task in over 1 s.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -191,6 +193,10 @@ def test_simulate_rejects_bad_input():
         simulate(TASKS, [], still_target([0.4, 0.1]), 0.0)
     with pytest.raises(ValueError, match='initial_task'):
         simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, initial_task='dance')
+    with pytest.raises(ValueError, match='target_period'):
+        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, target_period=0.0)
+    with pytest.raises(ValueError, match='command_delay'):
+        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, command_delay=-1)
     with pytest.raises(ValueError, match='duration'):
         minimum_jerk_target([0.0, 0.0], [1.0, 1.0], 0.0, -1.0)
 
@@ -208,6 +214,9 @@ ROWS = {
     },
 }
 MAX_EFFORT_STEP = 1.0  # N m between two consecutive 1 kHz cycles
+# The law alone: the rate limit after the clamp (max_effort_rate, 1 N m per cycle) would
+# otherwise hold every continuity bound below by construction.
+UNLIMITED = dataclasses.replace(DEFAULT_GAINS, max_effort_rate=1e9)
 ARM = np.array([0.35, 0.30])  # m, the end-effector at q = (0, pi/2)
 REACH_IN_SPEED = 0.5  # m/s, peak speed of a hand reaching in
 
@@ -248,7 +257,7 @@ SCENARIOS = {
 @pytest.mark.parametrize('rows', sorted(ROWS))
 def test_effort_changes_at_most_1_nm_per_cycle(rows, scenario):
     events, target, duration = SCENARIOS[scenario]
-    result = run_rows(ROWS[rows], events, target, duration)
+    result = run_rows(ROWS[rows], events, target, duration, gains=UNLIMITED)
     assert_torque_safe(result)
     steps = np.max(np.abs(np.diff(result.tau, axis=0)), axis=1)
     assert np.max(steps) <= MAX_EFFORT_STEP, (rows, scenario, float(np.max(steps)),
@@ -256,6 +265,46 @@ def test_effort_changes_at_most_1_nm_per_cycle(rows, scenario):
     # The scenario did what it is named for: the arm moved at the task speed.
     speed = np.linalg.norm(np.diff(result.position, axis=0), axis=1) / DT
     assert np.max(speed) >= 0.1
+
+
+def largest_effort_step(result) -> float:
+    return float(np.max(np.abs(np.diff(result.tau, axis=0))))
+
+
+@pytest.mark.parametrize('rows', sorted(ROWS))
+def test_a_100_hz_hand_through_the_controllers_hold_steps_the_torque_no_more(rows):
+    # The node sees the hand at 100 Hz (hand_sim) through signal_hold.HandHold. Each message
+    # lands ~1 mm off the held hand at 0.5 m/s; held without the blend, the 0.5 m/s reach-in
+    # stepped the law's torque by 0.45 (Table I) / 0.32 N m (learned) per cycle, against
+    # 0.25 with the exact hand; with it, within 0.05 N m of the exact hand.
+    events, target, duration = SCENARIOS['avoid_reach_in']
+    exact = run_rows(ROWS[rows], events, target, duration, gains=UNLIMITED)
+    sampled = run_rows(ROWS[rows], events, target, duration, gains=UNLIMITED,
+                       target_period=0.01)
+    assert largest_effort_step(sampled) <= largest_effort_step(exact) + 0.05
+    assert np.min(sampled.distance) < ROWS[rows]['avoid'][0].d1 - 0.02  # it reached in
+
+
+def test_a_loop_10_ms_late_steps_the_torque_by_less_than_1_nm_per_cycle():
+    # A command applied 10 cycles after its state (the node on a loaded machine): the law's
+    # largest step per cycle at the 0.5 m/s reach-in grows from 0.25 to about 0.4 N m.
+    events, target, duration = SCENARIOS['avoid_reach_in']
+    late = run_rows(ROWS['table_i'], events, target, duration, gains=UNLIMITED,
+                    command_delay=10)
+    assert largest_effort_step(late) <= 0.5 * MAX_EFFORT_STEP
+
+
+def test_the_rate_limit_turns_a_torque_step_into_a_ramp():
+    # No task, the arm at rest, the hand far: a ramp of a from a = 0 with a 20 ms fade
+    # asks for a fast torque rise; the limit holds it to max_effort_rate.
+    slow = dataclasses.replace(DEFAULT_GAINS, max_effort_rate=200.0)
+    events = [(0.0, 'follow')]
+    free = run_rows(ROWS['table_i'], events, still_target(ARM + [0.0, -0.3]), 0.3,
+                    gains=UNLIMITED, ramp_time=0.02)
+    limited = run_rows(ROWS['table_i'], events, still_target(ARM + [0.0, -0.3]), 0.3,
+                       gains=slow, ramp_time=0.02)
+    assert largest_effort_step(free) > 0.2
+    assert largest_effort_step(limited) <= 0.2 + 1e-12
 
 
 @pytest.mark.parametrize('rows', sorted(ROWS))

@@ -1,14 +1,16 @@
 """Topic-level: the learned potential drives the arm (K grad P, avoid, continuity, modes).
 
 Each test runs the live loop (scara_sim, event_manager, controller, hand_sim) on its own
-domain, scripts the hand through hand_sim's waypoints (or its parameters at run time) and
-reads the arm from /ee_position, the torque the sim applied from /joint_states (every 1 ms
-step) and the distance from /hri/controller_state; the 1 kHz topics are kept raw and
-decoded after the run, so the probe takes little of the machine from the loop. Thresholds are
-the issue's: effort changes <= 1 N m per 1 ms control cycle; under avoid, the
-arm ends at >= d1 - 2 cm within 2 s of a hand that reached in at 0.5 m/s stopping, stays
-within 5 cm of its rest position while the hand walks 0.2 m away, and is back within 1 cm of
-it 3 s after the hand has gone; a1, a2 x 4 change the time to region by >= 15 %.
+domain, scripts the hand through hand_sim's waypoints and reads the arm from /ee_position,
+the torque the sim applied from /joint_states (every 1 ms step), the controller's commands
+and the distance from /hri/controller_state; the 1 kHz topics are kept raw and decoded after
+the run, so the probe takes little of the machine from the loop. One loop serves several
+checks: follow reaches a still hand, tracks it when it moves (Fig. 4), then switches to
+avoid. Thresholds are the issue's: effort changes <= 1 N m per 1 ms control cycle; under
+avoid, the arm ends at >= d1 - 2 cm within 2 s of a hand that reached in at 0.5 m/s
+stopping, stays within 5 cm of its rest position while the hand walks 0.2 m away, and is
+back within 1 cm of it 3 s after the hand has gone; a1, a2 x 4 change the time to region by
+>= 15 %. The follow_safe band and bad joint states: tests/test_closed_loop.py.
 """
 
 import math
@@ -22,9 +24,11 @@ from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState, TaskEvent, TaskState
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
 from hri_bringup.processes import paper_tasks_dir, wait_for
 from hri_core import topics
+from hri_core.node_common import load_defaults
 from hri_core.potential import TaskShape, default_task_gain
 from tests.fault_tools import RawListener, effort_change_per_step
 
@@ -36,6 +40,12 @@ D2_FOLLOW = 0.041  # m, Table I's follow row
 MAX_EFFORT_STEP = 1.0  # N m per 1 ms control cycle
 RAMP = 0.3  # s, event_manager ramp_time
 REACH_IN_SPEED = 0.5  # m/s
+CONTROLLER = load_defaults('hri_adaptive_controller', 'controller')
+EFFORT_LIMIT = CONTROLLER['effort_limit']  # N m
+# Largest change of a between two ControllerStates per second: eq. 13's ramp (15/8 per
+# ramp_time) plus the controller's blend of a TaskState that comes after a gap (at most
+# 15/8 per task_fade_time: signal_hold), and 0.02 for the states' own timing.
+WEIGHT_RATE = 15.0 / 8.0 * (1.0 / RAMP + 1.0 / CONTROLLER['task_fade_time'])
 
 
 def stamp(msg) -> float:
@@ -46,8 +56,8 @@ class Streams:
     """What the probe hears: commands, end-effector, hand, controller state, task state."""
 
     def __init__(self, probe):
-        self.joints = RawListener(probe, topics.JOINT_STATES.name, JointState,
-                                  topics.JOINT_STATES.qos)
+        self.joints = RawListener(probe, topics.JOINT_STATES.name, JointState)
+        self.commands = RawListener(probe, topics.EFFORT_COMMANDS.name, Float64MultiArray)
         self.raw_ee = RawListener(probe, topics.EE_POSITION.name, PointStamped,
                                   topics.EE_POSITION.qos)
         self.ee = []  # decoded by arm()
@@ -72,14 +82,24 @@ class Streams:
                          if m.status == 'ok' and start <= stamp(m) <= end]).reshape(-1, 2)
         return rows[:, 0], rows[:, 1]
 
-    def effort_steps(self, since: float) -> float:
-        """Largest change (N m) of the torque the sim applied per 1 ms step of its clock,
+    def effort_steps(self, since: float = -math.inf) -> float:
+        """Largest change (N m) of the torque the sim applied per control cycle on its clock,
         from the joint states that arrived after `since` (monotonic s): a command the
         controller sends late on a loaded machine carries several cycles' change, which is
-        the scheduler's, not the control law's (tests.fault_tools.effort_change_per_step)."""
+        the scheduler's, not the control law's; a drive that took in the commands late
+        and skipped some did not see the cycles between (tests.fault_tools.
+        effort_change_per_step)."""
         states = [m for _, m in self.joints.timed(since)]
         assert len(states) >= 100, len(states)
-        return effort_change_per_step(states)
+        return effort_change_per_step(states, commands=[tuple(m.data)
+                                                        for m in self.commands.messages()])
+
+    def assert_commands_safe(self) -> None:
+        """Every ControllerState finite, its torque within the limit."""
+        states = list(self.states)
+        efforts = np.array([list(s.effort) for s in states if len(s.effort) == 2])
+        assert np.all(np.isfinite(efforts)) and np.max(np.abs(efforts)) <= EFFORT_LIMIT + 1e-9
+        assert all(math.isfinite(s.distance) and math.isfinite(s.lyapunov) for s in states)
 
     def latest(self) -> float:
         """The newest end-effector stamp (s)."""
@@ -87,13 +107,21 @@ class Streams:
 
 
 def hand_stops(times, points, after=-math.inf) -> list[tuple[float, float]]:
-    """(start, end) stamps of the hand's moves after `after` s (speed above 1 mm/s)."""
+    """(start, end) stamps of the hand's moves after `after` s (speed above 1 mm/s); still
+    spells shorter than 0.1 s (hand_sim publishing one position twice when it is late) do not
+    split a move."""
     speed = np.linalg.norm(np.diff(points, axis=0), axis=1) / np.maximum(np.diff(times), 1e-6)
     moving = np.concatenate([[False], speed > 1e-3, [False]])
     edges = np.flatnonzero(np.diff(moving.astype(int)))
-    moves = [(times[a], times[min(b, len(times) - 1)]) for a, b in zip(edges[::2], edges[1::2],
+    moves = [[times[a], times[min(b, len(times) - 1)]] for a, b in zip(edges[::2], edges[1::2],
                                                                        strict=True)]
-    return [m for m in moves if m[0] >= after]
+    merged = []
+    for move in moves:
+        if merged and move[0] - merged[-1][1] < 0.1:
+            merged[-1][1] = move[1]
+        else:
+            merged.append(move)
+    return [tuple(m) for m in merged if m[0] >= after]
 
 
 def test_avoid_backs_away_returns_to_rest_and_never_copies_the_hand(live_loop, probe):
@@ -129,12 +157,15 @@ def test_avoid_backs_away_returns_to_rest_and_never_copies_the_hand(live_loop, p
     assert np.max(np.linalg.norm(pushed - rest, axis=1)) > 0.05  # the potential pushed it
     # 3 s after the hand has gone, the arm is back within 1 cm of its rest position.
     _, back = streams.arm(leave[1] + 3.0)
+    steps = streams.effort_steps()
     print(f'avoid: arm within {np.max(np.linalg.norm(arm - rest, axis=1)):.3f} m of rest while '
           f'the hand walked off; closest {np.min(near):.3f} m; from 2 s after the stop '
           f'>= {np.min(settled):.3f} m; pushed {np.max(np.linalg.norm(pushed - rest, axis=1)):.3f}'
           f' m; 3 s after the hand left within {np.max(np.linalg.norm(back - rest, axis=1)):.4f}'
-          ' m of rest')
+          f' m of rest; largest effort step {steps:.3f} N m per cycle (reach-in included)')
     assert back.size and np.max(np.linalg.norm(back - rest, axis=1)) <= 0.01
+    assert steps <= MAX_EFFORT_STEP
+    streams.assert_commands_safe()
 
 
 def follow_x4_task(folder: Path) -> Path:
@@ -163,13 +194,15 @@ def time_to_region(streams, since: float) -> tuple[float, float]:
     return float(stamps[inside[0]] - stamps[first]), float(distance[0])
 
 
-def follow_from_a_quarter_metre(live_loop, streams, tasks_dir, task, mode='effort'):
-    """Start the loop with `task` fading in and the hand still 0.25 m from the arm; return
-    (time from the arm's first move to the region, distance then) once it is inside."""
+def follow_from_a_quarter_metre(live_loop, streams, tasks_dir, task, mode='effort',
+                                hand=None):
+    """Start the loop with `task` fading in and the hand still 0.25 m from the arm (`hand`:
+    other hand_sim parameters, e.g. waypoints that start there); return (loop, (time from the
+    arm's first move to the region, distance then)) once it is inside."""
     loop = live_loop({
         'event_manager': {'tasks_dir': str(tasks_dir), 'initial_task': task, 'ramp_time': RAMP},
         'controller': {'mode': mode},
-        'hand_sim': {'profile': 'hold', 'start': (ARM + [0.0, -0.25]).tolist()},
+        'hand_sim': hand or {'profile': 'hold', 'start': (ARM + [0.0, -0.25]).tolist()},
     }, ready_timeout=30.0)
     assert wait_for(lambda: streams.states and streams.states[-1].status == 'ok', 20.0), \
         loop['controller'].log()
@@ -179,33 +212,62 @@ def follow_from_a_quarter_metre(live_loop, streams, tasks_dir, task, mode='effor
     return loop, time_to_region(streams, start)
 
 
-def test_follow_a1_a2_act_and_the_switch_to_avoid_has_no_effort_step(live_loop, probe,
-                                                                     tmp_path):
+def settled_in(states: list, low: float, high: float, seconds: float = 1.0) -> bool:
+    """The last `seconds` of ControllerStates (100 Hz) lie within [low, high] +- 5 mm."""
+    recent = [s for s in states[-int(100 * seconds):] if s.status == 'ok']
+    return len(recent) >= 50 and all(low - 0.005 <= s.distance <= high + 0.005 for s in recent)
+
+
+def test_follow_reaches_and_tracks_the_hand_a1_a2_act_and_the_switch_to_avoid_is_smooth(
+        live_loop, probe, tmp_path):
     tasks = follow_x4_task(tmp_path)
     streams = Streams(probe)
     events = probe.publisher(topics.EVENTS.name, TaskEvent, 10)
+    # The hand still 0.25 m from the arm for 4 s, then it walks 0.15 m at up to 0.1 m/s.
+    walk = {'profile': 'waypoints', 'start_delay': 4.0, 'speed': 0.1,
+            'waypoints': [*(ARM + [0.0, -0.25]), *(ARM + [0.12, -0.34])]}
     loop, (follow_time, follow_from) = follow_from_a_quarter_metre(live_loop, streams, tasks,
-                                                                   'follow')
+                                                                   'follow', hand=walk)
+    # Fig. 4: the arm follows the walking hand and settles in the region again, where the
+    # task force, and so the torque, goes to ~0.
+    assert wait_for(lambda: len(hand_stops(*streams.hand_path())) == 1
+                    and streams.hand_path()[0][-1] > hand_stops(*streams.hand_path())[0][1] + 0.3
+                    and settled_in(streams.states, 0.0, D2_FOLLOW), 15.0), streams.states[-1]
+    (moved_from, moved_to), = hand_stops(*streams.hand_path())
+    _, tracking = streams.distance(moved_from, math.inf)
+    assert np.max(tracking) < 0.15  # followed, not left behind
+    torque_at_rest = max(abs(e) for s in streams.states[-50:] for e in s.effort)
+    assert torque_at_rest < 0.5
     # follow -> avoid (Table I's rows): the arm leaves through d1 at speed, no effort step.
     assert wait_for(lambda: events.get_subscription_count() > 0, 10.0)
-    wait_for(lambda: False, 0.5)
-    switch = time.monotonic()
+    switch, switch_from = time.monotonic(), len(streams.states)
     events.publish(TaskEvent(name='hand_too_close', task='avoid'))
     assert wait_for(lambda: streams.states[-1].task == 'avoid'
                     and streams.states[-1].distance >= D1_AVOID - 0.02, 6.0), \
         loop['controller'].log()
     wait_for(lambda: False, 0.5)
     switch_step = streams.effort_steps(switch)
+    # a(E, t) goes through eq. 13's ramps (out, swap, in) without a jump.
+    controlled = [s for s in streams.states[switch_from:] if s.status == 'ok']
+    weights = np.array([s.weight for s in controlled])
+    # The joint states' stamps a was evaluated at (the state's own stamp is its publish time).
+    stamps = np.array([stamp(s) - s.input_age for s in controlled])
+    assert weights.min() < 0.05 and weights.max() > 0.95
+    weight_steps = np.abs(np.diff(weights)) - WEIGHT_RATE * np.diff(stamps)
+    streams.assert_commands_safe()
     for process in loop.values():
         process.stop()
     # The same K, a1 and a2 x 4, in a loop of its own.
     streams = Streams(probe)
     _, (steeper_time, steeper_from) = follow_from_a_quarter_metre(live_loop, streams, tasks,
                                                                   'follow_x4')
-    print(f'follow -> avoid: largest effort step {switch_step:.3f} N m; time to region from '
-          f'{follow_from:.3f} m: follow {follow_time:.3f} s, follow_x4 {steeper_time:.3f} s '
-          f'(from {steeper_from:.3f} m)')
+    print(f'follow: tracked the walking hand within {np.max(tracking):.3f} m, torque '
+          f'{torque_at_rest:.3f} N m at rest; follow -> avoid: largest effort step '
+          f'{switch_step:.3f} N m per cycle, a beyond its ramp by at most '
+          f'{np.max(weight_steps):.3f}; time to region from {follow_from:.3f} m: follow '
+          f'{follow_time:.3f} s, follow_x4 {steeper_time:.3f} s (from {steeper_from:.3f} m)')
     assert switch_step <= MAX_EFFORT_STEP
+    assert np.all(weight_steps <= 0.02), np.round(np.sort(weight_steps)[-5:], 3)
     assert follow_from == pytest.approx(0.25, abs=0.02)
     assert steeper_from == pytest.approx(0.25, abs=0.02)
     assert abs(follow_time - steeper_time) >= 0.15 * max(follow_time, steeper_time), \

@@ -7,10 +7,10 @@ on that state with the latest /target (the hand: the centre x_d of the desired r
 `effort_limit` with its direction kept, on /effort_controller/commands (the interface of
 ros2_control's JointGroupEffortController): one wake-up per cycle, the command computed from
 the newest state; its change since the last command is limited to `max_effort_rate` times
-the time between their joint states (effort_rate; after the clamp). With `mode: velocity` it
-publishes the joint-velocity reference qdot_r of eq. 14 on /velocity_controller/commands
-instead. theta_hat advances by the time between the
-joint states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
+the time between their joint states, at most one period (effort_rate; after the clamp).
+With `mode: velocity` it publishes the joint-velocity reference qdot_r of eq. 14 on
+/velocity_controller/commands instead. theta_hat advances by the time between the joint
+states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
 misses: commands published later than 1.5 periods of `rate_hz` after the stamp of their joint
 state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone computes V.
 
@@ -409,7 +409,9 @@ class Controller(Node):
         elif self._velocity_mode:
             command = output.qdot_r
         else:
-            command, self._rate_limited = self._limiter.limit(output.tau, dt)
+            # At most one period's worth per command (see effort_rate).
+            command, self._rate_limited = self._limiter.limit(output.tau,
+                                                              min(dt, self._period))
         msg = self._command_msg
         msg.data = command
         self._command_pub.publish(msg)

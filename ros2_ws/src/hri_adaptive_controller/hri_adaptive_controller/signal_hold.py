@@ -8,17 +8,18 @@ most `max_extrapolation` s). A new sample then lands where the old extrapolation
 hand's velocity estimate lags its acceleration, so each /target moves x_d by about a mm at
 0.5 m/s, and a TaskState after a gap moved a from 0.09 to 0.97 in one control cycle (a
 19 N m torque step on the topics). `BlendedHold` closes such a gap smoothly instead: at the
-first control cycle t0 that sees a new sample, the offset p0 (old output minus new
-extrapolation) and the rate offset v0 are carried and faded out over a blend time T,
+first control cycle t0 that sees a new sample, the jump p0 (old extrapolation minus new) and
+the rate jump v0 are carried and faded out over a blend time T (each jump its own blend),
 
     y(t) = y_new(t) + p0 (1 - s(u)) + v0 T h(u),   u = (t - t0) / T,
     s(u) = 10 u^3 - 15 u^4 + 6 u^5,   h(u) = u - 6 u^3 + 8 u^4 - 3 u^5,
 
 s the quintic smoothstep of eq. 13, h the quintic Hermite basis with h(0) = h(1) = 0,
 h'(0) = 1, h'(1) = h''(0) = h''(1) = 0: y and dy/dt are continuous at t0 and y meets the new
-extrapolation at t0 + T. T = max(blend_time, pace |p0|): the hand blends over its message
-period; the weight at `pace` s per unit of a (the controller's task_fade_time), so a late
-TaskState never moves a faster than the controller's own fade.
+extrapolation at t0 + T. T = max(blend_time, pace |p0|): each blends over its message period
+(the time since the previous one's stamp), the weight also at `pace` s per unit of a (the
+controller's task_fade_time), so a TaskState after a gap never moves a faster than the
+controller's own fade.
 
 `HandHold` is the hand's estimate (VelocityEstimator plus a BlendedHold); `TaskWeightHold`
 is a(E, t) of the task in force: a TaskState naming another task while the held weight is
@@ -65,7 +66,7 @@ class BlendedHold:
         """Forget every sample (the next one is taken as it is, no blend)."""
         self._sample = None  # (stamp, value, rate)
         self._pending = None  # (stamp, value, rate, blend_time), not yet seen by evaluate
-        self._blend = None  # (start, duration, p0, v0)
+        self._blends = []  # (start, duration, p0, v0) of each jump still being closed
 
     @property
     def empty(self) -> bool:
@@ -82,47 +83,49 @@ class BlendedHold:
     def evaluate(self, t: float, blend_rate: bool = True
                  ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
         """(value, rate) held at time t (s), or None before the first sample. blend_rate=False:
-        the rate without the blend's own (the extrapolation's rate alone)."""
+        the rate without the blends' own (the extrapolation's rate alone)."""
         if self._pending is not None:
             stamp, value, rate, blend_time = self._pending
             self._pending = None
-            old = self._output(t) if self._sample is not None else None
-            self._sample, self._blend = (stamp, value, rate), None
+            old = self._extrapolation(t) if self._sample is not None else None
+            self._sample = (stamp, value, rate)
             if old is not None:
-                new = self._output(t)
+                # Each jump gets a blend of its own, so a running one keeps its progress (one
+                # restarted at every sample would never finish while samples come faster).
+                new = self._extrapolation(t)
                 p0 = tuple(a - b for a, b in zip(old[0], new[0], strict=True))
                 v0 = tuple(a - b for a, b in zip(old[1], new[1], strict=True))
                 duration = max(blend_time, self._pace * max(map(abs, p0), default=0.0))
-                if duration > 0.0:
-                    self._blend = (t, duration, p0, v0)
+                if duration > 0.0 and (any(p0) or any(v0)):
+                    self._blends.append((t, duration, p0, v0))
         if self._sample is None:
             return None
-        return self._output(t, blend_rate)
-
-    def _output(self, t: float, blend_rate: bool = True
-                ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        stamp, value, rate = self._sample
-        held = min(max(t - stamp, 0.0), self._max_hold)
-        out = [v + r * held for v, r in zip(value, rate, strict=True)]
-        out_rate = list(rate) if held < self._max_hold else [0.0] * len(rate)
-        if self._blend is not None:
-            start, duration, p0, v0 = self._blend
+        value, rate = self._extrapolation(t)
+        out, out_rate = list(value), list(rate)
+        running = []
+        for blend in self._blends:
+            start, duration, p0, v0 = blend
             u = (t - start) / duration
             if u >= 1.0:
-                self._blend = None
-            elif u > 0.0:
-                s, ds, _ = quintic_smoothstep(u)
-                h, dh = _hermite_slope_basis(u)
-                for i in range(len(out)):
-                    out[i] += p0[i] * (1.0 - s) + v0[i] * duration * h
-                    if blend_rate:
-                        out_rate[i] += -p0[i] * ds / duration + v0[i] * dh
-            else:
-                for i in range(len(out)):
-                    out[i] += p0[i]
-                    if blend_rate:
-                        out_rate[i] += v0[i]
+                continue
+            running.append(blend)
+            s, ds, _ = quintic_smoothstep(u) if u > 0.0 else (0.0, 0.0, 0.0)
+            h, dh = _hermite_slope_basis(u) if u > 0.0 else (0.0, 1.0)
+            for i in range(len(out)):
+                out[i] += p0[i] * (1.0 - s) + v0[i] * duration * h
+                if blend_rate:
+                    out_rate[i] += -p0[i] * ds / duration + v0[i] * dh
+        self._blends = running
         return tuple(out), tuple(out_rate)
+
+    def _extrapolation(self, t: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The newest sample held to first order at t (no blend)."""
+        stamp, value, rate = self._sample
+        # Backwards too: a sample stamped after t (its source's clock runs ahead of the joint
+        # states' by their latency) is taken back to t, so old and new compare at one time.
+        held = min(max(t - stamp, -self._max_hold), self._max_hold)
+        out = tuple(v + r * held for v, r in zip(value, rate, strict=True))
+        return out, rate if abs(held) < self._max_hold else tuple(0.0 for _ in rate)
 
 
 class HandHold:
@@ -171,6 +174,8 @@ class TaskWeightHold:
 
     def __init__(self, pace: float, max_extrapolation: float):
         self._hold = BlendedHold(max_extrapolation, pace)
+        self._max_hold = max_extrapolation
+        self._stamp = None  # of the latest TaskState of the task in force
         self._key = self._payload = None
         self._next = None  # (key, payload, stamp, weight, rate) of another task, waiting
         self._fading_out = False  # the task in force fades out for the one waiting
@@ -179,9 +184,13 @@ class TaskWeightHold:
         """A TaskState: the task `key` (with `payload`) at weight a in [0, 1] and rate da/dt
         (1/s), stamped `stamp` s."""
         if self._hold.empty or key == self._key:
+            # On time, a TaskState lands close to the hold: blended over its period, so that
+            # da/dt changes smoothly too (it feeds qddot_r, eq. 18).
+            period = 0.0 if self._stamp is None else min(max(stamp - self._stamp, 0.0),
+                                                        self._max_hold)
             self._key, self._payload, self._next = key, payload, None
-            self._fading_out = False
-            self._hold.offer(stamp, (weight,), (rate,))
+            self._fading_out, self._stamp = False, stamp
+            self._hold.offer(stamp, (weight,), (rate,), period)
         else:
             self._next = (key, payload, stamp, weight, rate)
 
@@ -192,7 +201,7 @@ class TaskWeightHold:
             if held is None or held[0][0] <= 0.0:  # the old task is out: swap
                 key, payload, stamp, weight, rate = self._next
                 self._next, self._fading_out = None, False
-                self._key, self._payload = key, payload
+                self._key, self._payload, self._stamp = key, payload, stamp
                 self._hold.offer(stamp, (weight,), (rate,))
             elif not self._fading_out:
                 # Fade the old task out first, from where it is, at the hold's pace.

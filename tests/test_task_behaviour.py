@@ -37,7 +37,9 @@ pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # the 1 kHz loop
 ARM = np.array([0.35, 0.30])  # m, scara_sim's initial end-effector position
 D1_AVOID = 0.183  # m, Table I's avoid row
 D2_FOLLOW = 0.041  # m, Table I's follow row
-MAX_EFFORT_STEP = 1.0  # N m per 1 ms control cycle
+# N m per 1 ms control cycle; the controller's rate limit holds its commands to exactly this,
+# and their difference may round above it by an ulp.
+MAX_EFFORT_STEP = 1.0 + 1e-9
 RAMP = 0.3  # s, event_manager ramp_time
 REACH_IN_SPEED = 0.5  # m/s
 CONTROLLER = load_defaults('hri_adaptive_controller', 'controller')
@@ -231,7 +233,7 @@ def test_follow_reaches_and_tracks_the_hand_a1_a2_act_and_the_switch_to_avoid_is
     # Fig. 4: the arm follows the walking hand and settles in the region again, where the
     # task force, and so the torque, goes to ~0.
     assert wait_for(lambda: len(hand_stops(*streams.hand_path())) == 1
-                    and streams.hand_path()[0][-1] > hand_stops(*streams.hand_path())[0][1] + 0.3
+                    and streams.hand_path()[0][-1] > hand_stops(*streams.hand_path())[0][1] + 1.5
                     and settled_in(streams.states, 0.0, D2_FOLLOW), 15.0), streams.states[-1]
     (moved_from, moved_to), = hand_stops(*streams.hand_path())
     _, tracking = streams.distance(moved_from, math.inf)

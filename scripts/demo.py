@@ -583,9 +583,10 @@ class Demo:
                   'control cycles, after the first command: ' + ', '.join(
                       f'{name} {value:.3f} N m' for name, value in steps.items())
                   + ' (bar: 1 N m; measured on the topics, so a loaded machine adds to '
-                  'them). The pure closed loop (test_closed_loop.py) gives at most 0.25 N m '
-                  "for Table I's rows and the learned rows at region entry, switches and "
-                  'task-state timeouts.']
+                  "them; the controller's max_effort_rate keeps each command within 1 N m of "
+                  'the one before). The pure closed loop (test_closed_loop.py) gives at most '
+                  "0.25 N m for Table I's rows and the learned rows at region entry, switches "
+                  'and task-state timeouts, from the control law alone.']
         (self.out / 'report.md').write_text('\n'.join(lines) + '\n')
         (self.out / 'metrics.json').write_text(json.dumps(self.metrics, indent=2) + '\n')
         print(f'  wrote {self.out / "report.md"}, {self.out / "metrics.json"} and '

@@ -70,9 +70,11 @@ class Streams:
 
     def arm(self, start=-math.inf, end=math.inf) -> tuple[np.ndarray, np.ndarray]:
         """Times (N,) s and end-effector positions (N, 2) m stamped in [start, end]."""
-        self.ee = self.raw_ee.messages()
-        samples = [(stamp(m), m.point.x, m.point.y) for m in self.ee]
-        rows = np.array([s for s in samples if start <= s[0] <= end]).reshape(-1, 3)
+        arrivals = list(self.raw_ee.arrivals)
+        self.ee += [deserialize_message(data, PointStamped)  # only the new ones
+                    for _, data in arrivals[len(self.ee):]]
+        rows = np.array([(stamp(m), m.point.x, m.point.y) for m in self.ee]).reshape(-1, 3)
+        rows = rows[(rows[:, 0] >= start) & (rows[:, 0] <= end)]
         return rows[:, 0], rows[:, 1:]
 
     def hand_path(self) -> tuple[np.ndarray, np.ndarray]:

@@ -18,10 +18,11 @@ s the quintic smoothstep of eq. 13, h the quintic Hermite basis with h(0) = h(1)
 h'(0) = 1, h'(1) = h''(0) = h''(1) = 0: y and dy/dt are continuous at t0 and y meets the new
 extrapolation at t0 + T. T = max(blend_time, pace |p0|): each blends over its message period
 (the time since the previous one's stamp), the weight also at `pace` s per unit of a (the
-controller's task_fade_time), so a TaskState after a gap never moves a faster than the
-controller's own fade.
+controller's task_fade_time), so a TaskState after a gap is closed at the controller's own
+fade pace (the blend adds at most 15/8 / pace to da/dt).
 
-`HandHold` is the hand's estimate (VelocityEstimator plus a BlendedHold); `TaskWeightHold`
+`HandHold` is the hand's estimate (VelocityEstimator plus a BlendedHold; xdot_d is the
+estimate, the blend moves x_d only); `TaskWeightHold`
 is a(E, t) of the task in force: a TaskState naming another task while the held weight is
 above zero first fades the old task out (at `pace`), then swaps (the event_manager's swap
 happens at a = 0; after a gap the controller may not have seen it). Times in s, values as

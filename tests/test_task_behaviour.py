@@ -116,21 +116,22 @@ class Streams:
 
 
 def hand_stops(times, points, after=-math.inf) -> list[tuple[float, float]]:
-    """(start, end) stamps of the hand's moves after `after` s (speed above 1 mm/s); still
-    spells shorter than 0.1 s (hand_sim publishing one position twice when it is late) do not
-    split a move."""
+    """(start, end) stamps of the hand's moves after `after` s (speed above 1 mm/s). A still
+    spell shorter than 0.3 s does not split a move (the scripts pause for 0.5 s or more; a
+    hand_sim that is late on a loaded machine does not), and a "move" of less than 1 cm is
+    none."""
     speed = np.linalg.norm(np.diff(points, axis=0), axis=1) / np.maximum(np.diff(times), 1e-6)
     moving = np.concatenate([[False], speed > 1e-3, [False]])
     edges = np.flatnonzero(np.diff(moving.astype(int)))
-    moves = [[times[a], times[min(b, len(times) - 1)]] for a, b in zip(edges[::2], edges[1::2],
-                                                                       strict=True)]
+    moves = [[a, min(b, len(times) - 1)] for a, b in zip(edges[::2], edges[1::2], strict=True)]
     merged = []
     for move in moves:
-        if merged and move[0] - merged[-1][1] < 0.1:
+        if merged and times[move[0]] - times[merged[-1][1]] < 0.3:
             merged[-1][1] = move[1]
         else:
             merged.append(move)
-    return [tuple(m) for m in merged if m[0] >= after]
+    return [(times[a], times[b]) for a, b in merged
+            if times[a] >= after and np.linalg.norm(points[b] - points[a]) >= 0.01]
 
 
 def test_avoid_backs_away_returns_to_rest_and_never_copies_the_hand(live_loop, probe):

@@ -91,14 +91,15 @@ class Streams:
                          if m.status == 'ok' and start <= stamp(m) <= end]).reshape(-1, 2)
         return rows[:, 0], rows[:, 1]
 
-    def effort_steps(self, since: float = -math.inf) -> float:
+    def effort_steps(self, since: float = -math.inf, start: float = -math.inf,
+                     end: float = math.inf) -> float:
         """Largest change (N m) of the torque the sim applied per control cycle on its clock,
         from the joint states that arrived after `since` (monotonic s): a command the
         controller sends late on a loaded machine carries several cycles' change, which is
         the scheduler's, not the control law's; a drive that took in the commands late
         and skipped some did not see the cycles between (tests.fault_tools.
-        effort_change_per_step)."""
-        states = [m for _, m in self.joints.timed(since)]
+        effort_change_per_step). start, end: the states' stamps (s) to keep."""
+        states = [m for _, m in self.joints.timed(since) if start <= stamp(m) <= end]
         assert len(states) >= 100, len(states)
         return effort_change_per_step(states, commands=[tuple(m.data)
                                                         for m in self.commands.messages()])
@@ -168,11 +169,13 @@ def test_avoid_backs_away_returns_to_rest_and_never_copies_the_hand(live_loop, p
     # 3 s after the hand has gone, the arm is back within 1 cm of its rest position.
     _, back = streams.arm(leave[1] + 3.0)
     steps = streams.effort_steps()
+    reach_steps = streams.effort_steps(start=reach[0], end=leave[0])
     print(f'avoid: arm within {np.max(np.linalg.norm(arm - rest, axis=1)):.3f} m of rest while '
           f'the hand walked off; closest {np.min(near):.3f} m; from 2 s after the stop '
           f'>= {np.min(settled):.3f} m; pushed {np.max(np.linalg.norm(pushed - rest, axis=1)):.3f}'
           f' m; 3 s after the hand left within {np.max(np.linalg.norm(back - rest, axis=1)):.4f}'
-          f' m of rest; largest effort step {steps:.3f} N m per cycle (reach-in included)')
+          f' m of rest; largest effort step {steps:.3f} N m per cycle over the run (start '
+          f'included), {reach_steps:.3f} from the reach-in to the hand leaving')
     assert back.size and np.max(np.linalg.norm(back - rest, axis=1)) <= 0.01
     assert steps <= MAX_EFFORT_STEP
     streams.assert_commands_safe()

@@ -252,5 +252,5 @@ def test_event_manager_killed_fades_the_task_out_then_in_when_task_states_return
     assert len(fade_out) > 1000
     steps = effort_change_per_step(fade_out, commands=[tuple(m.data)
                                                        for m in commands.messages()])
-    print(f'largest effort change per 1 ms through the fade-out: {steps:.3f} N m')
+    print(f'largest effort change per control cycle through the fade-out: {steps:.3f} N m')
     assert steps <= MAX_EFFORT_STEP, steps

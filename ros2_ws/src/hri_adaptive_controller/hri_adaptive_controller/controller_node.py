@@ -200,7 +200,7 @@ class Controller(Node):
         self._hand = HandHold(values['target_filter_time'], MAX_TARGET_EXTRAPOLATION)
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
-        # a(E, t) of the task in force; payload (shape or None, k, name).
+        # a(E, t) of the task in force; its payload: (shape or None, k).
         self._weights = TaskWeightHold(values['task_fade_time'], MAX_WEIGHT_EXTRAPOLATION)
         self._limiter = EffortRateLimiter(values['max_effort_rate'])
         # The link to the event_manager as a second weight on a (1 while TaskStates come):

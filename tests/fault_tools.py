@@ -6,11 +6,15 @@ check wrong; `RawListener` takes a fast stream as serialised bytes with their ar
 and decodes them only when the test looks.
 """
 
+import bisect
 import math
 import time
 
+import numpy as np
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+
+from hri_core.node_common import stamp_seconds
 
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -74,3 +78,52 @@ def assert_all_finite(messages: list, topic: str) -> None:
     """Every float of every message is finite (the topic names the failure)."""
     bad = [m for m in messages if not all(math.isfinite(v) for v in floats_of(m))]
     assert not bad, f'non-finite values on {topic}: {bad[:3]}'
+
+
+def effort_change_per_step(joint_states: list, step: float = 1e-3,
+                           commands: list | None = None) -> float:
+    """Largest change (N m) of the applied torque per control cycle, on the sim's clock.
+
+    Each change of the torque the sim applied (JointState.effort) is divided by the 1 ms steps
+    (`step` s) of the sim's clock since the previous change: a command the controller sends
+    late (a busy machine) changes the torque by the sum of the cycles it missed. With
+    `commands` (the controller's effort commands in the order it sent them, each a pair of
+    floats), a change is divided by the control cycles between the two commands if that is
+    more: on a loaded machine the sim took in the commands up to 20 ms late and in a burst,
+    applying a 100 ms old command and then one 20 cycles newer (14 N m in 2 steps, measured,
+    while every command differed from the one before by at most 1 N m); those cycles ran, the
+    drive missed them.
+    """
+    stamps = np.array([stamp_seconds(m.header.stamp) for m in joint_states])
+    efforts = np.array([m.effort for m in joint_states])
+    order = np.argsort(stamps, kind='stable')
+    stamps, efforts = stamps[order], efforts[order]
+    changed = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
+    points = np.concatenate(([0], changed))
+    jumps = np.max(np.abs(np.diff(efforts[points], axis=0)), axis=1)
+    steps = np.maximum(np.round(np.diff(stamps[points]) / step), 1.0)
+    if commands is not None and len(points) > 1:
+        cycles = _commands_between([tuple(efforts[i]) for i in points],
+                                   [tuple(c) for c in commands])
+        steps = np.maximum(steps, cycles)
+    return float(np.max(jumps / steps)) if len(jumps) else 0.0
+
+
+def _commands_between(applied: list, commands: list) -> np.ndarray:
+    """For each pair of consecutive applied torques, how many commands the controller sent
+    from the first to the second (1 where either is not found in order: the sim's own zero
+    torque, or a command sent before the listener heard any)."""
+    indices: dict[tuple, list[int]] = {}
+    for i, command in enumerate(commands):
+        indices.setdefault(command, []).append(i)
+    where = []
+    start = 0
+    for value in applied:
+        found = indices.get(value, [])
+        k = bisect.bisect_left(found, start)
+        index = found[k] if k < len(found) else None
+        where.append(index)
+        if index is not None:
+            start = index
+    return np.array([b - a if a is not None and b is not None and b > a else 1
+                     for a, b in zip(where[:-1], where[1:], strict=True)], dtype=float)

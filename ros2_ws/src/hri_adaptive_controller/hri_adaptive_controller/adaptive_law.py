@@ -6,15 +6,17 @@
     V = 1/2 s^T M s + Kp a Q + 1/2 dtheta^T L^-1 dtheta,  dtheta = theta - theta_hat  (eq. 21)
     dV/dt = -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q               (eq. 22)
 
-qdot_r, qddot_r, delta_eps and the shaped potential Q come from task_variable (eq. 12', 14);
+qdot_r, qddot_r, delta_eps = K dP/d(dx) under the speed cap and its potential Q come from
+task_variable (eq. 12', 14);
 Y_d is hri_core.dynamics.regressor (eq. 18). Two deliberate differences from the paper's
 text, both needed for eq. 22 to follow from eq. 16-21:
 
 - eq. 16 prints -Kp a delta_eps; the closed loop eq. 20 (and the units: delta_eps is a task
   space quantity, tau a joint torque) needs -J^T Kp a delta_eps, used here.
 - With a scalar Kp (N s/m), the potential term of V must be Kp a Q (eq. 21 prints a P, which
-  is right only for Kp = 1). Q is the shaped potential of task_variable (equal to k P where the
-  task speed is below saturation), so eq. 22 holds in and out of speed saturation.
+  is right only for Kp = 1). Q is task_variable's potential (equal to K P where the task
+  speed is below the cap), so eq. 22 holds below and above the cap. An avoid task's return to
+  its rest position enters qdot_r only (not the Kp term): it is not a gradient of Q.
   F = diag(b1, b2), the true viscous friction, only adds dissipation. eq. 22 is exact when J+ is
   the exact inverse (manipulability above the damping threshold); the torque limit and the
   projection of theta_hat are the other places where the argument is not used as is.
@@ -45,9 +47,10 @@ import numpy as np
 from hri_adaptive_controller.task_variable import (
     DampingSettings,
     JointReference,
-    ShapedPotential,
+    TaskDrive,
     joint_velocity_reference,
-    shaped_potential,
+    rest_term,
+    task_drive,
     task_potential,
     task_term,
 )
@@ -68,10 +71,12 @@ class ControllerGains:
     """Gains of eq. 14-19 and the safety limits.
 
     ks: diagonal of Ks (N m s/rad), > 0; kp: scalar Kp (N s/m), >= 0; adaptation: diagonal of
-    L (7 values, >= 0; units of theta^2 per N m s); task_gain: k of task_variable (m^2/s), or
-    None to pick k per task (task_variable.shaped_potential, from approach_distance, m);
-    region_margin (m, >= 0): how far inside the learned region the task aims;
-    max_task_speed: v_max (m/s); damping: pseudo-inverse damping; effort_limit (N m);
+    L (7 values, >= 0; units of theta^2 per N m s); task_gain: K (m^2/s) for every task, or
+    None for each task's own K (0 = default_task_gain); approach_speed v_a (m/s, >= 0) and
+    region_margin (m, >= 0): the approach term of task_variable; max_task_speed: v_max (m/s),
+    the speed cap's knee; rest_gain (1/s, >= 0) and rest_gate (m, > 0): an avoid task's return
+    to rest; damping: pseudo-inverse damping; effort_limit (N m); max_effort_rate (N m/s,
+    > 0): the rate limit the callers apply after the clamp (effort_rate; not the law's own);
     theta_lower, theta_upper: projection box for theta_hat (7 values each).
     Raises ValueError with the reason for a value out of range.
     """
@@ -80,10 +85,13 @@ class ControllerGains:
     kp: float
     adaptation: tuple[float, ...]
     task_gain: float | None
-    approach_distance: float
+    approach_speed: float
     region_margin: float
     max_task_speed: float
     effort_limit: float
+    rest_gain: float = 2.0
+    rest_gate: float = 0.03
+    max_effort_rate: float = 1000.0
     damping: DampingSettings = field(default_factory=DampingSettings)
     theta_lower: tuple[float, ...] = DEFAULT_THETA_LOWER
     theta_upper: tuple[float, ...] = DEFAULT_THETA_UPPER
@@ -102,12 +110,14 @@ class ControllerGains:
         if self.task_gain is not None and not (
                 math.isfinite(self.task_gain) and self.task_gain > 0.0):
             raise ValueError(f'task_gain must be None or finite and > 0, got {self.task_gain}')
-        for name in ('approach_distance', 'max_task_speed', 'effort_limit'):
+        for name in ('max_task_speed', 'effort_limit', 'rest_gate', 'max_effort_rate'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
-        if not (math.isfinite(self.region_margin) and self.region_margin >= 0.0):
-            raise ValueError(f'region_margin must be finite and >= 0, got {self.region_margin}')
+        for name in ('approach_speed', 'region_margin', 'rest_gain'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {value}')
         lower = np.asarray(self.theta_lower, dtype=float)
         upper = np.asarray(self.theta_upper, dtype=float)
         if lower.shape != (PARAMETER_COUNT,) or upper.shape != (PARAMETER_COUNT,):
@@ -137,19 +147,38 @@ DEFAULT_GAINS = ControllerGains(
     # keeps theta_hat from chasing every transient of s (and, on a real arm, sensor noise).
     # The gravity moments (zero columns for the horizontal arm) keep a small rate.
     adaptation=(5.0, 2.0, 1.0, 20.0, 10.0, 0.1, 0.1),
-    # k: per task (task_variable.shaped_potential): Table I's potentials differ by > 100 orders of
-    # magnitude in slope, so one k cannot serve them all; with the approach distance below
-    # every task commands >= 0.76 v_max until 1 cm from its region, then slows down.
+    # K: each task's own (the learner's k; Table I's rows, which have none, get
+    # hri_core.potential.default_task_gain): a1, a2 and K set the speed.
     task_gain=None,
-    approach_distance=0.01,
-    # Region margin: the task aims 2 mm inside the learned region (at most a quarter of its
-    # width), so that the arm enters the region in finite time instead of creeping towards its
-    # boundary (the zero set of a gradient field is only reached asymptotically).
-    region_margin=0.002,
+    # Approach floor: where the learned pull K |dP/dz| is below 0.1 m/s, the arm still moves
+    # towards the region at about 0.1 m/s and enters it (P rises from its region like
+    # (r - d)^3: without the floor the arm creeps towards the boundary forever; Table I's
+    # follow row moves at 0.3 mm/s 6 cm from its region), stopping region_margin inside it.
+    # 0.1 m/s: faster than a hand reaching in at 0.06 m/s, so avoid keeps its distance; in the
+    # pure closed loop follow enters its region 2.0 s after the event (0.05 m/s: 3.1 s).
+    # Set approach_speed to 0 for K |dP/dz| alone.
+    approach_speed=0.1,
+    # Region margin: 2 cm (at most a quarter of the region's width), the length over which the
+    # floor fades out inside the region. The fade's jerk grows with the crossing speed squared
+    # over the margin squared: a hand reaching in at 0.5 m/s steps the torque between two 1 ms
+    # cycles by 2.4 N m with 5 mm, 0.79 N m with 1 cm, 0.25 N m with 2 cm (Table I's avoid
+    # row, pure closed loop); on a loaded machine the node misses cycles, and two cycles' worth
+    # of change then come in one command, so the margin matters on the topics.
+    region_margin=0.02,
     # v_max: a speed that is safe near a person (ISO/TS 15066 reduced-speed practice).
     max_task_speed=0.25,
     # effort_limit: the simulated drives' limit (scara_sim effort_limit: 20 N m).
     effort_limit=20.0,
+    # Avoid tasks return to rest at rest_gain 2 1/s (1/e in 0.5 s, capped like the task speed)
+    # once the arm is rest_gate 3 cm outside the region's edge; nearer the hand, the potential
+    # alone acts.
+    rest_gain=2.0,
+    rest_gate=0.03,
+    # Torque rate limit (effort_rate, after the clamp): 1000 N m/s = 1 N m per 1 ms cycle, the
+    # continuity bar of the torque. The law stays below it in the pure closed loop (at most
+    # 0.25 N m per cycle, Table I's and the demo's rows); on the topics it catches what a
+    # loaded machine adds (a command computed late carries several cycles' change).
+    max_effort_rate=1000.0,
     # J+ damping from 28 deg of the stretched arm on, up to lambda = 0.15 m: joint speeds stay
     # below 3 rad/s and torques below 10 N m when the target is out of reach (see
     # DampingSettings); the task region of the demos lies well inside.
@@ -313,7 +342,7 @@ class AdaptiveController:
         self._upper = np.asarray(gains.theta_upper, dtype=float)
         self._ks = np.asarray(gains.ks, dtype=float)
         self._adaptation = np.asarray(gains.adaptation, dtype=float)
-        self._shaped: dict[TaskShape, ShapedPotential] = {}
+        self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
         # The lean step's constants as Python floats.
         self._ks_floats = tuple(self._ks.tolist())
         self._adaptation_floats = tuple(self._adaptation.tolist())
@@ -340,40 +369,48 @@ class AdaptiveController:
         self._theta_hat = np.clip(theta, self._lower, self._upper)
         self._theta = tuple(self._theta_hat.tolist())
 
-    def shaped(self, shape: TaskShape | None) -> ShapedPotential | None:
-        """The shaped potential Q (eq. 12') the controller uses for `shape` (cached)."""
+    def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
+        """The TaskDrive (eq. 12') of the task `shape` with gain k (m^2/s; 0 = not given), or
+        None without a task (cached). Raises ValueError for a k < 0 or a potential with no
+        slope to take a default gain from."""
         if shape is None:
             return None
-        if shape not in self._shaped:
+        key = (shape, k)
+        drive = self._drives.get(key)
+        if drive is None:
             gains = self._gains
-            self._shaped[shape] = shaped_potential(
-                shape, gains.max_task_speed, gains.approach_distance, gains.region_margin,
-                gains.task_gain)
-        return self._shaped[shape]
+            drive = self._drives[key] = task_drive(
+                shape, k if gains.task_gain is None else gains.task_gain,
+                gains.max_task_speed, self._l1 + self._l2, gains.approach_speed,
+                gains.region_margin, gains.rest_gain, gains.rest_gate)
+        return drive
 
-    def task_gain(self, shape: TaskShape | None) -> float:
-        """Task gain k (m^2/s) for `shape` (0 for no task)."""
-        shaped = self.shaped(shape)
-        return 0.0 if shaped is None else shaped.task_gain
+    def task_gain(self, shape: TaskShape | None, k: float = 0.0) -> float:
+        """Task gain K (m^2/s) used for `shape` with gain k (0 for no task)."""
+        drive = self.drive(shape, k)
+        return 0.0 if drive is None else drive.task_gain
 
     def step(self, q, dq, x_d, xdot_d, xddot_d, a: float, da: float,
              shape: TaskShape | None, dt: float, theta_true=None,
-             friction=None, monitor: bool = True) -> ControlOutput:
+             friction=None, monitor: bool = True, k: float = 0.0,
+             rest=None) -> ControlOutput:
         """Torque for the state (q, dq) and advance theta_hat by dt (eq. 16-19).
 
         q, dq (2,) rad, rad/s; x_d, xdot_d, xddot_d (2,) m, m/s, m/s^2: the target; a, da:
         a(E, t) and da/dt (1/s); shape: active task or None; dt (s) > 0: time to the next
         step (for the Euler step of eq. 19). theta_true (7,) and friction diag F (2,) are for
-        simulation monitoring only (V with its parameter term; eq. 22's prediction).
-        monitor=False skips V and Q (saves the radial integral). Non-finite measurements or
-        results give zero torque and fault=True; bad arguments raise ValueError.
+        simulation monitoring only (V with its parameter term; eq. 22's prediction). k: the
+        task's gain K (m^2/s, 0 = not given); rest (2,) m: an avoid task's rest position
+        (None: no return). monitor=False skips V and Q (saves the radial integral).
+        Non-finite measurements or results give zero torque and fault=True; bad arguments
+        raise ValueError.
         """
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'dt must be finite and > 0 s, got {dt}')
         if not (math.isfinite(a) and 0.0 <= a <= 1.0):
             raise ValueError(f'a(E, t) must be in [0, 1], got {a}')
         theta_hat = np.array(self._theta)
-        shaped = self.shaped(shape)
+        shaped = self.drive(shape, k)
         k = 0.0 if shaped is None else shaped.task_gain
         measurements = [np.asarray(v, dtype=float) for v in (q, dq, x_d, xdot_d, xddot_d)]
         if any(m.shape != (2,) for m in measurements):
@@ -386,7 +423,7 @@ class AdaptiveController:
             with np.errstate(all='ignore'):
                 reference = joint_velocity_reference(
                     q, dq, x_d, xdot_d, xddot_d, a, da, shaped, self._l1, self._l2,
-                    gains.damping)
+                    gains.damping, rest)
         except ValueError as error:
             return self._fault(theta_hat, k, str(error))
         with np.errstate(all='ignore'):
@@ -419,7 +456,8 @@ class AdaptiveController:
 
     def step_lean(self, q, dq, x_d, xdot_d, xddot_d, a: float, da: float,
                   shape: TaskShape | None, dt: float, monitor: bool = False,
-                  theta_true=None, friction=None) -> LeanOutput:
+                  theta_true=None, friction=None, k: float = 0.0,
+                  rest=None) -> LeanOutput:
         """`step` for the 2-joint arm in plain floats, without per-call checks.
 
         Same arguments and equations as `step`; q, dq, x_d, xdot_d, xddot_d are pairs of
@@ -449,7 +487,8 @@ class AdaptiveController:
         a11, a22 = g11 + lam2, g22 + lam2
         det = a11 * a22 - g12 * g12
         theta = self._theta
-        k = 0.0 if shape is None else self.shaped(shape).task_gain
+        drive = None if shape is None else self.drive(shape, k)
+        k = 0.0 if drive is None else drive.task_gain
         if abs(det) <= 1e-300:
             return self._lean_fault(theta, k, 'singular Jacobian and no damping '
                                     '(max_damping = 0)')
@@ -469,26 +508,39 @@ class AdaptiveController:
         r12 = d11 * i12 + d21 * i22 - (p11 * b12 + p12 * b22)
         r21 = d12 * i11 + d22 * i12 - (p21 * b11 + p22 * b21)
         r22 = d12 * i12 + d22 * i22 - (p21 * b12 + p22 * b22)
-        # Task velocity a delta_eps and its time derivative (eq. 12', 14, 18).
+        # Task velocity a delta_eps, the avoid task's return a v_rest and their time
+        # derivatives (eq. 12', 14, 18; task_variable.joint_velocity_reference).
         xd1, xd2 = x_d
         vd1, vd2 = xdot_d
-        dx1 = l1 * c1 + l2 * c12 - xd1
-        dx2 = l1 * s1 + l2 * s12 - xd2
+        ad1, ad2 = xddot_d
+        x1, x2 = l1 * c1 + l2 * c12, l1 * s1 + l2 * s12
+        dx1, dx2 = x1 - xd1, x2 - xd2
         distance = math.hypot(dx1, dx2)
-        if shape is None:
+        feed, feed_rate = 1.0, 0.0
+        o1 = o2 = p1 = p2 = 0.0  # a v_rest and its time derivative
+        if drive is None:
             m1 = m2 = n1 = n2 = 0.0
         elif not math.isfinite(distance):  # the potential's code refuses a non-finite dx
             return self._lean_fault(theta, k, 'non-finite joint state or target')
         else:
-            t1, t2, h11, h12, h22 = task_term(dx1, dx2, self._shaped[shape])
-            u1 = j11 * w1 + j12 * w2 - vd1
-            u2 = j21 * w1 + j22 * w2 - vd2
+            t1, t2, h11, h12, h22 = task_term(dx1, dx2, drive)
+            xv1, xv2 = j11 * w1 + j12 * w2, j21 * w1 + j22 * w2
+            u1, u2 = xv1 - vd1, xv2 - vd2
             m1, m2 = a * t1, a * t2
             n1 = da * t1 + a * (h11 * u1 + h12 * u2)
             n2 = da * t2 + a * (h12 * u1 + h22 * u2)
-        v1, v2 = vd1 - m1, vd2 - m2
-        ad1, ad2 = xddot_d
-        z1, z2 = ad1 - n1, ad2 - n2
+            if drive.open_outward:
+                feed, feed_rate = 1.0 - a, -da
+                rx1, rx2 = (x1, x2) if rest is None else rest
+                r1, r2, cr1, cr2, gw1, gw2, b11, b12, b22 = rest_term(
+                    dx1, dx2, x1 - rx1, x2 - rx2, drive)
+                along = gw1 * u1 + gw2 * u2
+                o1, o2 = a * r1, a * r2
+                p1 = da * r1 + a * (cr1 * along + (b11 * xv1 + b12 * xv2))
+                p2 = da * r2 + a * (cr2 * along + (b12 * xv1 + b22 * xv2))
+        v1, v2 = feed * vd1 - m1 + o1, feed * vd2 - m2 + o2
+        z1 = feed * ad1 + feed_rate * vd1 - n1 + p1
+        z2 = feed * ad2 + feed_rate * vd2 - n2 + p2
         qr1, qr2 = p11 * v1 + p12 * v2, p21 * v1 + p22 * v2
         ar1 = r11 * v1 + r12 * v2 + (p11 * z1 + p12 * z2)
         ar2 = r21 * v1 + r22 * v2 + (p21 * z1 + p22 * z2)
@@ -525,7 +577,7 @@ class AdaptiveController:
         self._theta = tuple(theta_next)
         q_value = v_value = v_rate = None
         if monitor:
-            q_value = 0.0 if shape is None else task_potential(distance, self._shaped[shape])
+            q_value = 0.0 if drive is None else task_potential(distance, drive)
             model = theta if theta_true is None else tuple(float(v) for v in theta_true)
             mi1, mi2, mi3 = model[0], model[1], model[2]
             m11, m12 = mi1 + 2.0 * mi2 * cq2, mi3 + mi2 * cq2

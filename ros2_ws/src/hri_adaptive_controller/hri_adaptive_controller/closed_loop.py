@@ -2,12 +2,21 @@
 
 Each control period dt (s) the loop takes the events due, evaluates a(E, t) (event_weight,
 eq. 13), samples the target trajectory, computes the torque of eq. 16 (adaptive_law, which also
-advances theta_hat by eq. 19) and integrates the true dynamics (hri_core.dynamics.rk4_step,
-eq. 15, torque held over the step). It is what the unit tests and the benchmarks run; the ROS
-nodes run the same library against topics.
+advances theta_hat by eq. 19), limits its rate (effort_rate, gains.max_effort_rate, as the
+controller node) and integrates the true dynamics (hri_core.dynamics.rk4_step, eq. 15, torque
+held over the step). It is what the unit tests and the benchmarks run; the ROS nodes run the
+same library against topics.
+
+Two options bring the topics' timing into the pure loop: `target_period` samples the hand
+like hand_sim's /target messages, which the controller sees through its own hold
+(signal_hold.HandHold: velocity estimate, first-order hold, blend), and `command_delay` applies
+each command that many periods after the state it was computed from (a loop that is late,
+as the controller node on a loaded machine).
 
 Targets are callables t -> (x_d, xdot_d, xddot_d) in m, m/s, m/s^2 (shapes (2,)); events are
-(time in s, task name or None) pairs, the task names keys of `tasks`.
+(time in s, task name or None) pairs, the task names keys of `tasks`. An avoid task
+(task_variable.open_outward) returns the arm to its rest position: `rest_position`, or by
+default where the end-effector was when the task became active (as the controller node).
 """
 
 import math
@@ -21,8 +30,17 @@ from hri_adaptive_controller.adaptive_law import (
     AdaptiveController,
     ControllerGains,
 )
+from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
-from hri_core.dynamics import ScaraParameters, dynamic_parameters, rk4_step
+from hri_adaptive_controller.signal_hold import HandHold
+from hri_adaptive_controller.task_variable import pseudo_inverse_damping
+from hri_core.dynamics import (
+    ScaraParameters,
+    dynamic_parameters,
+    forward_kinematics,
+    jacobian,
+    rk4_step,
+)
 from hri_core.potential import TaskShape
 from hri_core.validation import planar_vector
 
@@ -30,6 +48,7 @@ TargetSample = tuple[np.ndarray, np.ndarray, np.ndarray]
 TargetTrajectory = Callable[[float], TargetSample]
 
 DEFAULT_INITIAL_Q = (0.0, math.pi / 2.0)  # rad: end-effector at (0.35, 0.30) m
+PEAK_RATIO = 1.875  # peak speed of a minimum-jerk move over its mean speed
 
 
 
@@ -57,6 +76,36 @@ def minimum_jerk_target(start, end, start_time: float, duration: float) -> Targe
     def sample(t: float) -> TargetSample:
         s, ds, dds = quintic_smoothstep((t - start_time) / duration)
         return start + s * step, (ds / duration) * step, (dds / duration ** 2) * step
+
+    return sample
+
+
+def path_target(start, moves: Sequence[tuple[float, Sequence[float], float]]) -> TargetTrajectory:
+    """A hand that starts at `start` (2,) m and makes minimum-jerk moves one after another.
+
+    moves: (start time s, end point (2,) m, peak speed m/s) each, in time order, each starting
+    where the previous one ended (and not before it ended). Between moves the hand is still.
+    """
+    point = planar_vector(start, 'start')
+    segments = []
+    for start_time, end, speed in moves:
+        end = planar_vector(end, 'end')
+        if not (math.isfinite(speed) and speed > 0.0):
+            raise ValueError(f'peak speed must be finite and > 0 m/s, got {speed}')
+        duration = max(PEAK_RATIO * float(np.linalg.norm(end - point)) / speed, 1e-9)
+        if segments and start_time < segments[-1][0] + segments[-1][1]:
+            raise ValueError(f'move at {start_time} s starts before the previous one ends')
+        segments.append((start_time, duration, minimum_jerk_target(point, end, start_time,
+                                                                   duration)))
+        point = end
+    hold = still_target(start)
+
+    def sample(t: float) -> TargetSample:
+        current = hold
+        for start_time, _, move in segments:
+            if t >= start_time:
+                current = move
+        return current(t)
 
     return sample
 
@@ -102,7 +151,11 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
              params: ScaraParameters | None = None, theta_hat0=None,
              gains: ControllerGains = DEFAULT_GAINS, q0=DEFAULT_INITIAL_Q, dq0=(0.0, 0.0),
              initial_task: str | None = None, ramp_time: float = 1.0, dt: float = 1e-3,
-             monitor: bool = True) -> SimulationResult:
+             monitor: bool = True, task_gains: Mapping[str, float] | None = None,
+             rest_position=None, reference_step: bool = False,
+             target_period: float | None = None, target_filter_time: float = 0.05,
+             max_target_extrapolation: float = 0.05,
+             command_delay: int = 0) -> SimulationResult:
     """Run the closed loop for `duration` s with control period and integration step dt (s).
 
     tasks: task name -> TaskShape; events: (time s, task name or None) that switch tasks
@@ -110,7 +163,14 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
     (default ScaraParameters()); theta_hat0 (7,): the controller's initial estimate (default:
     the true parameters); gains; q0, dq0 (2,): initial joint state; initial_task: active at
     t = 0 with a = 1 (or None: idle); ramp_time (s) of a full fade; monitor: compute V and Q
-    (the radial integral costs about as much as the rest of the step).
+    (the radial integral costs about as much as the rest of the step); task_gains: task name
+    -> K (m^2/s; missing or 0 = default_task_gain); rest_position (2,) m or None;
+    reference_step: run AdaptiveController.step (numpy, 12x slower) instead of step_lean (the
+    node's path; the two agree to 1e-12). target_period (s) or None: the controller sees the
+    target only every target_period s, as positions (the node's /target), through
+    signal_hold.HandHold(target_filter_time, max_target_extrapolation); None: the exact
+    target. command_delay (periods >= 0): the torque computed from the state at step k acts
+    from step k + command_delay on (zero before the first).
     Raises ValueError for unknown task names or bad values.
     """
     if not (math.isfinite(duration) and duration > 0.0):
@@ -126,11 +186,23 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
             raise ValueError(f'event names unknown task {name!r}; known: {sorted(tasks)}')
     if initial_task is not None and initial_task not in tasks:
         raise ValueError(f'initial_task {initial_task!r} is not one of {sorted(tasks)}')
+    if target_period is not None and not (math.isfinite(target_period) and target_period > 0):
+        raise ValueError(f'target_period must be None or finite and > 0 s, got {target_period}')
+    if int(command_delay) != command_delay or command_delay < 0:
+        raise ValueError(f'command_delay must be an integer >= 0, got {command_delay}')
+    hand = None if target_period is None else HandHold(target_filter_time,
+                                                       max_target_extrapolation)
+    next_target = 0.0
+    limiter = EffortRateLimiter(gains.max_effort_rate)
+    in_flight = [np.zeros(2)] * int(command_delay)
     pending_events = sorted(events, key=lambda event: event[0])
     schedule = EventWeightSchedule(ramp_time, initial_task)
     controller = AdaptiveController(gains, theta_hat0, params.l1, params.l2, params.gravity)
     friction = (params.b1, params.b2)
     q, dq = planar_vector(q0, 'q0'), planar_vector(dq0, 'dq0')
+    gains_k = dict(task_gains or {})
+    fixed_rest = None if rest_position is None else planar_vector(rest_position, 'rest')
+    rest, rest_task = fixed_rest, None
 
     steps = int(round(duration / dt))
     time = np.arange(steps) * dt
@@ -152,15 +224,44 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
             schedule.request(name, max(event_time, 0.0))
             event_index += 1
         weight = schedule.evaluate(t)
-        shape = None if weight.active_task is None else tasks[weight.active_task]
+        name = weight.active_task
+        shape = None if name is None else tasks[name]
+        if name != rest_task:  # a task became active: its rest position is here
+            rest_task = name
+            rest = fixed_rest if fixed_rest is not None else forward_kinematics(
+                q, params.l1, params.l2)
         x_d, xdot_d, xddot_d = target(t)
-        out = controller.step(q, dq, x_d, xdot_d, xddot_d, weight.weight, weight.rate, shape,
-                              dt, theta_true=theta_true, friction=friction, monitor=monitor)
+        if hand is not None:
+            if t >= next_target - 1e-9 * dt:
+                hand.offer(tuple(x_d.tolist()), float(t))
+                next_target += target_period
+            held_x, held_v = hand.evaluate(float(t))
+            x_d, xdot_d, xddot_d = np.array(held_x), np.array(held_v), np.zeros(2)
+        if reference_step:
+            out = controller.step(q, dq, x_d, xdot_d, xddot_d, weight.weight, weight.rate,
+                                  shape, dt, theta_true=theta_true, friction=friction,
+                                  monitor=monitor, k=gains_k.get(name, 0.0), rest=rest)
+        else:
+            out = controller.step_lean(
+                tuple(q.tolist()), tuple(dq.tolist()), tuple(x_d.tolist()),
+                tuple(xdot_d.tolist()), tuple(xddot_d.tolist()), weight.weight, weight.rate,
+                shape, dt, monitor=monitor, theta_true=theta_true, friction=friction,
+                k=gains_k.get(name, 0.0), rest=None if rest is None else tuple(rest.tolist()))
+        # The rate limit after the clamp; a fault's zero torque bypasses it (as in the node).
+        if out.fault:
+            limiter.reset()
+            command = np.zeros(2)
+        else:
+            command = np.array(limiter.limit(tuple(out.tau.tolist()) if isinstance(
+                out.tau, np.ndarray) else out.tau, dt)[0])
+        in_flight.append(command)
+        applied = in_flight.pop(0)
         rows['q'][i], rows['dq'][i], rows['target'][i] = q, dq, x_d
-        rows['tau'][i], rows['s'][i] = out.tau, out.s
-        if out.reference is not None:
-            rows['position'][i] = out.reference.position
-            scalars['damping'][i] = out.reference.damping
+        rows['tau'][i], rows['s'][i] = applied, out.s
+        if not out.fault:
+            rows['position'][i] = forward_kinematics(q, params.l1, params.l2)
+            scalars['damping'][i] = pseudo_inverse_damping(jacobian(q, params.l1, params.l2),
+                                                           gains.damping)[0]
         scalars['distance'][i] = np.nan if out.distance is None else out.distance
         for name, value in (('lyapunov', out.lyapunov), ('lyapunov_rate', out.lyapunov_rate),
                             ('task_potential', out.task_potential)):
@@ -169,10 +270,11 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
         theta_hat[i] = out.theta_hat
         torque_limited[i], fault[i] = out.torque_limited, out.fault
         phase[i], active_task[i] = weight.phase, weight.active_task
-        q, dq = rk4_step(q, dq, out.tau, dt, params)
+        q, dq = rk4_step(q, dq, applied, dt, params)
 
     return SimulationResult(
         time=time, **rows, **scalars, phase=phase, active_task=active_task,
         theta_hat=theta_hat, torque_limited=torque_limited, fault=fault,
         theta_true=theta_true,
-        task_gains={name: controller.task_gain(shape) for name, shape in tasks.items()})
+        task_gains={name: controller.task_gain(shape, gains_k.get(name, 0.0))
+                    for name, shape in tasks.items()})

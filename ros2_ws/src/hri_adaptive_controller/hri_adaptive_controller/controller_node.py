@@ -6,9 +6,11 @@ on that state with the latest /target (the hand: the centre x_d of the desired r
 /hri/task_state (active task, a(E, t), da/dt), and publishes the torque, limited to
 `effort_limit` with its direction kept, on /effort_controller/commands (the interface of
 ros2_control's JointGroupEffortController): one wake-up per cycle, the command computed from
-the newest state. With `mode: velocity` it publishes the joint-velocity reference qdot_r of
-eq. 14 on /velocity_controller/commands instead. theta_hat advances by the time between the
-joint states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
+the newest state; its change since the last command is limited to `max_effort_rate` times
+the time between their joint states, at most one period (effort_rate; after the clamp).
+With `mode: velocity` it publishes the joint-velocity reference qdot_r of eq. 14 on
+/velocity_controller/commands instead. theta_hat advances by the time between the joint
+states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
 misses: commands published later than 1.5 periods of `rate_hz` after the stamp of their joint
 state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone computes V.
 
@@ -31,8 +33,17 @@ Safety (the choices are argued in docs/design-notes.md):
   second weight on a, so no torque step), and TaskStates coming again fade it back in; with
   a = 0 the controller keeps the arm damped (Ks s with qdot_r = J+ xdot_d) but no task force
   acts;
+- a(E, t) is held between TaskStates from their stamps and a TaskState that lands off the
+  held value (one after a gap: the event_manager starved on a loaded machine) is blended in
+  at `task_fade_time` per unit of a, a missed swap faded out first (signal_hold.
+  TaskWeightHold), so a never jumps;
 - the hand's velocity xdot_d is estimated from the /target stamps with a first-order filter
-  (`target_filter_time`); its acceleration is taken as 0.
+  (`target_filter_time`); its acceleration is taken as 0; between targets the hand is held
+  to first order (at most MAX_TARGET_EXTRAPOLATION) and each new /target is blended in over
+  its message period (signal_hold.HandHold), so a fast hand does not step the task term;
+- the task's K comes with its TaskState (0: hri_core.potential.default_task_gain); an avoid
+  task returns the arm to `rest_position`, by default where the arm was when the task became
+  active (task_variable's module docstring).
 """
 
 import math
@@ -54,6 +65,7 @@ from hri_adaptive_controller.adaptive_law import (
     AdaptiveController,
     ControllerGains,
 )
+from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import (
     PHASE_ACTIVE,
     PHASE_FADING_IN,
@@ -62,6 +74,7 @@ from hri_adaptive_controller.event_weight import (
     EventWeightSchedule,
     WeightState,
 )
+from hri_adaptive_controller.signal_hold import HandHold, TaskWeightHold
 from hri_core import topics
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
@@ -76,7 +89,6 @@ from hri_core.node_common import (
 )
 from hri_core.potential import TaskShape
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
-from hri_core.velocity_estimator import VelocityEstimator
 
 PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'controller'
@@ -85,6 +97,10 @@ WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a command later than 1.5 periods after its joint state is a deadline miss
 WATCHDOG_CHECKS = 4  # watchdog checks per joint_state_timeout
 MAX_WEIGHT_EXTRAPOLATION = 0.05  # s: longest first-order hold of a(E, t) between TaskStates
+# s: longest first-order hold of the hand between /target messages (100 Hz): a hand at
+# 0.5 m/s moves 5 mm between two, which as a staircase steps the task term (and the torque,
+# by several N m) at each message.
+MAX_TARGET_EXTRAPOLATION = 0.05
 LINK = 'task_states'  # the link weight's one task: TaskStates arriving
 LINK_DOWN = WeightState(0.0, 0.0, 0.0, PHASE_IDLE, None, None)
 
@@ -106,14 +122,22 @@ PARAMETERS = {
     'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
-    'approach_distance': ParameterSpec(float,
-                                       'distance from the region where the reference slows '
-                                       'down (m)', low=0.001, high=0.5),
-    'region_margin': ParameterSpec(float,
-                                   'how far inside the learned region the task aims (m)',
-                                   low=0.0, high=0.1),
+    'approach_speed': ParameterSpec(float, 'least speed towards the region where the pull '
+                                    'K |dP/dz| is weaker (m/s; 0: none)', low=0.0, high=2.0),
+    'region_margin': ParameterSpec(float, 'how far inside the learned region the approach '
+                                   'speed fades out (m)', low=0.0, high=0.1),
+    'rest_gain': ParameterSpec(float, 'avoid tasks: rate of the return to the rest position '
+                               '(1/s)', low=0.0, high=100.0),
+    'rest_gate': ParameterSpec(float, "avoid tasks: the return fades in over this distance "
+                               "outside the region's edge (m)", low=0.001, high=1.0),
+    'rest_position': ParameterSpec(list, 'avoid tasks: rest position [x, y] (m); unset: '
+                                   'where the arm was when the task became active', size=2,
+                                   optional=True),
     'effort_limit': ParameterSpec(float, 'torque limit per joint (N m)',
                                   low=0.1, high=500.0),
+    'max_effort_rate': ParameterSpec(float, 'largest torque change per joint, per second of '
+                                     'the joint states\' clock (N m/s; 1000: 1 N m per 1 ms '
+                                     'cycle)', low=1.0, high=1e6),
     'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
                                          low=0.002, high=10.0),
     'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: the task fades '
@@ -133,17 +157,19 @@ PARAMETERS = {
     'gravity': ParameterSpec(float, 'gravity in the arm plane (m/s^2; 0 horizontal)',
                              low=0.0, high=20.0, read_only=True),
 }
-GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_distance',
-                   'region_margin', 'effort_limit')
+GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
+                   'region_margin', 'effort_limit', 'max_effort_rate', 'rest_gain', 'rest_gate')
 
 
 def gains_from(values: dict) -> ControllerGains:
     """ControllerGains from parameter values; ValueError with the reason if invalid."""
     return ControllerGains(
         ks=tuple(values['ks']), kp=values['kp'], adaptation=tuple(values['adaptation_gain']),
-        task_gain=None, approach_distance=values['approach_distance'],
+        task_gain=None, approach_speed=values['approach_speed'],
         region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
-        effort_limit=values['effort_limit'], damping=DEFAULT_GAINS.damping)
+        effort_limit=values['effort_limit'], rest_gain=values['rest_gain'],
+        rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
+        damping=DEFAULT_GAINS.damping)
 
 
 class Controller(Node):
@@ -169,16 +195,26 @@ class Controller(Node):
         self._joint_stamp = -math.inf
         self._joint_gate = StampGate(values['restart_jump'], values['restart_confirm'],
                                      strict=False)
-        self._target = self._target_velocity = None
+        self._target = None  # the latest hand position (x, y), m
         self._target_gate = StampGate(values['restart_jump'], values['restart_confirm'])
-        self._hand_velocity = VelocityEstimator(values['target_filter_time'])
+        self._hand = HandHold(values['target_filter_time'], MAX_TARGET_EXTRAPOLATION)
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
+        # a(E, t) of the task in force; its payload: (shape or None, k).
+        self._weights = TaskWeightHold(values['task_fade_time'], MAX_WEIGHT_EXTRAPOLATION)
+        self._limiter = EffortRateLimiter(values['max_effort_rate'])
         # The link to the event_manager as a second weight on a (1 while TaskStates come):
         # None until the first TaskState, which is used at once, as before.
         self._link: EventWeightSchedule | None = None
         self._shape_key = None
-        self._shape: TaskShape | None = None
+        self._task_payload = None  # (shape or None, k) of the latest TaskState's task
+        self._rate_limited = False  # whether max_effort_rate acted on the last command
+        # An avoid task's rest position: the parameter, or where the arm was when the task
+        # (its name and shape) became active; _rest_key is the task it was taken for.
+        fixed = values['rest_position']
+        self._fixed_rest = None if fixed is None else (float(fixed[0]), float(fixed[1]))
+        self._rest = self._fixed_rest
+        self._rest_key = None
         self._cycles = 0
         self._misses = 0
         self._window = (time.monotonic(), 0)
@@ -284,10 +320,10 @@ class Controller(Node):
         if verdict == RESTARTED:
             self.get_logger().info('targets restarted behind the last one: following the new '
                                    'source')
-            self._hand_velocity.reset()
+            self._hand.reset()
         # Plain float pairs: what the per-cycle step computes with.
-        self._target_velocity = tuple(self._hand_velocity.update(position, stamp).tolist())
         self._target = tuple(position.tolist())
+        self._hand.offer(self._target, stamp)
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -296,19 +332,22 @@ class Controller(Node):
                        f'task state dropped: weight {msg.weight}, rate {msg.weight_rate}')
             return
         key = (msg.task.name, msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1, msg.task.d2,
-               msg.task.n)
+               msg.task.n, msg.task.k)
         if key != self._shape_key:
             shape = None
             if msg.task.name:
                 try:
                     shape = TaskShape(msg.task.s, msg.task.a1, msg.task.a2, msg.task.d1,
                                       msg.task.d2, msg.task.n)
+                    self._law.drive(shape, msg.task.k)  # checks K (or its default) once
                 except ValueError as error:
                     self._warn('task_state_task',
                                f'task state dropped: task {msg.task.name!r}: {error}')
                     return
-            self._shape_key, self._shape = key, shape
+            self._shape_key, self._task_payload = key, (shape, msg.task.k)
         self._task_state = msg
+        self._weights.offer(key, self._task_payload, stamp_seconds(msg.header.stamp),
+                            msg.weight, msg.weight_rate)
         self._task_time = now = time.monotonic()
         if self._link is None:
             self._link = EventWeightSchedule(self._values['task_fade_time'], LINK)
@@ -328,6 +367,7 @@ class Controller(Node):
         except (ValueError, TypeError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         self._values, self._law = values, law
+        self._limiter.max_rate = values['max_effort_rate']
         self.get_logger().info(f'gains changed: {changed}')
         return SetParametersResult(successful=True)
 
@@ -357,14 +397,21 @@ class Controller(Node):
         if self._status == 'stale_joint_states':
             self.get_logger().info('joint states resumed')
         output = self._step(now, dt, monitor=now >= self._next_state)
-        self._publish_command(now, output, stamp)
+        self._publish_command(now, output, stamp, dt)
 
-    def _publish_command(self, now: float, output, stamp: float | None) -> None:
+    def _publish_command(self, now: float, output, stamp: float | None,
+                         dt: float = 0.0) -> None:
         self._cycles += 1
+        self._rate_limited = False
         if output is None:
             command = (0.0, 0.0)
+            self._limiter.reset()  # zero torque at once (safety), the next change from zero
+        elif self._velocity_mode:
+            command = output.qdot_r
         else:
-            command = output.qdot_r if self._velocity_mode else output.tau
+            # At most one period's worth per command (see effort_rate).
+            command, self._rate_limited = self._limiter.limit(output.tau,
+                                                              min(dt, self._period))
         msg = self._command_msg
         msg.data = command
         self._command_pub.publish(msg)
@@ -398,26 +445,34 @@ class Controller(Node):
         if self._target is None:
             self._status = 'no_target'
             return None
-        task = self._task_state
         link = self._link_state(now)
-        if task is None or self._shape is None or link.weight == 0.0:
+        # a of the task in force, held between TaskStates from their stamps to the joint
+        # state's (a TaskState delivered late would otherwise step a by its delay times
+        # da/dt), blended where a TaskState lands off the hold (signal_hold).
+        held = self._weights.evaluate(self._joint_stamp)
+        shape = k = None
+        if held is not None:
+            key, (shape, k), task_weight, task_rate = held
+        if shape is None or link.weight == 0.0:
             weight, rate, shape = 0.0, 0.0, None
         else:
-            # First-order hold between TaskStates (they come at >= 100 Hz during a ramp, less
-            # on a loaded machine): a follows its ramp instead of a staircase.
-            held = min(now - self._task_time, MAX_WEIGHT_EXTRAPOLATION)
-            task_weight = min(max(task.weight + task.weight_rate * held, 0.0), 1.0)
-            task_rate = task.weight_rate if held < MAX_WEIGHT_EXTRAPOLATION else 0.0
-            # a = a_task * a_link: both C2 ramps, so is their product.
+            # a = a_task * a_link: both continuous ramps, so is their product.
             weight = task_weight * link.weight
             rate = task_rate * link.weight + task_weight * link.rate
-            shape = self._shape
+            if self._rest_key != key:
+                self._rest_key = key
+                if self._fixed_rest is None:
+                    x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
+                    self._rest = (float(x[0]), float(x[1]))
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
         self._weight = weight
+        # The hand where it is at the joint state's time, from the stamps (receive times would
+        # add the callbacks' delays, 2.5 mm per 5 ms at 0.5 m/s).
+        target, target_velocity = self._hand.evaluate(self._joint_stamp)
         try:
-            output = self._law.step_lean(self._q, self._dq, self._target,
-                                         self._target_velocity, (0.0, 0.0), weight, rate,
-                                         shape, dt, monitor=monitor)
+            output = self._law.step_lean(self._q, self._dq, target, target_velocity,
+                                         (0.0, 0.0), weight, rate, shape, dt, monitor=monitor,
+                                         k=0.0 if shape is None else k, rest=self._rest)
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             self._status = f'fault: {type(error).__name__}'
             self._warn('internal', f'zero torque: control step failed: {error!r}')
@@ -445,7 +500,7 @@ class Controller(Node):
             msg.lyapunov = float(output.lyapunov) if output.lyapunov is not None else 0.0
             msg.sliding_norm = math.hypot(*output.s)
             msg.weight = self._weight
-            msg.saturated = bool(output.torque_limited)
+            msg.saturated = bool(output.torque_limited or self._rate_limited)
         elif self._q is not None and self._target is not None:
             x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
             msg.distance = float(np.linalg.norm(x - np.array(self._target)))

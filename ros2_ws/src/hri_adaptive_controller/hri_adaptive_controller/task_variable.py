@@ -1,37 +1,60 @@
 """Event-based task variable and joint-velocity reference (paper eq. 12, 14, 17, 18).
 
-Task variable (eq. 12)
-----------------------
-The paper's task variable is a(E, t) dP/d(dx) with dx = x - x_d (m). Learned potentials span
-an enormous range: Table I's follow potential has |dP/d(dx)| ~ 1e-11 1/m at 9 mm outside its
-region, its avoidance potential ~ 1e100 (the cap of hri_core.potential) just inside.
-No single gain maps both to a usable velocity. The task variable used here is therefore the
-gradient of a *shaped* potential Q(dx) (`ShapedPotential`) with the same desired region:
+Task variable (eq. 12, 13)
+--------------------------
+The task variable is K dP/d(dx) with dx = x - x_d (m) and K the task's own gain (m^2/s; the
+learner's `k`, or hri_core.potential.default_task_gain when a task gives none), so the arm
+moves at K |dP/dz| m/s: a1, a2 and K shape the motion as the demonstration did. Writing
+g(r) = K dP/dr (signed, r = |dx|, e = dx / r), the task velocity is
 
-    dQ/dr = v_max tanh(k c dP/d(rho) / v_max),  c = d(rho)/dr,  Q = 0 on the region,  (eq. 12')
-    delta_eps = dQ/d(dx) = (dQ/dr) e,  e = dx / |dx|,  r = |dx|.
+    delta_eps = Q'(r) e,   Q'(r) = cap(g(r) + f(r) phi(|g| / v_a)),                 (eq. 12')
 
-- k (m^2/s) is the task gain (the paper's K of eq. 13, swapped with the task), v_max =
-  `max_task_speed` (m/s). Where k |dP/dr| << v_max, Q = k P (the paper's eq. 12 with P scaled
-  by k); where it is large, the task velocity saturates at v_max, direction kept.
-  `shaped_potential` picks k per task so that every task behaves alike: at `approach_distance`
-  from the region's boundary the reference speed is >= tanh(1) v_max = 0.76 v_max, so the arm
-  travels at up to v_max and slows down within a few approach distances of the boundary.
-- rho(r), a piecewise-linear map of the distance, shrinks the region by `region_margin`:
-  P's zero set is reached by a gradient field only asymptotically (P ~ (r - d2)^3), so without
-  the margin the arm would stop a fraction of a millimetre outside the learned region forever.
-  With it, the arm converges to a point inside the learned region and enters it in finite time.
-- Because Q is radial, delta_eps is still the gradient of a potential, so the Lyapunov
-  argument of eq. 21, 22 holds with Q in place of P *everywhere*, in and out of saturation
-  (see adaptive_law). delta_eps is a velocity (m/s), |a delta_eps| <= v_max.
+- cap, the robot-wide speed cap: cap(v) = v for |v| <= v_max (`max_task_speed`), above it
+  v_max + b tanh((|v| - v_max) / b) with b = CAP_BAND v_max, signed. Below v_max the task
+  speed is K |dP/dz| exactly; above it the cap bends the speed smoothly (C2: cap' = 1 and
+  cap'' = 0 at v_max) to at most (1 + CAP_BAND) v_max. The speed is computed from log K +
+  log |dP/dr| (hri_core.potential.log_radial_slopes), so Table I's avoid row (P(0) ~ 1e124,
+  K ~ 1e-126 m^2/s) is as smooth as any other: K dP/dr is an ordinary number even where P and
+  K are not, and nothing is clipped below the cap.
+- f(r) phi: the approach term, a floor v_a (`approach_speed`) on the speed towards the region
+  where the learned pull alone is weaker (every P of eq. 2 rises from its zero set like
+  (r - d)^3, so K dP/dr alone reaches the region only asymptotically, and Table I's follow row
+  moves at 0.3 mm/s 6 cm from its region). phi(u) = 1 - s(u), s the quintic smoothstep, so
+  the floor is gone where |g| >= v_a; f(r) = +v_a outside d2 and -v_a inside d1 (S = +1),
+  fading in over `region_margin` inside the region (and within RADIAL_FADE of dx = 0), so the
+  arm crosses the region's boundary at about v_a and stops `region_margin` inside it. Not
+  applied across a boundary at or beyond the workspace (d2 >= 2 reach) nor to S = -1 tasks
+  (their ridge between the regions has no one direction towards the region). v_a = 0 gives
+  Q' = cap(K dP/dr).
+
+Q'(r) is C2 in r except where the quintic blends meet (C2 too), and its derivative Q'' enters
+qddot_r (eq. 18) exactly, so qdot_r and the torque are continuous in time at region entry.
+delta_eps is a gradient (of the radial Q = integral of Q'), so eq. 21, 22 hold with Q in place
+of P (see adaptive_law).
+
+Rest position (avoid tasks)
+---------------------------
+eq. 14 feeds the hand's velocity xdot_d forward in every task: right for following, wrong for
+avoiding (the arm then copies a hand that approaches or leaves, and the potential never acts).
+A task whose desired region is open outward (S = +1 with d2 >= 2 reach, Table I's avoid row;
+or S = -1) is an avoid task: its reference drops xdot_d (weighted by a, so a switch stays
+smooth) and adds a return to the rest position x_rest,
+
+    v_rest = w(r) c(x - x_rest),   c(y) = -cap(k_rest |y|) y / |y|,
+
+w(r) the quintic smoothstep from 0 at r = d_in + margin to 1 at d_in + margin + `rest_gate`
+(d_in = d1, or d2 for S = -1), so the return acts only once the arm is outside the region's
+edge (inside it the potential pushes the arm out alone), and k_rest = `rest_gain` (1/s).
 
 Joint-velocity reference (eq. 14) and its derivative (eq. 18)
 -------------------------------------------------------------
-    v_r = xdot_d - a delta_eps,          qdot_r = J+ v_r,
-    qddot_r = (dJ+/dt) v_r + J+ (xddot_d - da/dt delta_eps - a H_Q (xdot - xdot_d)),
+    v_r = f xdot_d - a delta_eps + a v_rest,          qdot_r = J+ v_r,
+    qddot_r = (dJ+/dt) v_r + J+ (f xddot_d + df/dt xdot_d - da/dt delta_eps
+              - a H_Q (xdot - xdot_d) + da/dt v_rest + a dv_rest/dt),
 
-with xdot = J qdot and H_Q = d(delta_eps)/d(dx) the Hessian of Q, built from P's gradient and
-Hessian (hri_core.potential) through the chain rule: the exact time derivative, no
+f = 1 for follow tasks (and without a task), f = 1 - a for avoid tasks (v_rest = 0 for
+follow tasks); xdot = J qdot; H_Q = d(delta_eps)/d(dx), from Q'' and Q'/r through the chain
+rule; dv_rest/dt = c w'(r) e^T (xdot - xdot_d) + w Dc xdot: the exact time derivative, no
 finite difference. J+ is the damped pseudo-inverse
 
     J+ = J^T (J J^T + lambda^2 I)^-1,
@@ -49,20 +72,35 @@ from dataclasses import dataclass
 import numpy as np
 
 from hri_core.dynamics import forward_kinematics, jacobian, jacobian_derivative
-from hri_core.potential import TaskShape, potential_gradient, potential_hessian
+from hri_core.potential import (
+    TaskShape,
+    default_task_gain,
+    log_potential_slope,
+    log_radial_slopes,
+    potential_gradient,
+)
 from hri_core.validation import planar_vector, positive
 
 # Largest |entry| (1/s) of the Hessian of Q. Only a potential that steps within a fraction of
-# a micrometre (Table I's avoidance boundary, or dx exactly 0 for it) reaches it; there the
-# exact derivative is meaningless for a sampled controller, and the cap keeps qddot_r finite.
+# a micrometre reaches it; there the exact derivative is meaningless for a sampled controller,
+# and the cap keeps qddot_r finite.
 MAX_TASK_HESSIAN = 1e6
 
+CAP_BAND = 0.2
+"""Soft band of the speed cap above max_task_speed, as a fraction of it: the task speed is
+K |dP/dz| up to max_task_speed and never more than (1 + CAP_BAND) max_task_speed."""
+
+RADIAL_FADE = 0.01
+"""m: the approach term fades out within this distance of dx = 0, where e = dx/|dx| has no
+direction (an inner boundary d1 > 0 pushes the arm out from there)."""
+
+# exp() argument above which a speed counts as infinite (the cap saturates long before).
+_LOG_SPEED_LIMIT = 700.0
 # tanh argument above which sech^2 underflows to 0 in double precision.
 _SECH_LIMIT = 350.0
 
 # Radial integral that gives Q (monitoring only): Gauss-Legendre with 12 nodes on each of 14
-# panels whose widths halve towards both ends, where dQ/dr changes steeply (the region's
-# boundary; the top of an S = -1 potential, where dQ/dr flips sign).
+# panels whose widths halve towards both ends, where dQ/dr changes steeply.
 _GAUSS_NODES, _GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(12)
 _PANEL_EDGES = np.concatenate([[0.0], 2.0 ** np.arange(-7, 0), 1.0 - 2.0 ** np.arange(-2, -8, -1),
                                [1.0]])
@@ -92,47 +130,47 @@ class DampingSettings:
 
 
 @dataclass(frozen=True)
-class ShapedPotential:
-    """The shaped potential Q of eq. 12' for one task (see the module docstring).
+class TaskDrive:
+    """How one task drives the arm (eq. 12' and the rest position; module docstring).
 
-    shape: the learned task; task_gain: k (m^2/s); max_task_speed: v_max (m/s);
-    the radial map that shrinks the desired region by the margin is
-    rho = inner_scale r below `split` (m) and rho = outer_scale r + offset (m) above it
-    (identity when there is no margin); peak (m): for S = -1, the distance where Q is largest
-    (dQ/dr changes sign). Build it with `shaped_potential`.
+    shape: the learned task; log_gain: log K (K in m^2/s; a log, since K may lie outside a
+    double's range); max_task_speed: v_max (m/s), the cap's knee; approach_speed: v_a (m/s,
+    0 = none); margin (m): how far inside the region the approach term reaches (0 when the
+    task has no approach term); open_outward: an avoid task (no xdot_d feed-forward, return to
+    the rest position); rest_gain k_rest (1/s); rest_gate (m): width of the rest term's gate;
+    outer_floor: whether the approach term acts outside d2. Build it with `task_drive`.
     """
 
     shape: TaskShape
-    task_gain: float
+    log_gain: float
     max_task_speed: float
-    inner_scale: float = 1.0
-    outer_scale: float = 1.0
-    split: float = 0.0
-    offset: float = 0.0
-    peak: float = 0.0
+    approach_speed: float = 0.0
+    margin: float = 0.0
+    open_outward: bool = False
+    rest_gain: float = 0.0
+    rest_gate: float = 0.01
+    outer_floor: bool = False
 
-    def mapped_radius(self, distance):
-        """rho(r) (m): P is evaluated at rho, so Q's zero set is the shrunk region."""
-        r = np.asarray(distance, dtype=float)
-        return np.where(r >= self.split, self.outer_scale * r + self.offset,
-                        self.inner_scale * r)
-
-    def radial_scale(self, distance: float) -> float:
-        """d(rho)/dr at r = distance."""
-        return self.outer_scale if distance >= self.split else self.inner_scale
+    @property
+    def task_gain(self) -> float:
+        """K (m^2/s) as a float (0.0 or inf where it leaves a double's range)."""
+        return math.exp(min(self.log_gain, _LOG_SPEED_LIMIT))
 
     def region(self) -> tuple[float, float]:
         """Boundaries (m) of Q's zero set [d1', d2'] (S = +1; S = -1: r <= d1', r >= d2')."""
-        if self.split > 0.0:
-            inner = self.shape.d1 / self.inner_scale
-        else:
-            inner = (self.shape.d1 - self.offset) / self.outer_scale
-        return inner, (self.shape.d2 - self.offset) / self.outer_scale
+        inner = self.shape.d1 + self.margin if self.shape.d1 > 0.0 else 0.0
+        outer = self.shape.d2 - self.margin if self.outer_floor else self.shape.d2
+        return inner, outer
+
+    def rest_gate_start(self) -> float:
+        """Distance (m) from the hand where the rest term starts to fade in."""
+        edge = self.shape.d1 if self.shape.s == 1 else self.shape.d2
+        return edge + self.margin
 
 
 @dataclass(frozen=True)
 class TaskVariable:
-    """Shaped task variable at one dx (eq. 12').
+    """Task variable at one dx (eq. 12').
 
     distance: |dx| (m); gradient: delta_eps = dQ/d(dx), shape (2,), m/s;
     hessian: d(delta_eps)/d(dx), shape (2, 2), 1/s; radial_slope: dQ/dr (m/s).
@@ -149,8 +187,8 @@ class JointReference:
     """Joint-velocity reference of eq. 14 and its time derivative (eq. 18).
 
     qdot_r (2,) rad/s; qddot_r (2,) rad/s^2; position x (2,) m and dx = x - x_d (2,) m;
-    distance |dx| (m); task_velocity: -a delta_eps (2,) m/s, the task part of v_r;
-    weighted_task_variable: a delta_eps (2,) m/s (enters the torque law, eq. 16);
+    distance |dx| (m); task_velocity: -a delta_eps + a v_rest (2,) m/s, the task part of
+    v_r; weighted_task_variable: a delta_eps (2,) m/s (enters the torque law, eq. 16);
     jacobian J (2, 2) m/rad; pinv J+ (2, 2) rad/m; damping lambda^2 (m^2/rad^2);
     task: the TaskVariable (None when no task is active).
     """
@@ -168,11 +206,98 @@ class JointReference:
     task: TaskVariable | None
 
 
+def open_outward(shape: TaskShape, reach: float) -> bool:
+    """Whether a task's desired region is open outward (an avoid task): S = -1 (r >= d2 is in
+    the region), or S = +1 with d2 >= 2 reach (m), beyond any hand-to-arm distance."""
+    return shape.s == -1 or shape.d2 >= 2.0 * reach
 
 
-def _sech_squared(x: float) -> float:
-    x = abs(x)
-    return 0.0 if x > _SECH_LIMIT else 1.0 / math.cosh(x) ** 2
+def task_drive(shape: TaskShape, k: float, max_task_speed: float, reach: float,
+               approach_speed: float = 0.0, region_margin: float = 0.0,
+               rest_gain: float = 0.0, rest_gate: float = 0.01) -> TaskDrive:
+    """The TaskDrive of a task with gain k (m^2/s; 0 = not given: default_task_gain).
+
+    max_task_speed (m/s) > 0; reach (m) > 0, the arm's reach (l1 + l2); approach_speed (m/s)
+    >= 0; region_margin (m) >= 0, at most a quarter of the region's width is used; rest_gain
+    (1/s) >= 0; rest_gate (m) > 0. Raises ValueError for bad values or, for k = 0, a potential
+    with no slope to take a default gain from.
+    """
+    v_max = positive(max_task_speed, 'max_task_speed', 'm/s')
+    reach = positive(reach, 'reach', 'm')
+    gate = positive(rest_gate, 'rest_gate', 'm')
+    for name, value in (('k', k), ('approach_speed', approach_speed),
+                        ('region_margin', region_margin), ('rest_gain', rest_gain)):
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f'{name} must be finite and >= 0, got {value}')
+    log_gain = math.log(k) if k > 0.0 else default_task_gain(shape, v_max, reach)
+    outward = open_outward(shape, reach)
+    floor = approach_speed if shape.s == 1 and shape.d2 > shape.d1 else 0.0
+    margin = min(region_margin, 0.25 * (shape.d2 - shape.d1)) if floor > 0.0 else 0.0
+    return TaskDrive(shape, log_gain, v_max, floor, margin, outward, rest_gain, gate,
+                     outer_floor=floor > 0.0 and not outward)
+
+
+def _smoothstep(u: float) -> tuple[float, float]:
+    """Quintic smoothstep s(u) and ds/du (C2; 0 below u = 0, 1 above u = 1)."""
+    if u <= 0.0:
+        return 0.0, 0.0
+    if u >= 1.0:
+        return 1.0, 0.0
+    v = 1.0 - u
+    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
+
+
+def speed_cap(speed: float, v_max: float) -> tuple[float, float]:
+    """The smooth cap (value, d/d speed) of a signed speed (m/s): identity for |speed| <=
+    v_max, v_max + b tanh((|speed| - v_max) / b) above, b = CAP_BAND v_max (C2 at v_max)."""
+    magnitude = abs(speed)
+    if magnitude <= v_max:
+        return speed, 1.0
+    band = CAP_BAND * v_max
+    x = (magnitude - v_max) / band
+    capped = v_max + band * math.tanh(x)
+    slope = 0.0 if x > _SECH_LIMIT else 1.0 / math.cosh(x) ** 2
+    return (capped if speed > 0.0 else -capped), slope
+
+
+def _approach_floor(r: float, drive: TaskDrive) -> tuple[float, float]:
+    """The approach term's f(r) (m/s, signed like dP/dr) and df/dr (1/s)."""
+    v_a, margin = drive.approach_speed, drive.margin
+    if v_a == 0.0:
+        return 0.0, 0.0
+    d1, d2 = drive.shape.d1, drive.shape.d2
+    if drive.outer_floor and r > d2 - margin:
+        s, ds = _smoothstep((r - (d2 - margin)) / margin)
+        return v_a * s, v_a * ds / margin
+    if d1 > 0.0 and r < d1 + margin:
+        s, ds = _smoothstep((d1 + margin - r) / margin)
+        c, dc = _smoothstep(r / RADIAL_FADE)
+        return -v_a * s * c, -v_a * (c * -ds / margin + s * dc / RADIAL_FADE)
+    return 0.0, 0.0
+
+
+def radial_drive(r: float, drive: TaskDrive) -> tuple[float, float]:
+    """Q'(r) (m/s) and Q''(r) (1/s) of eq. 12' at r = |dx| (m, finite, >= 0).
+
+    Q' = cap(K dP/dr + f(r) phi(|K dP/dr| / v_a)) (module docstring), from logarithms of K
+    and of P's derivatives; Q'' its exact derivative, bounded by MAX_TASK_HESSIAN.
+    """
+    l_slope, s_slope, l_curv, s_curv = log_radial_slopes(r, drive.shape)
+    log_k = drive.log_gain
+    pull = s_slope * math.exp(min(log_k + l_slope, _LOG_SPEED_LIMIT)) if s_slope else 0.0
+    pull_rate = s_curv * math.exp(min(log_k + l_curv, _LOG_SPEED_LIMIT)) if s_curv else 0.0
+    floor, floor_rate = _approach_floor(r, drive)
+    if floor != 0.0 or floor_rate != 0.0:
+        u = abs(pull) / drive.approach_speed
+        s, ds = _smoothstep(u)
+        du = (pull_rate if pull >= 0.0 else -pull_rate) / drive.approach_speed
+        raw = pull + floor * (1.0 - s)
+        raw_rate = pull_rate + floor_rate * (1.0 - s) - floor * ds * (du if ds else 0.0)
+    else:
+        raw, raw_rate = pull, pull_rate
+    value, slope = speed_cap(raw, drive.max_task_speed)
+    rate = slope * raw_rate if slope else 0.0
+    return value, min(max(rate, -MAX_TASK_HESSIAN), MAX_TASK_HESSIAN)
 
 
 def radial_potential_slope(distance, shape: TaskShape) -> np.ndarray:
@@ -184,203 +309,143 @@ def radial_potential_slope(distance, shape: TaskShape) -> np.ndarray:
     return potential_gradient(points.reshape(-1, 2), shape)[:, 0].reshape(r.shape)
 
 
-def _radial_map(shape: TaskShape, region_margin: float) -> dict:
-    """ShapedPotential's radial-map fields that shrink the desired region by the margin."""
-    if region_margin == 0.0 or shape.d2 <= shape.d1:
-        return {}
-    if shape.s == 1:
-        # Region [d1, d2]: scale r on each side of the middle, where P = 0.
-        margin = min(region_margin, 0.25 * (shape.d2 - shape.d1))
-        inner = shape.d1 / (shape.d1 + margin) if shape.d1 > 0.0 else 1.0
-        return {'inner_scale': inner, 'outer_scale': shape.d2 / (shape.d2 - margin),
-                'split': 0.5 * (shape.d1 + shape.d2)}
-    # S = -1, region r <= d1 or r >= d2: one affine map with rho(d1 - m) = d1 and
-    # rho(d2 + m) = d2; rho(0) stays in [0, d1], where P = 0, so Q is smooth at r = 0.
-    if shape.d1 == 0.0:
-        return {'outer_scale': shape.d2 / (shape.d2 + region_margin)}
-    margin = min(region_margin, 0.25 * shape.d1)
-    scale = (shape.d2 - shape.d1) / (shape.d2 - shape.d1 + 2.0 * margin)
-    return {'outer_scale': scale, 'offset': shape.d1 - scale * (shape.d1 - margin)}
-
-
-def _shaped_slope(radii, shaped: ShapedPotential, tanh: bool = True) -> np.ndarray:
-    """dQ/dr (m/s) at the radii (n,) m; with tanh=False, d(P(rho))/dr (1/m)."""
-    radii = np.asarray(radii, dtype=float)
-    scale = np.where(radii >= shaped.split, shaped.outer_scale, shaped.inner_scale)
-    slope_p = scale * radial_potential_slope(shaped.mapped_radius(radii), shaped.shape)
-    if not tanh:
-        return slope_p
-    v_max = shaped.max_task_speed
-    return v_max * np.tanh(shaped.task_gain * slope_p / v_max)
-
-
-def shaped_potential(shape: TaskShape, max_task_speed: float, approach_distance: float,
-                     region_margin: float = 0.0,
-                     task_gain: float | None = None) -> ShapedPotential:
-    """Shaped potential Q (eq. 12') of a task, with the task gain k chosen if not given.
-
-    max_task_speed v_max (m/s) > 0; approach_distance (m) > 0; region_margin (m) >= 0: Q's
-    zero set is the learned region shrunk by the margin at each boundary (at most a quarter of
-    the region's width), so the arm, whose approach to the zero set of a gradient field is
-    only asymptotic, enters the learned region in finite time. P is evaluated at a mapped
-    radius rho(r): for S = +1, rho = r d2 / (d2 - margin) above the middle of the region and
-    r d1 / (d1 + margin) below it (P is zero in between, so Q stays C2); for S = -1, one
-    affine map with rho(d1 - margin) = d1, rho(d2 + margin) = d2. task_gain k (m^2/s), or
-    None: k = v_max / min |d(P(rho))/dr| over the probes r = d1' -+ approach_distance,
-    d2' -+ approach_distance outside Q's zero set, so that the reference speed is
-    >= tanh(1) v_max = 0.76 v_max at the approach distance from every boundary.
-    Raises ValueError for bad values or when no probe sees a slope.
-    """
-    v_max = positive(max_task_speed, 'max_task_speed', 'm/s')
-    delta = positive(approach_distance, 'approach_distance', 'm')
-    if not (math.isfinite(region_margin) and region_margin >= 0.0):
-        raise ValueError(f'region_margin must be finite and >= 0 m, got {region_margin}')
-    radial_map = _radial_map(shape, region_margin)
-    if shape.s == -1 and shape.d2 > shape.d1:
-        radial_map['peak'] = _potential_peak(ShapedPotential(shape, 1.0, v_max, **radial_map))
-    if task_gain is not None:
-        return ShapedPotential(shape, positive(task_gain, 'task_gain', 'm^2/s'), v_max,
-                               **radial_map)
-    unit = ShapedPotential(shape, 1.0, v_max, **radial_map)
-    d1, d2 = unit.region()
-    probes = np.array([d1 - delta, d1 + delta, d2 - delta, d2 + delta])
-    probes = probes[probes > 0.0]
-    slopes = np.abs(_shaped_slope(probes, unit, tanh=False))
-    slopes = slopes[(slopes > 0.0) & np.isfinite(slopes)]
-    if slopes.size == 0:
-        raise ValueError(
-            f'the potential is flat within {delta} m of its region boundaries '
-            f'(d1={shape.d1}, d2={shape.d2}): no task gain makes it move the arm')
-    return ShapedPotential(shape, v_max / float(np.min(slopes)), v_max, **radial_map)
-
-
-def task_variable(dx, shaped: ShapedPotential) -> TaskVariable:
-    """Shaped task variable delta_eps = dQ/d(dx) and its Hessian (eq. 12', 18).
-
-    dx (2,) m. The gradient is (dQ/dr) e with dQ/dr = v_max tanh(k c dP/d(rho) / v_max),
-    rho the mapped radius, c = d(rho)/dr; the Hessian is Q'' e e^T + (Q'/r)(I - e e^T) with
-    Q'' = k c^2 (d2P/d(rho)2) sech^2(k c dP/d(rho) / v_max), entries bounded by
-    MAX_TASK_HESSIAN. Zero on Q's zero set.
-    """
+def task_variable(dx, drive: TaskDrive) -> TaskVariable:
+    """Task variable delta_eps = Q'(r) e and its Hessian Q'' e e^T + (Q'/r)(I - e e^T)
+    (eq. 12', 18); dx (2,) m. Entries bounded by MAX_TASK_HESSIAN. Zero on Q's zero set."""
     dx = planar_vector(dx, 'dx')
-    k, v_max = shaped.task_gain, shaped.max_task_speed
+    g1, g2, h11, h12, h22 = task_term(float(dx[0]), float(dx[1]), drive)
     r = math.hypot(dx[0], dx[1])
-    if r == 0.0:
-        # Radial symmetry: zero gradient; Hessian Q''(0) I (rho(0) is 0 or inside the region).
-        c = shaped.radial_scale(0.0)
-        axis = np.array([float(shaped.mapped_radius(0.0)), 0.0])
-        argument = k * c * float(potential_gradient(axis, shaped.shape)[0]) / v_max
-        curvature = k * c * c * float(potential_hessian(axis, shaped.shape)[0, 0])
-        curvature = float(np.clip(curvature * _sech_squared(argument), -MAX_TASK_HESSIAN,
-                                  MAX_TASK_HESSIAN))
-        return TaskVariable(0.0, np.zeros(2), curvature * np.eye(2), 0.0)
-    e = dx / r
-    c = shaped.radial_scale(r)
-    mapped = float(shaped.mapped_radius(r)) * e
-    slope_p = c * float(potential_gradient(mapped, shaped.shape) @ e)
-    argument = k * slope_p / v_max
-    slope = v_max * math.tanh(argument)
-    sech2 = _sech_squared(argument)
-    curvature = 0.0
-    if sech2 > 0.0:
-        curvature_p = c * c * float(e @ potential_hessian(mapped, shaped.shape) @ e)
-        curvature = k * curvature_p * sech2
-    radial = np.outer(e, e)
-    hessian = curvature * radial + (slope / r) * (np.eye(2) - radial)
-    hessian = np.clip(hessian, -MAX_TASK_HESSIAN, MAX_TASK_HESSIAN)
-    return TaskVariable(r, slope * e, hessian, slope)
+    slope = 0.0 if r == 0.0 else (g1 * dx[0] + g2 * dx[1]) / r
+    return TaskVariable(r, np.array([g1, g2]), np.array([[h11, h12], [h12, h22]]), slope)
 
 
 def task_term(dx1: float, dx2: float,
-              shaped: ShapedPotential) -> tuple[float, float, float, float, float]:
-    """`task_variable` for one dx in plain floats, the controller's per-cycle path (eq. 12').
+              drive: TaskDrive) -> tuple[float, float, float, float, float]:
+    """delta_eps = dQ/d(dx) (m/s) and its symmetric Hessian's entries (1/s) at dx (m) in plain
+    floats, the controller's per-cycle path (eq. 12'): returns (g1, g2, h11, h12, h22).
 
-    dx1, dx2: dx (m), finite (checked by the caller at its boundary). Returns (g1, g2, h11,
-    h12, h22): delta_eps = dQ/d(dx) (m/s) and the entries of its symmetric Hessian (1/s), equal
-    to `task_variable` (its reference) to rounding. The only place the control step evaluates
-    the task's potential: a different task term changes this function alone.
+    dx1, dx2 finite (checked by the caller at its boundary). The only place the control step
+    evaluates the task's potential: a different task term changes this function alone.
     """
-    k, v_max, shape = shaped.task_gain, shaped.max_task_speed, shaped.shape
     r = math.hypot(dx1, dx2)
+    slope, curvature = radial_drive(r, drive)
     if r == 0.0:
-        task = task_variable((dx1, dx2), shaped)
-        hessian = task.hessian
-        return 0.0, 0.0, float(hessian[0, 0]), float(hessian[0, 1]), float(hessian[1, 1])
+        # Radial symmetry: no gradient; Hessian Q''(0) I.
+        return 0.0, 0.0, curvature, 0.0, curvature
     e1, e2 = dx1 / r, dx2 / r
-    if r >= shaped.split:
-        c, rho = shaped.outer_scale, shaped.outer_scale * r + shaped.offset
-    else:
-        c, rho = shaped.inner_scale, shaped.inner_scale * r
-    mapped = (rho * e1, rho * e2)
-    g1, g2 = potential_gradient(mapped, shape).tolist()
-    argument = k * (c * (g1 * e1 + g2 * e2)) / v_max
-    slope = v_max * math.tanh(argument)
-    sech2 = _sech_squared(argument)
-    curvature = 0.0
-    if sech2 > 0.0:
-        (p11, p12), (p21, p22) = potential_hessian(mapped, shape).tolist()
-        curvature_p = c * c * ((e1 * p11 + e2 * p21) * e1 + (e1 * p12 + e2 * p22) * e2)
-        curvature = k * curvature_p * sech2
     tangential = slope / r
     h11 = curvature * e1 * e1 + tangential * (1.0 - e1 * e1)
-    h12 = curvature * e1 * e2 - tangential * e1 * e2
+    h12 = (curvature - tangential) * e1 * e2
     h22 = curvature * e2 * e2 + tangential * (1.0 - e2 * e2)
-    return (slope * e1, slope * e2, _clip_hessian(h11), _clip_hessian(h12), _clip_hessian(h22))
+    return (slope * e1, slope * e2, _clip_hessian(h11), _clip_hessian(h12),
+            _clip_hessian(h22))
+
+
+def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
+    """The avoid task's return to rest, v_rest = w(r) c(y) and its derivatives, in floats.
+
+    dx = x - x_d (m), y = x - x_rest (m). Returns (v1, v2, c1, c2, gw1, gw2, b11, b12, b22):
+    v_rest (m/s); c(y) (m/s); grad w = w'(r) e (1/m); w Dc = w dc/dy (1/s, symmetric), so that
+    dv_rest/dt = c (grad w . (xdot - xdot_d)) + w Dc xdot. Zero for follow tasks.
+    """
+    if not drive.open_outward or drive.rest_gain == 0.0:
+        return (0.0,) * 9
+    r = math.hypot(dx1, dx2)
+    w, dw = _smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
+    dw /= drive.rest_gate
+    rho = math.hypot(y1, y2)
+    if (w == 0.0 and dw == 0.0) or rho == 0.0:
+        if rho == 0.0 and w > 0.0:
+            # c(y) = -k y near y = 0: Dc = -k I, c = 0.
+            k = -w * drive.rest_gain
+            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, k, 0.0, k
+        return (0.0,) * 9
+    n1, n2 = y1 / rho, y2 / rho
+    speed, slope = speed_cap(drive.rest_gain * rho, drive.max_task_speed)
+    c1, c2 = -speed * n1, -speed * n2
+    radial, tangential = -slope * drive.rest_gain, -speed / rho
+    b11 = w * (radial * n1 * n1 + tangential * (1.0 - n1 * n1))
+    b12 = w * (radial - tangential) * n1 * n2
+    b22 = w * (radial * n2 * n2 + tangential * (1.0 - n2 * n2))
+    gw1, gw2 = (dw * dx1 / r, dw * dx2 / r) if r > 0.0 else (0.0, 0.0)
+    return w * c1, w * c2, c1, c2, gw1, gw2, b11, b12, b22
 
 
 def _clip_hessian(value: float) -> float:
     return -MAX_TASK_HESSIAN if value < -MAX_TASK_HESSIAN else min(value, MAX_TASK_HESSIAN)
 
 
-def task_potential(distance: float, shaped: ShapedPotential) -> float:
-    """Shaped potential Q at r = distance (m^2/s), the P of eq. 21 for this controller.
+def _radial_slopes(radii, drive: TaskDrive) -> np.ndarray:
+    """Q'(r) (m/s) at the radii (n,) m (numpy; monitoring)."""
+    radii = np.asarray(radii, dtype=float)
+    sign = np.sign(radial_potential_slope(radii, drive.shape))
+    with np.errstate(over='ignore'):
+        pull = sign * np.exp(np.minimum(drive.log_gain + log_potential_slope(radii, drive.shape),
+                                        _LOG_SPEED_LIMIT))
+    if drive.approach_speed == 0.0:
+        raw = pull
+    else:
+        floor = np.array([_approach_floor(float(r), drive)[0] for r in radii])
+        u = np.clip(np.abs(pull) / drive.approach_speed, 0.0, 1.0)
+        raw = pull + floor * (1.0 - u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u))
+    v_max = drive.max_task_speed
+    band = CAP_BAND * v_max
+    magnitude = np.abs(raw)
+    capped = np.where(magnitude <= v_max, magnitude,
+                      v_max + band * np.tanh((magnitude - v_max) / band))
+    return np.sign(raw) * capped
 
-    Q(r) is the integral of dQ/dr from the boundary of Q's zero set to r (composite
+
+def task_potential(distance: float, drive: TaskDrive) -> float:
+    """Potential Q at r = distance (m^2/s), the P of eq. 21 for this controller.
+
+    Q(r) is the integral of Q' from the boundary of Q's zero set to r (composite
     Gauss-Legendre, panels refined towards the boundary): for S = +1, from d2' outward or from
-    d1' inward, so Q >= 0 and Q = 0 on the (shrunk) region; for S = -1 (region r <= d1' or
-    r >= d2'), from d1' (Q is then constant, possibly non-zero, beyond d2'). Equals k P where
-    k |dP/dr| << v_max. Used for monitoring V.
+    d1' inward, so Q >= 0 and Q = 0 on the region; for S = -1 (region r <= d1' or r >= d2'),
+    from d1' (Q is then constant, possibly non-zero, beyond d2'). Equals K P where the speed
+    is below the cap and the approach term is off. Used for monitoring V.
     """
     r = float(distance)
     if not (math.isfinite(r) and r >= 0.0):
         raise ValueError(f'distance must be finite and >= 0 m, got {distance}')
-    d1, d2 = shaped.region()
-    if shaped.shape.s == 1:
+    d1, d2 = drive.region()
+    if drive.shape.s == 1:
         if r > d2:
-            return abs(_radial_integral(shaped, d2, r))
+            return abs(_radial_integral(drive, d2, r))
         if r < d1:
-            return abs(_radial_integral(shaped, d1, r))
+            return abs(_radial_integral(drive, d1, r))
         return 0.0
     if r <= d1:
         return 0.0
-    if r <= shaped.peak:
-        return _radial_integral(shaped, d1, r)
-    return (_radial_integral(shaped, d1, shaped.peak)
-            + _radial_integral(shaped, shaped.peak, min(r, d2)))
+    peak = _potential_peak(drive)
+    if r <= peak:
+        return _radial_integral(drive, d1, r)
+    return _radial_integral(drive, d1, peak) + _radial_integral(drive, peak, min(r, d2))
 
 
-def _potential_peak(shaped: ShapedPotential) -> float:
-    """Distance (m) in (d1', d2') where d(P(rho))/dr changes sign (S = -1 potentials)."""
-    d1, d2 = shaped.region()
+def _potential_peak(drive: TaskDrive) -> float:
+    """Distance (m) in (d1, d2) where dP/dr changes sign (S = -1 potentials)."""
+    d1, d2 = drive.region()
     radii = np.linspace(d1, d2, 513)[1:-1]
-    slopes = _shaped_slope(radii, shaped, tanh=False)
+    slopes = radial_potential_slope(radii, drive.shape)
     change = np.flatnonzero((slopes[:-1] > 0.0) & (slopes[1:] <= 0.0))
     if change.size == 0:
         return d2
     # Imported here: scipy.optimize costs the controller half a second at start-up, and only
     # S = -1 tasks need it.
     from scipy.optimize import brentq
-    return float(brentq(lambda r: float(_shaped_slope(np.array([r]), shaped, tanh=False)[0]),
+    return float(brentq(lambda r: float(radial_potential_slope(np.array([r]),
+                                                               drive.shape)[0]),
                         radii[change[0]], radii[change[0] + 1]))
 
 
-def _radial_integral(shaped: ShapedPotential, start: float, end: float) -> float:
-    """Integral of dQ/dr from `start` (a boundary of the zero set) to `end` (m^2/s)."""
+def _radial_integral(drive: TaskDrive, start: float, end: float) -> float:
+    """Integral of Q' from `start` (a boundary of the zero set) to `end` (m^2/s)."""
     edges = start + (end - start) * _PANEL_EDGES
     half = 0.5 * np.diff(edges)
     centre = 0.5 * (edges[1:] + edges[:-1])
     radii = centre[:, None] + half[:, None] * _GAUSS_NODES[None, :]
-    slopes = _shaped_slope(radii.ravel(), shaped).reshape(radii.shape)
+    slopes = _radial_slopes(radii.ravel(), drive).reshape(radii.shape)
     return float(np.sum(half[:, None] * _GAUSS_WEIGHTS[None, :] * slopes))
 
 
@@ -461,14 +526,16 @@ def _pseudo_inverse_and_derivative(jac, jac_dot, settings: DampingSettings):
 
 
 def joint_velocity_reference(q, dq, x_d, xdot_d, xddot_d, weight: float, weight_rate: float,
-                             shaped: ShapedPotential | None, l1: float, l2: float,
-                             damping: DampingSettings = DampingSettings()) -> JointReference:
-    """qdot_r of eq. 14 and its exact time derivative qddot_r (eq. 18).
+                             drive: TaskDrive | None, l1: float, l2: float,
+                             damping: DampingSettings = DampingSettings(),
+                             rest=None) -> JointReference:
+    """qdot_r of eq. 14 and its exact time derivative qddot_r (eq. 18), module docstring.
 
     q, dq (2,): joint positions (rad) and velocities (rad/s); x_d, xdot_d, xddot_d (2,): the
     target (centre of the desired region) in m, m/s, m/s^2; weight a(E, t) in [0, 1] and
-    weight_rate da/dt (1/s) from event_weight; shaped: the active task's ShapedPotential, or
-    None (no task: the reference only follows xdot_d); l1, l2 link lengths (m); damping of J+.
+    weight_rate da/dt (1/s) from event_weight; drive: the active task's TaskDrive, or None
+    (no task: the reference only follows xdot_d); l1, l2 link lengths (m); damping of J+;
+    rest (2,) m: x_rest of an avoid task (None: the current position, no return).
     Raises ValueError for non-finite inputs or a weight outside [0, 1].
     """
     q, dq = planar_vector(q, 'q'), planar_vector(dq, 'dq')
@@ -482,22 +549,40 @@ def joint_velocity_reference(q, dq, x_d, xdot_d, xddot_d, weight: float, weight_
     jac_dot = jacobian_derivative(q, dq, l1, l2)
     pinv, lam2, pinv_dot = _pseudo_inverse_and_derivative(jac, jac_dot, damping)
     x = forward_kinematics(q, l1, l2)
+    rest = x if rest is None else planar_vector(rest, 'rest', 'm')
     dx = x - x_d
     distance = float(math.hypot(dx[0], dx[1]))
-    if shaped is None:
+    feed, feed_rate = 1.0, 0.0
+    if drive is None:
         task = None
-        weighted = np.zeros(2)
-        weighted_dot = np.zeros(2)
+        weighted = weighted_dot = returning = returning_dot = np.zeros(2)
     else:
-        task = task_variable(dx, shaped)
+        task = task_variable(dx, drive)
+        velocity = jac @ dq
+        relative_velocity = velocity - xdot_d
+        # Products written out as adaptive_law.step_lean does, so the two agree to rounding
+        # (the Hessian reaches MAX_TASK_HESSIAN).
+        u1, u2 = float(relative_velocity[0]), float(relative_velocity[1])
+        xv1, xv2 = float(velocity[0]), float(velocity[1])
+        (h11, h12), (_, h22) = task.hessian.tolist()
         weighted = weight * task.gradient
-        relative_velocity = jac @ dq - xdot_d
-        weighted_dot = weight_rate * task.gradient + weight * (task.hessian @ relative_velocity)
-    v_r = xdot_d - weighted
-    v_r_dot = xddot_d - weighted_dot
+        weighted_dot = weight_rate * task.gradient + weight * np.array(
+            [h11 * u1 + h12 * u2, h12 * u1 + h22 * u2])
+        v1, v2, c1, c2, gw1, gw2, b11, b12, b22 = rest_term(
+            float(dx[0]), float(dx[1]), float(x[0] - rest[0]), float(x[1] - rest[1]), drive)
+        rest_velocity = np.array([v1, v2])
+        along = gw1 * u1 + gw2 * u2
+        rest_rate = np.array([c1 * along + (b11 * xv1 + b12 * xv2),
+                              c2 * along + (b12 * xv1 + b22 * xv2)])
+        returning = weight * rest_velocity
+        returning_dot = weight_rate * rest_velocity + weight * rest_rate
+        if drive.open_outward:
+            feed, feed_rate = 1.0 - weight, -weight_rate
+    v_r = feed * xdot_d - weighted + returning
+    v_r_dot = feed * xddot_d + feed_rate * xdot_d - weighted_dot + returning_dot
     qdot_r = pinv @ v_r
     qddot_r = pinv_dot @ v_r + pinv @ v_r_dot
     return JointReference(
         qdot_r=qdot_r, qddot_r=qddot_r, position=x, dx=dx, distance=distance,
-        task_velocity=-weighted, weighted_task_variable=weighted, jacobian=jac, pinv=pinv,
-        damping=lam2, task=task)
+        task_velocity=returning - weighted, weighted_task_variable=weighted, jacobian=jac,
+        pinv=pinv, damping=lam2, task=task)

@@ -175,6 +175,25 @@ def _hessian_point(dx, shape):
     return np.clip(hessian, -POTENTIAL_CEILING, POTENTIAL_CEILING)
 
 
+def log_radial_slopes(distance: float, shape: TaskShape) -> tuple[float, int, float, int]:
+    """log|dP/dr|, sign, log|d2P/dr2|, sign of eq. 2 at r = distance (m), uncapped (floats).
+
+    dP/dr = 2 r P'(r^2) (1/m), d2P/dr2 = 2 P'(r^2) + 4 r^2 P''(r^2) (1/m^2), both from
+    logarithms, so exact where the capped `potential_gradient` is not (Table I's avoid row:
+    |dP/dr| ~ 1e125). A zero value is (-inf, 0). distance must be finite and >= 0 (the
+    controller's per-cycle path: no check).
+    """
+    r = distance
+    _, l_d1, s_d1, l_d2, s_d2 = _radial_log_terms(r * r, shape)
+    if s_d1 == 0 and s_d2 == 0:
+        return _NEG_INF, 0, _NEG_INF, 0
+    log_r = math.log(r) if r > 0.0 else _NEG_INF
+    l_slope = _LOG2 + log_r + l_d1 if s_d1 != 0 else _NEG_INF
+    l_curv, s_curv = _signed_log_sum(((_LOG2 + l_d1, s_d1),
+                                      (_LOG4 + 2.0 * log_r + l_d2, s_d2)))
+    return l_slope, (s_d1 if l_slope > _NEG_INF else 0), l_curv, s_curv
+
+
 # ---------------------------------------------------------------------------------------------
 # Array path (any leading dimensions).
 

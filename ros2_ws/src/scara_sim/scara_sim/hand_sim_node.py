@@ -12,6 +12,7 @@ import time
 
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -42,10 +43,14 @@ PARAMETERS = {
     'start_delay': ParameterSpec(float, 'time the hand waits before moving (s)', 0.0, 3600.0),
     'waypoints': ParameterSpec(list,
                                'waypoints profile: flat [x0, y0, x1, y1, ...] (m)'),
+    'segment_speeds': ParameterSpec(list, 'waypoints profile: peak speed of each move (m/s); '
+                                    'unset: speed', optional=True),
+    'pauses': ParameterSpec(list, 'waypoints profile: time at the end of each move (s); '
+                            'unset: none', optional=True),
     'base_frame': ParameterSpec(str, 'frame of /target', read_only=True),
 }
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
-                      'waypoints')
+                      'waypoints', 'segment_speeds', 'pauses')
 
 
 class HandSim(Node):
@@ -73,12 +78,19 @@ class HandSim(Node):
 
     def _profile_from(self, overrides: dict) -> HandProfile:
         def value(name):
-            return overrides[name] if name in overrides else self.get_parameter(name).value
+            if name in overrides:
+                return overrides[name]
+            try:
+                return self.get_parameter(name).value
+            except ParameterUninitializedException:  # an optional parameter left unset
+                return None
 
         return HandProfile(
             name=value('profile'), start=tuple(value('start')), end=tuple(value('end')),
             speed=value('speed'), period=value('period'), radius=value('radius'),
-            start_delay=value('start_delay'), waypoints=tuple(value('waypoints')))
+            start_delay=value('start_delay'), waypoints=tuple(value('waypoints')),
+            segment_speeds=tuple(value('segment_speeds') or ()),
+            pauses=tuple(value('pauses') or ()))
 
     def _describe(self) -> str:
         p = self._profile
@@ -88,7 +100,9 @@ class HandSim(Node):
                    'back_and_forth': f'{list(p.start)} <-> {list(p.end)}, period {p.period} s',
                    'circle': f'centre {list(p.start)}, radius {p.radius} m, '
                              f'period {p.period} s',
-                   'waypoints': f'{len(p.waypoints) // 2} points at {p.speed} m/s'}
+                   'waypoints': f'{len(p.waypoints) // 2} points at '
+                                f'{list(p.segment_speeds) or p.speed} m/s'
+                                + (f', pauses {list(p.pauses)} s' if p.pauses else '')}
         return f'{p.name} ({details[p.name]}, start delay {p.start_delay} s)'
 
     def _validate_parameters(self, parameters) -> SetParametersResult:

@@ -73,7 +73,9 @@ class HandProfile:
     minimum-jerk moves of approach, retreat and waypoints (m/s). period: cycle time of
     back_and_forth and circle (s). radius: of the circle (m), centred on `start`.
     start_delay: time (s) the hand waits at its initial point. waypoints: flat
-    [x0, y0, x1, y1, ...] (m), at least two points.
+    [x0, y0, x1, y1, ...] (m), at least two points; segment_speeds: peak speed (m/s) of each
+    waypoints move (one per move; empty: `speed` for all); pauses: time (s) the hand stays at
+    each waypoint after the first before it moves on (one per move; empty: none).
     """
 
     name: str = 'hold'
@@ -84,6 +86,8 @@ class HandProfile:
     radius: float = 0.08
     start_delay: float = 0.0
     waypoints: tuple[float, ...] = field(default=())
+    segment_speeds: tuple[float, ...] = field(default=())
+    pauses: tuple[float, ...] = field(default=())
 
     def __post_init__(self):
         if self.name not in HAND_PROFILES:
@@ -103,16 +107,43 @@ class HandProfile:
                                  f'least two points, got {len(self.waypoints)} values')
             if not np.all(np.isfinite(points)):
                 raise ValueError('waypoints must be finite')
+            moves = points.size // 2 - 1
+            for name, values in (('segment_speeds', self.segment_speeds),
+                                 ('pauses', self.pauses)):
+                if values and len(values) != moves:
+                    raise ValueError(f'{name} must have one value per move ({moves}), got '
+                                     f'{len(values)}')
+            if not all(math.isfinite(v) and v > 0.0 for v in self.segment_speeds):
+                raise ValueError('segment_speeds must be finite and > 0 m/s')
+            if not all(math.isfinite(v) and v >= 0.0 for v in self.pauses):
+                raise ValueError('pauses must be finite and >= 0 s')
 
 
-def _waypoint_position(points: np.ndarray, t: float, speed: float) -> np.ndarray:
-    """Position along minimum-jerk moves between successive points (k, 2), peak `speed`."""
-    for a, b in zip(points[:-1], points[1:], strict=True):
+def _waypoint_position(points: np.ndarray, t: float, speeds, pauses) -> np.ndarray:
+    """Position along minimum-jerk moves between successive points (k, 2): move i at peak
+    speed speeds[i], then a pause of pauses[i] s at its end."""
+    for a, b, speed, pause in zip(points[:-1], points[1:], speeds, pauses, strict=True):
         duration = minimum_jerk_duration(float(np.linalg.norm(b - a)), speed)
         if t <= duration:
             return minimum_jerk_segment(a, b, t, duration)[0]
-        t -= duration
+        t -= duration + pause
+        if t <= 0.0:
+            return b.copy()
     return points[-1].copy()
+
+
+def waypoint_schedule(profile: HandProfile) -> list[tuple[float, float]]:
+    """(start, end) times (s since the profile started) of each waypoints move."""
+    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, 2)
+    moves = len(points) - 1
+    speeds = profile.segment_speeds or (profile.speed,) * moves
+    pauses = profile.pauses or (0.0,) * moves
+    t, schedule = profile.start_delay, []
+    for a, b, speed, pause in zip(points[:-1], points[1:], speeds, pauses, strict=True):
+        duration = minimum_jerk_duration(float(np.linalg.norm(b - a)), speed)
+        schedule.append((t, t + duration))
+        t += duration + pause
+    return schedule
 
 
 def hand_position(profile: HandProfile, t: float) -> np.ndarray:
@@ -141,7 +172,9 @@ def hand_position(profile: HandProfile, t: float) -> np.ndarray:
         angle = 2.0 * math.pi * tau / profile.period
         return start + profile.radius * np.array([math.cos(angle), math.sin(angle)])
     points = np.asarray(profile.waypoints, dtype=float).reshape(-1, 2)
-    return _waypoint_position(points, tau, profile.speed)
+    moves = len(points) - 1
+    return _waypoint_position(points, tau, profile.segment_speeds or (profile.speed,) * moves,
+                              profile.pauses or (0.0,) * moves)
 
 
 def demonstration_goal(mode: str, start, reference, stop_distance: float,

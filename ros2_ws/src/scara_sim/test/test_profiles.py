@@ -17,6 +17,7 @@ from scara_sim.profiles import (
     minimum_jerk,
     minimum_jerk_duration,
     minimum_jerk_segment,
+    waypoint_schedule,
 )
 from scara_sim.simulation import ScaraSimulator, VelocityLoop
 
@@ -80,6 +81,21 @@ def test_circle_keeps_its_radius():
     profile = HandProfile(name='circle', start=(0.3, 0.2), radius=0.05, period=3.0)
     points = np.array([hand_position(profile, t) for t in np.linspace(0, 7, 99)])
     np.testing.assert_allclose(np.linalg.norm(points - [0.3, 0.2], axis=-1), 0.05)
+
+
+def test_waypoints_take_their_own_speeds_and_pauses():
+    profile = HandProfile(name='waypoints', waypoints=(0.3, 0.0, 0.3, 0.2, 0.5, 0.2),
+                          segment_speeds=(0.5, 0.1), pauses=(1.0, 0.0), start_delay=0.5)
+    (s1, e1), (s2, e2) = waypoint_schedule(profile)
+    assert (s1, e1) == pytest.approx((0.5, 0.5 + 1.875 * 0.2 / 0.5))
+    assert (s2, e2) == pytest.approx((e1 + 1.0, e1 + 1.0 + 1.875 * 0.2 / 0.1))
+    np.testing.assert_allclose(hand_position(profile, e1 + 0.5), [0.3, 0.2])
+    speed = np.linalg.norm(hand_position(profile, 0.5 * (s1 + e1) + 1e-4)
+                           - hand_position(profile, 0.5 * (s1 + e1) - 1e-4)) / 2e-4
+    assert speed == pytest.approx(0.5, rel=1e-3)
+    np.testing.assert_allclose(hand_position(profile, e2 + 1.0), [0.5, 0.2])
+    with pytest.raises(ValueError, match='one value per move'):
+        HandProfile(name='waypoints', waypoints=(0.3, 0.0, 0.3, 0.2), pauses=(1.0, 2.0))
 
 
 def test_waypoints_visit_every_point_and_stop_at_the_last():

@@ -1,0 +1,57 @@
+"""Rate limit of the commanded torque: the last stage of the torque command, after the clamp.
+
+Like libfranka's rate limiter (franka::limitRate), each joint's torque moves from the last
+command towards the one the control law asks for by at most max_rate * dt,
+
+    tau_i = tau_prev_i + clip(tau_law_i - tau_prev_i, -max_rate dt, max_rate dt),
+
+dt (s) the time since the last command. The controller node passes the joint states' stamp
+difference but at most one control period: after cycles it skipped (a loaded machine), the
+drive may still apply its command one step after the previous one (measured on the topics:
+commands from states 2 ms apart applied at consecutive 1 ms steps), so each command moves by
+at most one cycle's worth. Applied after the clamp to
+effort_limit: tau_prev and tau_law both lie in the box |tau_i| <= effort_limit, so tau does too.
+It bounds what reaches the drives whatever the reason the law's torque jumps (a control cycle
+the loaded machine ran late, an input that arrived late); the law itself is continuous
+(task_variable, signal_hold), so in normal operation the limit does not act. The zero-torque
+paths (stale or invalid input, a fault) bypass it and reset it to zero: safety first.
+Units: N m, N m/s, s. No ROS import.
+"""
+
+import math
+from collections.abc import Sequence
+
+
+class EffortRateLimiter:
+    """Limits the change of a torque vector to max_rate (N m/s, > 0) times the elapsed time.
+
+    Starts from zero torque (what the drives apply before the first command).
+    """
+
+    def __init__(self, max_rate: float, joints: int = 2):
+        if not (math.isfinite(max_rate) and max_rate > 0.0):
+            raise ValueError(f'max_rate must be finite and > 0 N m/s, got {max_rate}')
+        self.max_rate = float(max_rate)
+        self._joints = joints
+        self.reset()
+
+    def reset(self, tau: Sequence[float] | None = None) -> None:
+        """The torque now applied (default zero), the start of the next limited change."""
+        self.previous = tuple(0.0 for _ in range(self._joints)) if tau is None else tuple(
+            float(v) for v in tau)
+
+    def limit(self, tau: Sequence[float], dt: float) -> tuple[tuple[float, ...], bool]:
+        """(torque to command, whether the limit acted) for the law's torque `tau` (n,) N m,
+        dt s after the previous command (dt >= 0; finite values, checked by the caller)."""
+        step = self.max_rate * max(dt, 0.0)
+        limited = False
+        out = []
+        for wanted, before in zip(tau, self.previous, strict=True):
+            change = wanted - before
+            if change > step:
+                change, limited = step, True
+            elif change < -step:
+                change, limited = -step, True
+            out.append(before + change)
+        self.previous = tuple(out)
+        return self.previous, limited

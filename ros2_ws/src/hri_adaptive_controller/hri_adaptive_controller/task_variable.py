@@ -75,9 +75,9 @@ from hri_core.dynamics import forward_kinematics, jacobian, jacobian_derivative
 from hri_core.potential import (
     TaskShape,
     default_task_gain,
-    log_potential_slope,
     log_radial_slopes,
     potential_gradient,
+    signed_log_potential_slope,
 )
 from hri_core.validation import planar_vector, positive
 
@@ -276,6 +276,29 @@ def _approach_floor(r: float, drive: TaskDrive) -> tuple[float, float]:
     return 0.0, 0.0
 
 
+def _smoothstep_values(u: np.ndarray) -> np.ndarray:
+    """_smoothstep's value at each u (numpy)."""
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
+
+
+def _approach_floor_values(radii: np.ndarray, drive: TaskDrive) -> np.ndarray:
+    """_approach_floor's f(r) (m/s) at each of the radii (numpy; monitoring)."""
+    v_a, margin = drive.approach_speed, drive.margin
+    floor = np.zeros_like(radii)
+    if v_a == 0.0:
+        return floor
+    d1, d2 = drive.shape.d1, drive.shape.d2
+    outer = (radii > d2 - margin) if drive.outer_floor else np.zeros(radii.shape, dtype=bool)
+    floor[outer] = v_a * _smoothstep_values((radii[outer] - (d2 - margin)) / margin)
+    if d1 > 0.0:
+        inner = ~outer & (radii < d1 + margin)
+        r = radii[inner]
+        floor[inner] = -v_a * _smoothstep_values((d1 + margin - r) / margin) \
+            * _smoothstep_values(r / RADIAL_FADE)
+    return floor
+
+
 def radial_drive(r: float, drive: TaskDrive) -> tuple[float, float]:
     """Q'(r) (m/s) and Q''(r) (1/s) of eq. 12' at r = |dx| (m, finite, >= 0).
 
@@ -378,14 +401,13 @@ def _clip_hessian(value: float) -> float:
 def _radial_slopes(radii, drive: TaskDrive) -> np.ndarray:
     """Q'(r) (m/s) at the radii (n,) m (numpy; monitoring)."""
     radii = np.asarray(radii, dtype=float)
-    sign = np.sign(radial_potential_slope(radii, drive.shape))
+    log_slope, sign = signed_log_potential_slope(radii, drive.shape)
     with np.errstate(over='ignore'):
-        pull = sign * np.exp(np.minimum(drive.log_gain + log_potential_slope(radii, drive.shape),
-                                        _LOG_SPEED_LIMIT))
+        pull = sign * np.exp(np.minimum(drive.log_gain + log_slope, _LOG_SPEED_LIMIT))
     if drive.approach_speed == 0.0:
         raw = pull
     else:
-        floor = np.array([_approach_floor(float(r), drive)[0] for r in radii])
+        floor = _approach_floor_values(radii, drive)
         u = np.clip(np.abs(pull) / drive.approach_speed, 0.0, 1.0)
         raw = pull + floor * (1.0 - u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u))
     v_max = drive.max_task_speed

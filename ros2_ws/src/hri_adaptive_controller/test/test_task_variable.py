@@ -9,6 +9,8 @@ from hri_adaptive_controller.task_variable import (
     CAP_BAND,
     DampingSettings,
     TaskDrive,
+    _approach_floor,
+    _approach_floor_values,
     damped_pseudo_inverse,
     damped_pseudo_inverse_derivative,
     joint_velocity_reference,
@@ -325,3 +327,11 @@ def test_reference_rejects_bad_input():
 def test_task_drive_is_hashable_per_task():
     assert isinstance(drive('follow'), TaskDrive)
     assert hash(drive('follow')) == hash(drive('follow'))
+
+
+@pytest.mark.parametrize('name', sorted(SHAPES))
+def test_the_monitors_approach_floor_equals_the_control_paths(name):
+    task = drive(name)
+    radii = np.concatenate([np.linspace(0.0, 0.5, 2001), [task.shape.d1, task.shape.d2]])
+    np.testing.assert_array_equal(_approach_floor_values(radii, task),
+                                  [_approach_floor(float(r), task)[0] for r in radii])

@@ -388,10 +388,21 @@ def log_potential_slope(distance, shape):
     magnitude of the gradient of the radial potential; computed from logarithms, so it is exact
     where the capped ``potential_gradient`` is not (Table I's avoid row near x_r).
     """
+    return signed_log_potential_slope(distance, shape)[0]
+
+
+def signed_log_potential_slope(distance, shape):
+    """(log |dP/dr|, sign of dP/dr) of eq. 2 at r = distance (m), in one evaluation.
+
+    distance: (...,) m, >= 0. Returns two arrays (...,): log(1/m) as ``log_potential_slope``
+    (-inf where the slope is 0) and the sign (-1, 0 or +1) of the uncapped dP/dr.
+    """
     d = _as_distance(distance)
-    _, l_d1, _, _, _ = _radial_log_terms_array(d * d, shape)
+    _, l_d1, s_d1, _, _ = _radial_log_terms_array(d * d, shape)
     with np.errstate(divide='ignore'):
-        return np.where(d > 0.0, _LOG2 + np.log(np.where(d > 0.0, d, 1.0)) + l_d1, -np.inf)
+        log_slope = np.where(d > 0.0, _LOG2 + np.log(np.where(d > 0.0, d, 1.0)) + l_d1,
+                             -np.inf)
+    return log_slope, np.where(np.isfinite(log_slope), s_d1, 0.0)
 
 
 def _reach_band(shape, reach, onset):

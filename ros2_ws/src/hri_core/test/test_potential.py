@@ -266,6 +266,7 @@ from hri_core.potential import (  # noqa: E402
     default_task_gain,
     log_potential_slope,
     reach_shortfall,
+    signed_log_potential_slope,
 )
 
 REACH = 0.65  # m, l1 + l2 of the sim's arm
@@ -304,6 +305,18 @@ def test_log_slope_is_exact_where_the_gradient_is_capped():
     r = np.array([0.1, 0.3, 0.5])
     gradient = np.abs(potential_gradient(np.stack([r, 0 * r], axis=1), moderate)[:, 0])
     np.testing.assert_allclose(np.exp(log_potential_slope(r, moderate)), gradient, rtol=1e-9)
+
+
+@pytest.mark.parametrize('name', sorted(TABLE_I))
+def test_signed_log_slope_has_the_gradients_sign(name):
+    shape = TABLE_I[name]
+    r = np.linspace(0.0, 0.8, 801)
+    gradient = potential_gradient(np.stack([r, 0 * r], axis=1), shape)[:, 0]
+    log_slope, sign = signed_log_potential_slope(r, shape)
+    np.testing.assert_array_equal(log_slope, log_potential_slope(r, shape))
+    nonzero = gradient != 0.0
+    np.testing.assert_array_equal(sign[nonzero], np.sign(gradient[nonzero]))
+    assert np.all(sign[np.isinf(log_slope)] == 0.0)
 
 
 def test_default_gain_makes_the_pull_max_task_speed_at_the_onset():

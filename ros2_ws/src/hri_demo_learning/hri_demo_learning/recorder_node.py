@@ -3,13 +3,16 @@
 Each topic in `topics` is recorded once it appears on the graph with a publisher: its type
 comes from the graph, its QoS matches what the publishers offer (best effort if any publisher
 is best effort, transient local if every publisher is), with a KEEP_ALL history so that a
-burst never overflows the queue. Subscriptions are raw (CDR bytes, no deserialisation) and
-each message is stamped in the bag with its receive time from the middleware (the header
-stamp stays inside the message). Every `flush_period` seconds the open MCAP chunk is closed
-(zstd-compressed with `compression:=zstd`) and handed to the OS, so a SIGKILL loses at most
-that much. SIGINT or SIGTERM first write every message still queued in the subscriptions (received
-and acknowledged to reliable publishers, not yet handed over by the executor), then close the
-bag cleanly (MCAP summary and metadata.yaml), and the node logs one summary line (messages per
+burst never overflows the queue. Subscriptions are raw (CDR bytes, no deserialisation) and sit
+on a second node, `recorder_intake`, that no executor spins: every 5 ms a timer takes what
+they hold straight from the middleware, each message stamped in the bag with its receive time
+from the middleware (the header stamp stays inside the message), without an executor's
+per-message work (a single-threaded executor hands over only about 2 kHz here). Every
+`flush_period` seconds the open MCAP chunk is closed (zstd-compressed with
+`compression:=zstd`) and handed to the OS, so a SIGKILL loses at most that much (and the
+intake's 5 ms). SIGINT or SIGTERM first write every message still held by the subscriptions
+(received and acknowledged to reliable publishers), then close the bag cleanly (MCAP summary
+and metadata.yaml), and the node logs one summary line (messages per
 topic). An `output` that exists already is refused
 (one error line, exit code 1), as is a bad parameter; a bag that cannot be written any more
 (disk full) stops the node the same way. The parameters' defaults are in config/recorder.yaml

@@ -12,10 +12,16 @@
    end-effector from where it is toward x_r and stops `stop_distance` m from it;
    `mode: avoid` moves it from near x_r straight away to `safe_distance` m (when it starts
    within 5 mm of x_r, along `avoid_direction`).
-4. Lets go (zero force) once the end-effector has arrived and stopped (or `settle_timeout`
-   s after the path ends), keeps publishing a zero wrench for `hold_time` s, and exits 0.
-The end-effector velocity comes from the /ee_position stamps (low-passed differences). If
-the node is stopped mid-push, scara_sim drops the force after its `wrench_timeout`.
+4. Lets go (zero force) once the end-effector has stayed within `settle_tolerance` of the
+   goal for `settle_time` s at a mean speed below `settle_speed` (or `settle_timeout` s after
+   the path ends), keeps publishing a zero wrench for `hold_time` s, and exits 0. An
+   end-effector that drifts out of `settle_tolerance` while the hand is off is taken again
+   (logged) and brought back, until `settle_timeout`.
+The loop runs on elapsed time, not on a count of ticks, so that late ticks on a loaded machine
+change neither the path nor the dwell nor the hold: the end-effector velocity comes from the
+/ee_position stamps (low-passed differences), and each position is extrapolated from its stamp
+to the present. If the node is stopped mid-push (or stalls), scara_sim drops the force after
+its `wrench_timeout` (0.05 s: 10 periods at the default `rate_hz`).
 """
 
 import sys
@@ -34,6 +40,7 @@ from hri_core.node_common import (
     declare_parameters,
     load_defaults,
     run_node,
+    stamp_seconds,
 )
 from hri_core.velocity_estimator import VelocityEstimator
 from scara_sim.profiles import (
@@ -58,8 +65,10 @@ PUSH_SETTINGS = {  # PushSettings fields
                                 read_only=True),
     'settle_tolerance': ParameterSpec(float, 'arrived: this close to the goal (m)', 1e-4, 0.1,
                                       read_only=True),
-    'settle_speed': ParameterSpec(float, 'arrived: slower than this (m/s)', 1e-4, 0.1,
-                                  read_only=True),
+    'settle_speed': ParameterSpec(float, 'arrived: slower than this on average (m/s)', 1e-4,
+                                  0.1, read_only=True),
+    'settle_time': ParameterSpec(float, 'arrived: within settle_tolerance for this long (s)',
+                                 0.0, 10.0, read_only=True),
     'settle_timeout': ParameterSpec(float, 'let go this long after the path ends (s)', 0.1,
                                     60.0, read_only=True),
     'hold_time': ParameterSpec(float, 'zero force for this long before exiting (s)', 0.0,
@@ -82,8 +91,9 @@ PARAMETERS = {
     'tremor_band': ParameterSpec(list, 'hand tremor band [low, high] (Hz)', size=2,
                                  read_only=True),
     'seed': ParameterSpec(int, 'seed of the tremor noise', 0, 2**31 - 1, read_only=True),
-    'rate_hz': ParameterSpec(float, 'rate of /human/wrench and /demo/reference (Hz)', 10.0,
-                             1000.0, read_only=True),
+    'rate_hz': ParameterSpec(float, 'rate of /human/wrench and /demo/reference (Hz); at '
+                             "least 2.5 per scara_sim's wrench_timeout", 50.0, 1000.0,
+                             read_only=True),
     'start_delay': ParameterSpec(float, 'wait after hearing the arm before pushing (s)', 0.0,
                                  600.0, read_only=True),
     'wait_timeout': ParameterSpec(float, 'give up when no /ee_position comes (s)', 0.1, 600.0,
@@ -122,6 +132,7 @@ class Demonstrator(Node):
 
         self.exit_code: int | None = None
         self._position: np.ndarray | None = None
+        self._stamp = 0.0  # s, of self._position
         self._demonstration: Demonstration | None = None
         self._created = time.monotonic()
         self._heard_at: float | None = None
@@ -150,9 +161,9 @@ class Demonstrator(Node):
             self.get_logger().warning('ignored a non-finite /ee_position',
                                       throttle_duration_sec=2.0)
             return
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        stamp = stamp_seconds(msg.header.stamp)
         self._velocity.update(position, stamp)
-        self._position = position
+        self._position, self._stamp = position, stamp
 
     def _on_tick(self) -> None:
         if self.exit_code is not None:
@@ -197,12 +208,18 @@ class Demonstrator(Node):
 
     def _push(self, now: float) -> np.ndarray:
         demo = self._demonstration
-        before = demo.phase
-        force = demo.update(now - self._push_start, self._position, self._velocity.velocity)
+        before, regrasps = demo.phase, demo.regrasps
+        age = max(0.0, self.get_clock().now().nanoseconds * 1e-9 - self._stamp)
+        force = demo.update(now - self._push_start, self._position, self._velocity.velocity,
+                            age)
         if demo.phase == 'pushing':
             self._peak_speed = max(self._peak_speed, float(np.linalg.norm(
                 self._velocity.velocity)))
         distance = float(np.linalg.norm(self._position - self._reference))
+        if demo.regrasps != regrasps:
+            self.get_logger().info(
+                f'took hold again: the end-effector drifted to {distance:.4f} m from x_r, '
+                f'{np.linalg.norm(self._position - demo.goal) * 1e3:.1f} mm from the goal')
         if before != 'holding' and demo.phase in ('holding', 'done'):
             how = ('settle timeout: not arrived' if demo.settle_timed_out else 'arrived')
             log = self.get_logger().warning if demo.settle_timed_out else self.get_logger().info

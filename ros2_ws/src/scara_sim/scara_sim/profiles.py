@@ -12,6 +12,7 @@ No ROS import.
 """
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -242,7 +243,8 @@ class Tremor:
 
     Each axis is Gaussian white noise through a 4th-order Butterworth band-pass
     [low, high] Hz sampled at `rate_hz`, scaled so that its stationary RMS is `amplitude` N.
-    Streaming: `sample()` returns the next (2,) value; the same seed gives the same sequence.
+    Streaming: `sample()` returns the next (2,) value, `at(t)` the value at time t; the same
+    seed gives the same sequence.
     """
 
     def __init__(self, amplitude: float, band: tuple[float, float], rate_hz: float,
@@ -265,12 +267,29 @@ class Tremor:
         self._scale = amplitude / noise_gain
         self._rng = np.random.default_rng(seed)
         self._state = np.zeros((self._sos.shape[0], 2, 2))  # (sections, 2, axes)
+        self._rate_hz = rate_hz
+        self._samples = 0
+        self._last = np.zeros(2)
 
     def sample(self) -> np.ndarray:
         """The next tremor force (2,) in N."""
         out, self._state = self._sosfilt(self._sos, self._rng.standard_normal((1, 2)),
                                           axis=0, zi=self._state)
-        return self._scale * out[0]
+        self._samples += 1
+        self._last = self._scale * out[-1]
+        return self._last
+
+    def at(self, t: float) -> np.ndarray:
+        """The tremor force (2,) in N at time t (s since the first sample): the filter runs
+        every sample period up to t, so late or missed calls keep the tremor's band and RMS
+        in time; the sequence in time is the one `sample()` gives when called at rate_hz."""
+        due = math.floor(t * self._rate_hz) + 1 - self._samples
+        if due > 0:
+            out, self._state = self._sosfilt(self._sos, self._rng.standard_normal((due, 2)),
+                                              axis=0, zi=self._state)
+            self._samples += due
+            self._last = self._scale * out[-1]
+        return self._last
 
 
 @dataclass(frozen=True)
@@ -278,9 +297,12 @@ class PushSettings:
     """How the demonstrator's hand pushes (see `Demonstration`).
 
     stiffness (N/m) and damping (N s/m) of the hand's impedance, max_force (N), peak_speed
-    of the set-point's minimum-jerk path (m/s), settle_tolerance (m) and settle_speed (m/s)
-    that count as arrived, settle_timeout (s) after the path ends before letting go anyway,
-    hold_time (s) the hand stays off (zero force) before the demonstration is done.
+    of the set-point's minimum-jerk path (m/s); arrived: within settle_tolerance (m) of the
+    goal without a break for settle_time (s), at a mean speed over that time below
+    settle_speed (m/s);
+    settle_timeout (s) after the path ends before letting go anyway (and the last moment the
+    hand takes the tool again), hold_time (s) the hand stays off (zero force) with the
+    end-effector still within settle_tolerance before the demonstration is done.
     """
 
     stiffness: float = 300.0
@@ -289,6 +311,7 @@ class PushSettings:
     peak_speed: float = 0.15
     settle_tolerance: float = 0.002
     settle_speed: float = 0.002
+    settle_time: float = 0.2
     settle_timeout: float = 5.0
     hold_time: float = 3.0
 
@@ -296,20 +319,31 @@ class PushSettings:
         for name in ('stiffness', 'max_force', 'peak_speed', 'settle_tolerance',
                      'settle_speed', 'settle_timeout'):
             positive(getattr(self, name), name, '')
-        for name in ('damping', 'hold_time'):
+        for name in ('damping', 'settle_time', 'hold_time'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'{name} must be finite and >= 0, got {value}')
+
+
+# Oldest position (s) the hand extrapolates to the present; an older one is used as it is.
+MAX_POSITION_AGE = 0.1
 
 
 class Demonstration:
     """The demonstrator's push from `start` to `goal`, as a force for each moment.
 
     Phases: 'pushing' while the set-point runs its minimum-jerk path (duration from
-    `peak_speed`); 'settling' with the set-point at the goal until the end-effector is within
-    settle_tolerance of it and slower than settle_speed (or settle_timeout passes); then the
-    hand lets go: 'holding' (zero force) for hold_time; then 'done'. The force is
-    `hand_force` plus `tremor` (None: no tremor) while the hand holds the tool.
+    `peak_speed`); 'settling' with the set-point at the goal until the end-effector has been
+    within settle_tolerance of it for settle_time s, moving on average slower than
+    settle_speed over that time (or
+    settle_timeout passes after the path's end); then the hand lets go: 'holding' (zero
+    force) for hold_time; then 'done'. An end-effector that drifts out of settle_tolerance
+    while the hand is off is taken again ('settling', counted in `regrasps`) until
+    settle_timeout. The force is `hand_force` plus `tremor` (None: no tremor) while the hand
+    holds the tool.
+
+    Every decision uses the time t given to `update`, never a count of calls: a caller whose
+    calls come late (a loaded machine) gets the same path, dwell and hold in time.
     """
 
     def __init__(self, start, goal, settings: PushSettings, tremor: 'Tremor | None' = None):
@@ -322,21 +356,59 @@ class Demonstration:
         self.phase = 'pushing'
         self.released_at: float | None = None
         self.settle_timed_out = False
+        self.regrasps = 0
+        self._window: deque[tuple[float, np.ndarray]] = deque()  # (t, position) within
 
-    def update(self, t: float, position, velocity) -> np.ndarray:
+    def _arrived(self, t: float, position: np.ndarray, within: bool) -> bool:
+        """Whether the end-effector has stayed within settle_tolerance for settle_time s and
+        moved on average slower than settle_speed over that time.
+
+        The mean over the window, not the instantaneous speed: the tremor alone shakes the
+        held arm at about 1-2 mm/s (10 Hz), while what the arm keeps after the hand lets go
+        is its slow drift, which the mean measures.
+        """
+        s = self.settings
+        if not within:
+            self._window.clear()
+            return False
+        self._window.append((t, position))
+        while len(self._window) > 1 and t - self._window[1][0] >= s.settle_time:
+            self._window.popleft()
+        since, first = self._window[0]
+        if t - since < s.settle_time:
+            return False
+        if t == since:  # settle_time 0: a single sample within tolerance is enough
+            return True
+        return bool(np.linalg.norm(position - first) / (t - since) <= s.settle_speed)
+
+    def update(self, t: float, position, velocity, age: float = 0.0) -> np.ndarray:
         """Force (2,) in N at time t (s since the push began) for the measured end-effector
-        position (2,) in m and velocity (2,) in m/s; advances the phase."""
+        position (2,) in m and velocity (2,) in m/s, measured `age` s before t; advances the
+        phase.
+
+        The position is extrapolated to t with the velocity (an age up to
+        MAX_POSITION_AGE s): a position that arrives late would otherwise make the hand's
+        spring and damper lag behind the arm and overshoot.
+        """
         s = self.settings
         position = planar_vector(position, 'position', 'm')
         velocity = planar_vector(velocity, 'velocity', 'm/s')
+        if not (math.isfinite(age) and age >= 0.0):
+            raise ValueError(f'age must be finite and >= 0 s, got {age}')
+        position = position + velocity * min(age, MAX_POSITION_AGE)
+        within = bool(np.linalg.norm(position - self.goal) <= s.settle_tolerance)
+        timed_out = t >= self.duration + s.settle_timeout
         if self.phase == 'pushing' and t >= self.duration:
             self.phase = 'settling'
+        if self.phase == 'holding' and not within and not timed_out \
+                and not self.settle_timed_out:
+            self.phase, self.released_at, self.regrasps = 'settling', None, self.regrasps + 1
         if self.phase == 'settling':
-            arrived = (np.linalg.norm(position - self.goal) <= s.settle_tolerance
-                       and np.linalg.norm(velocity) <= s.settle_speed)
-            self.settle_timed_out = t >= self.duration + s.settle_timeout and not arrived
-            if arrived or self.settle_timed_out:
+            arrived = self._arrived(t, position, within)
+            if arrived or timed_out:
+                self.settle_timed_out = not arrived
                 self.phase, self.released_at = 'holding', t
+                self._window.clear()
         if self.phase == 'holding' and t >= self.released_at + s.hold_time:
             self.phase = 'done'
         if self.phase in ('holding', 'done'):
@@ -345,4 +417,4 @@ class Demonstration:
                                                            self.duration)
         force = hand_force(setpoint, setpoint_velocity, position, velocity, s.stiffness,
                            s.damping, s.max_force)
-        return force if self.tremor is None else force + self.tremor.sample()
+        return force if self.tremor is None else force + self.tremor.at(t)

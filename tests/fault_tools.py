@@ -32,6 +32,11 @@ class RawListener:
     def __len__(self) -> int:
         return len(self.arrivals)
 
+    def last(self):
+        """The message that arrived last, decoded (None before the first)."""
+        arrivals = self.arrivals
+        return deserialize_message(arrivals[-1][1], self.msg_type) if arrivals else None
+
     def messages(self, since: float = -math.inf) -> list:
         """The messages that arrived after `since` (monotonic s), decoded, in arrival order."""
         return [message for _, message in self.timed(since)]

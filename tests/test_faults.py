@@ -58,6 +58,7 @@ SLACK = 0.05  # s: a control tick, a ControllerState period (10 ms), latency and
 # time; the bound allows for the event_manager starved for 0.3 s on a loaded machine.
 RESTART_RAMP_TIME = 2.0  # s
 MAX_WEIGHT_STEP = 0.3
+FADE_JITTER = 0.015  # s, see the fade-out test
 TASK_FADE_TIME = 0.5  # s, the controller's fade when TaskStates stop or return (default 1 s)
 MAX_EFFORT_STEP = 1.0 + 1e-9  # N m per 1 ms control cycle (the rate limit's own, to an ulp)
 SIM_RESTARTS = 5
@@ -218,17 +219,25 @@ def test_event_manager_killed_fades_the_task_out_then_in_when_task_states_return
     assert delay <= allowed_delay(faded, stall), (delay, stall)
     assert delay >= faded - HEARTBEAT_PERIOD - SLACK, (delay, stall)
     assert held > 50
-    # The fade is eq. 13's ramp, seen in the ControllerStates (10 ms apart): no jump in a.
-    fading = np.array([s.weight for s in after if s.status == 'no_task_state'])
-    assert np.count_nonzero((fading > 0.05) & (fading < 0.95)) >= 10, fading
-    assert np.max(np.abs(np.diff(fading))) < 0.1, fading
+    # The fade is eq. 13's ramp, seen in the ControllerStates (10 ms apart, further on a busy
+    # machine): between two of them a changes by at most the quintic ramp's steepest slope
+    # (15/8 per fade time) times the time between their stamps, plus what FADE_JITTER of
+    # difference between that time and the sim time between the joint states they were
+    # computed from allows. A jump (a from 1 to 0 in a cycle) is far outside.
+    fading = [s for s in after if s.status == 'no_task_state']
+    weights_out = np.array([s.weight for s in fading])
+    assert np.count_nonzero((weights_out > 0.05) & (weights_out < 0.95)) >= 10, weights_out
+    apart = np.diff([stamp_seconds(s.header.stamp) for s in fading])
+    allowed = 15.0 / 8.0 / TASK_FADE_TIME * (apart + FADE_JITTER)
+    assert np.all(np.abs(np.diff(weights_out)) <= allowed), (apart, weights_out)
     # Until the timeout the last TaskState stays in force (a = 1, follow).
     before_timeout = [s for s in after if stamp_seconds(s.header.stamp)
                       < killed_at + TASK_STATE_TIMEOUT - HEARTBEAT_PERIOD - SLACK]
     assert all(s.status == 'ok' and s.weight > 0.99 for s in before_timeout), [
         (round(stamp_seconds(s.header.stamp) - killed_at, 3), s.status, s.weight) for s in after]
 
-    restart_from, restarted_mono = len(states), time.monotonic()
+    restart_from = len(states)
+    restarted_at = probe_time(probe)
     manager = nodes('hri_adaptive_controller', 'event_manager', params={
         'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow',
         'ramp_time': RESTART_RAMP_TIME, 'heartbeat_period': HEARTBEAT_PERIOD})
@@ -253,7 +262,9 @@ def test_event_manager_killed_fades_the_task_out_then_in_when_task_states_return
     # No torque step through the fade-out, from before the kill until the new event_manager
     # starts: the torque the sim applied, per control cycle on its clock (commands it took
     # in late and skipped count as the cycles they were: tests.fault_tools).
-    fade_out = [m for arrived, m in joints.timed() if arrived < restarted_mono]
+    # Selected by the sim's stamps: a busy test process takes its messages in late.
+    assert wait_for(lambda: stamp_seconds(joints.last().header.stamp) > restarted_at, 10.0)
+    fade_out = [m for m in joints.messages() if stamp_seconds(m.header.stamp) < restarted_at]
     assert len(fade_out) > 1000
     steps = effort_change_per_step(fade_out, commands=[tuple(m.data)
                                                        for m in commands.messages()])

@@ -8,11 +8,11 @@ second under the closed loop; task folders with broken files; nodes get out-of-r
 parameters at start and at run time. Every float on /effort_controller/commands,
 /hri/task_state and /hri/controller_state is checked to be finite.
 
-Covered elsewhere: NaN and short joint states give zero torque (test_closed_loop.py), wrong
-length and non-finite commands to the sim (test_scara_sim.py), an invalid task replacing the
-active one and one unknown-task event (test_event_manager.py), scara_sim's, the recorder's and
-the learner's run-time and start parameters (test_scara_sim.py, test_recorder.py,
-test_learner.py).
+The controller alone against NaN and short joint states: zero torque, and again once valid
+ones go stale. Covered elsewhere: wrong length and non-finite commands to the sim
+(test_scara_sim.py), an invalid task replacing the active one and one unknown-task event
+(test_event_manager.py), scara_sim's, the recorder's and the learner's run-time and start
+parameters (test_scara_sim.py, test_recorder.py, test_learner.py).
 """
 
 import math
@@ -141,6 +141,46 @@ def assert_commands_safe(listener: RawListener) -> None:
     assert_all_finite(commands, '/effort_controller/commands')
     assert all(len(c.data) == 2 and max(abs(v) for v in c.data) <= EFFORT_LIMIT + 1e-9
                for c in commands)
+
+
+def test_bad_joint_states_give_zero_torque_without_crash(nodes, probe):
+    """NaN joint states are dropped; without fresh valid ones the torque is zero."""
+    states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
+    commands = probe.collect('/effort_controller/commands', Float64MultiArray, 10)
+    controller = nodes('hri_adaptive_controller', 'controller',
+                       params={'joint_state_timeout': 0.05})
+    joints = probe.publisher('/joint_states', JointState, 10)
+    targets = probe.publisher('/target', PointStamped, 10)
+    assert wait_for(lambda: joints.get_subscription_count() > 0, 20.0), controller.log()
+    target = PointStamped()
+    target.point.x, target.point.y = 0.45, 0.1
+    for _ in range(20):
+        target.header.stamp = probe.now()
+        targets.publish(target)
+        bad = JointState(name=['joint1', 'joint2'], position=[math.nan, 1.0],
+                         velocity=[0.0, 0.0])
+        bad.header.stamp = probe.now()
+        joints.publish(bad)
+        # The controller keeps only the latest joint state (depth 1): one bad kind at a time.
+        time.sleep(0.025)
+        short = JointState(name=['joint1'], position=[0.1], velocity=[0.0])
+        joints.publish(short)
+        time.sleep(0.025)
+    assert wait_for(lambda: len(states) > 20, 10.0)
+    assert controller.alive()
+    assert all(s.status in ('no_joint_states', 'stale_joint_states', 'no_target')
+               for s in states[-10:])
+    assert commands and all(list(c.data) == [0.0, 0.0] for c in commands[-100:])
+    log = controller.log()
+    assert 'non-finite' in log and 'Traceback' not in log
+    # Valid but then stale joint states: zero torque again after joint_state_timeout.
+    good = JointState(name=['joint2', 'joint1'], position=[1.5, 0.0], velocity=[0.0, 0.0])
+    good.header.stamp = probe.now()
+    joints.publish(good)
+    time.sleep(0.5)
+    assert states[-1].status in ('stale_joint_states', 'no_task_state')
+    assert wait_for(lambda: states[-1].status == 'stale_joint_states', 5.0)
+    assert all(list(c.data) == [0.0, 0.0] for c in commands[-50:])
 
 
 def test_controller_maps_joints_by_name_and_drops_bad_joint_states(nodes, probe, arm):

@@ -10,7 +10,8 @@ avoid. Thresholds are the issue's: effort changes <= 1 N m per 1 ms control cycl
 avoid, the arm ends at >= d1 - 2 cm within 2 s of a hand that reached in at 0.5 m/s
 stopping, stays within 5 cm of its rest position while the hand walks 0.2 m away, and is
 back within 1 cm of it 3 s after the hand has gone; a1, a2 x 4 change the time to region by
->= 15 %. The follow_safe band and bad joint states: tests/test_closed_loop.py.
+>= 15 %. The follow_safe band on topics: tests/test_demo.py (each learned behaviour ends in
+its region); bad joint states: tests/test_bad_input.py.
 """
 
 import math

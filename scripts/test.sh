@@ -3,10 +3,13 @@
 # package and the topic-level tests in tests/. The default run leaves out the groups marked
 # `slow` (soak, multi-host); `scripts/test.sh --all` runs them too. Further arguments go to pytest.
 #
-# Two phases: first every test not marked `exclusive`, in HRI_TEST_WORKERS (default 2)
-# pytest-xdist workers (worksteal: an idle worker takes tests queued for a busy one, so a
-# long test late in the queue does not leave the other worker idle); then the `exclusive` ones
-# (the 1 kHz closed loop, whose timing checks need the CPUs to themselves) one at a time. The exit code is non-zero if either phase fails.
+# Two phases. First the topic-level tests (marker `integration`) not marked `exclusive`, in
+# HRI_TEST_WORKERS (default 2) pytest-xdist workers (worksteal: an idle worker takes tests
+# queued for a busy one). Then the `exclusive` ones (a 1 kHz closed loop, whose timing checks
+# need a core to themselves) one at a time, and beside them the pure unit tests (no ROS
+# process) at the lowest CPU priority (nice 19): one loop keeps about one of the two cores
+# busy, and the unit tests take what it leaves idle without delaying it. The exit code is
+# non-zero if any part fails.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -22,26 +25,41 @@ source "$root/scripts/env.sh"
 echo "[test] ruff check" >&2
 ruff check .
 
-# pytest exits 5 when a phase selects no test (e.g. arguments naming one test): not a failure
-# of that phase, but a run in which neither phase selects a test exits 5 like pytest.
+# pytest exits 5 when a part selects no test (e.g. arguments naming one test): not a failure
+# of that part, but a run in which no part selects a test exits 5 like pytest.
 status=0
 empty=0
-phase() {
-  local code=0
-  python -m pytest "$@" || code=$?
-  if [ "$code" -eq 5 ]; then
+tally() {
+  if [ "$1" -eq 5 ]; then
     empty=$((empty + 1))
-  elif [ "$code" -ne 0 ]; then
+  elif [ "$1" -ne 0 ]; then
     status=1
   fi
 }
-echo "[test] pytest, phase 1: tests not marked exclusive, ${HRI_TEST_WORKERS:-2} workers" >&2
-phase -n "${HRI_TEST_WORKERS:-2}" --dist worksteal -m "${selection:+$selection and }not exclusive" "$@"
-echo "[test] pytest, phase 2: exclusive tests, one at a time" >&2
-phase -m "${selection:+$selection and }exclusive" "$@"
+not_slow=${selection:+$selection and }
+echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-2}" \
+  "workers" >&2
+code=0
+python -m pytest -n "${HRI_TEST_WORKERS:-2}" --dist worksteal \
+  -m "${not_slow}integration and not exclusive" "$@" || code=$?
+tally "$code"
+echo "[test] pytest, phase 2: exclusive tests one at a time; the unit tests beside them at" \
+  "nice 19 (their report follows)" >&2
+unit_log=$(mktemp)
+trap 'rm -f "$unit_log"' EXIT
+nice -n 19 python -m pytest -m "${not_slow}not integration" "$@" >"$unit_log" 2>&1 &
+unit_pid=$!
+code=0
+python -m pytest -m "${not_slow}exclusive" "$@" || code=$?
+tally "$code"
+code=0
+wait "$unit_pid" || code=$?
+echo "[test] unit tests (run beside phase 2):" >&2
+cat "$unit_log"
+tally "$code"
 if [ "$status" -ne 0 ]; then
-  echo "[test] FAILED (see the phase summaries above)" >&2
-elif [ "$empty" -eq 2 ]; then
+  echo "[test] FAILED (see the summaries above)" >&2
+elif [ "$empty" -eq 3 ]; then
   echo "[test] no test selected" >&2
   exit 5
 fi

@@ -188,6 +188,9 @@ for name in PIECES:
         row(name, 'rounds', f"{piece['repeats']} (times min / median)")
         for task, by_method in piece['fixtures'].items():
             for method, r in by_method.items():
+                if 'refused' in r:  # the learner refuses a fit it cannot trust (max_cost)
+                    row(name, f'{task} {method}', f"refused: {r['refused']}")
+                    continue
                 row(name, f'{task} {method}',
                     f"{r['iterations']} it, C {r['cost']:.4g}, "
                     f"{'converged' if r['converged'] else 'NOT converged'}, "

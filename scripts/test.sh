@@ -7,9 +7,9 @@
 # HRI_TEST_WORKERS (default 2) pytest-xdist workers (worksteal: an idle worker takes tests
 # queued for a busy one). Then the `exclusive` ones (a 1 kHz closed loop, whose timing checks
 # need a core to themselves) one at a time, and beside them the pure unit tests (no ROS
-# process) at the lowest CPU priority (nice 19): one loop keeps about one of the two cores
-# busy, and the unit tests take what it leaves idle without delaying it. The exit code is
-# non-zero if any part fails.
+# process) at the lowest CPU priority (nice 19): a closed-loop test keeps about 1.7 of the two
+# cores busy, less while its processes start and stop, and the unit tests take what it leaves
+# idle without delaying it. The exit code is non-zero if any part fails.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -46,9 +46,10 @@ tally "$code"
 echo "[test] pytest, phase 2: exclusive tests one at a time; the unit tests beside them at" \
   "nice 19 (their report follows)" >&2
 unit_log=$(mktemp)
-trap 'rm -f "$unit_log"' EXIT
 nice -n 19 python -m pytest -m "${not_slow}not integration" "$@" >"$unit_log" 2>&1 &
 unit_pid=$!
+# A background job of a script ignores SIGINT: end it by PID if the script ends first (^C).
+trap 'kill "$unit_pid" 2>/dev/null || true; rm -f "$unit_log"' EXIT
 code=0
 python -m pytest -m "${not_slow}exclusive" "$@" || code=$?
 tally "$code"

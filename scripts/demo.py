@@ -18,6 +18,7 @@ import shutil
 import signal
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
@@ -136,6 +137,42 @@ def effort_steps(bag: Path) -> tuple[float, float]:
     return float(np.max(np.abs(efforts[first]))), largest
 
 
+def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures: Path) -> dict:
+    """Table I's columns for one task: the learner's fit again in-process (same defaults),
+    the paper's a1, a2 scored on the same demonstration, the paper's Gauss-Newton
+    iteration run on it, and the figure overlaying P_d, the learned P and the paper's."""
+    settings = load_defaults('hri_demo_learning', 'learner')
+    keys = ('n', 'stationary_speed', 'workspace_radius', 'tolerance', 'max_iterations',
+            'l1', 'l2', 'rest_fraction', 'max_task_speed', 'max_cost')
+    learned = learn_from_bags(bags, shifts, name, method='trf',
+                              **{key: settings[key] for key in keys})
+    record, profile = learned.record, learned.profile
+    paper = PAPER_TABLE_I[name]
+    paper_here = TaskShape(record.s, paper['a1'], paper['a2'], record.d1, record.d2,
+                           record.n)
+    gauss_newton = fit_task_parameters(
+        profile.distance, profile.energy, record.s, record.d1, record.d2, n=record.n,
+        method='gauss_newton', tolerance=settings['tolerance'],
+        max_iterations=GAUSS_NEWTON_MAX_UPDATES, a1_max=learned.a1_max)
+    paper_row = TaskShape(paper['s'], paper['a1'], paper['a2'], paper['d1'], paper['d2'],
+                          record.n)
+    plot_task_fit(profile.distance, profile.energy, record.shape,
+                  figures / f'fit_{name}.png',
+                  title=f'{name}: demonstration, learned P and the paper\'s P',
+                  reference=(paper_row, f"paper's P (Table I: d1={paper['d1']}, "
+                                        f"d2={paper['d2']}, a1={paper['a1']}, "
+                                        f"a2={paper['a2']})"))
+    return {
+        'paper_cost': task_cost(profile.distance, profile.energy, paper_here),
+        'gauss_newton_updates': gauss_newton.iterations,
+        'gauss_newton_converged': gauss_newton.converged,
+        'gauss_newton_cost': gauss_newton.cost,
+        'gauss_newton_a': [gauss_newton.a1, gauss_newton.a2],
+        'trf_evaluations': learned.fit.iterations,
+        'a1_max': learned.a1_max,
+    }
+
+
 class StageError(Exception):
     """A stage failed; the message says why."""
 
@@ -237,11 +274,20 @@ class Demo:
 
     # -- stage 2 -----------------------------------------------------------------------
     def learn(self) -> None:
-        # The learners are independent: they run side by side.
+        # The learners are independent: they run side by side, and beside them (in two worker
+        # processes) the in-process fits behind the Table I comparison, which need only the bags.
         learners = {name: self.start('hri_demo_learning', 'learner',
                                      bags=[str(self.bags / b) for b in bags], shifts=shifts,
                                      task_name=name, output_dir=str(self.tasks), once=True)
                     for name, (bags, shifts) in LEARNING.items()}
+        with ProcessPoolExecutor(max_workers=2) as pool:
+            comparisons = {name: pool.submit(compare_with_paper, name,
+                                             [str(self.bags / b) for b in bags], shifts,
+                                             self.figures)
+                           for name, (bags, shifts) in LEARNING.items()}
+            self._collect_learned(learners, comparisons)
+
+    def _collect_learned(self, learners: dict, comparisons: dict) -> None:
         for name, learner in learners.items():
             code = learner.wait(120.0)
             self.running.remove(learner)
@@ -256,48 +302,11 @@ class Demo:
             if summary:
                 print(f'    {summary[-1].split("]: ", 1)[-1]}')
             self.metrics['learning'][name] = asdict(record)
-            bags, shifts = LEARNING[name]
             try:
-                self.metrics.setdefault('table_i', {})[name] = self.compare_with_paper(
-                    name, [str(self.bags / b) for b in bags], shifts)
+                self.metrics.setdefault('table_i', {})[name] = comparisons[name].result()
             except LearningError as error:
                 raise StageError(f'{name}: the learner learned it, the same fit in-process '
                                  f'did not: {error}') from None
-
-    def compare_with_paper(self, name: str, bags: list[str], shifts: list[float]) -> dict:
-        """Table I's columns for one task: the learner's fit again in-process (same defaults),
-        the paper's a1, a2 scored on the same demonstration, the paper's Gauss-Newton
-        iteration run on it, and the figure overlaying P_d, the learned P and the paper's."""
-        settings = load_defaults('hri_demo_learning', 'learner')
-        keys = ('n', 'stationary_speed', 'workspace_radius', 'tolerance', 'max_iterations',
-                'l1', 'l2', 'rest_fraction', 'max_task_speed', 'max_cost')
-        learned = learn_from_bags(bags, shifts, name, method='trf',
-                                  **{key: settings[key] for key in keys})
-        record, profile = learned.record, learned.profile
-        paper = PAPER_TABLE_I[name]
-        paper_here = TaskShape(record.s, paper['a1'], paper['a2'], record.d1, record.d2,
-                               record.n)
-        gauss_newton = fit_task_parameters(
-            profile.distance, profile.energy, record.s, record.d1, record.d2, n=record.n,
-            method='gauss_newton', tolerance=settings['tolerance'],
-            max_iterations=GAUSS_NEWTON_MAX_UPDATES, a1_max=learned.a1_max)
-        paper_row = TaskShape(paper['s'], paper['a1'], paper['a2'], paper['d1'], paper['d2'],
-                              record.n)
-        plot_task_fit(profile.distance, profile.energy, record.shape,
-                      self.figures / f'fit_{name}.png',
-                      title=f'{name}: demonstration, learned P and the paper\'s P',
-                      reference=(paper_row, f"paper's P (Table I: d1={paper['d1']}, "
-                                            f"d2={paper['d2']}, a1={paper['a1']}, "
-                                            f"a2={paper['a2']})"))
-        return {
-            'paper_cost': task_cost(profile.distance, profile.energy, paper_here),
-            'gauss_newton_updates': gauss_newton.iterations,
-            'gauss_newton_converged': gauss_newton.converged,
-            'gauss_newton_cost': gauss_newton.cost,
-            'gauss_newton_a': [gauss_newton.a1, gauss_newton.a2],
-            'trf_evaluations': learned.fit.iterations,
-            'a1_max': learned.a1_max,
-        }
 
     # -- stages 3 and 4 ----------------------------------------------------------------
     def closed_loop(self, run: str, initial_task: str, hand: dict, seconds: float,

@@ -6,11 +6,11 @@
 # Two phases of topic-level tests (marker `integration`): first those not marked `exclusive`,
 # in HRI_TEST_WORKERS (default 2) pytest-xdist workers (worksteal: an idle worker takes tests
 # queued for a busy one); then the `exclusive` ones (a 1 kHz closed loop, whose timing checks
-# need the CPU) one at a time. Beside both phases the pure unit tests (no ROS process) run at
-# the lowest CPU priority (nice 19): they take the CPU the topic-level tests leave idle (a
-# closed-loop test keeps about 1.7 of the two cores busy, less while its processes start and
-# stop) without delaying them, and print their report at the end. The exit code is non-zero
-# if any part fails.
+# need the CPU) one at a time, and beside them the pure unit tests (no ROS process) at the
+# lowest CPU priority (nice 19): a closed-loop test keeps about 1.7 of the two cores busy, less
+# while its processes start and stop, and the unit tests take what it leaves idle without
+# delaying it (beside phase 1, which keeps both cores busy, they slowed it by about 20 s). The
+# unit tests' report comes at the end. The exit code is non-zero if any part fails.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -38,25 +38,25 @@ tally() {
   fi
 }
 not_slow=${selection:+$selection and }
-echo "[test] pytest, unit tests at nice 19 in the background (their report comes last)" >&2
-unit_log=$(mktemp)
-nice -n 19 python -m pytest -m "${not_slow}not integration" "$@" >"$unit_log" 2>&1 &
-unit_pid=$!
-# A background job of a script ignores SIGINT: end it by PID if the script ends first (^C).
-trap 'kill "$unit_pid" 2>/dev/null || true; rm -f "$unit_log"' EXIT
 echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-2}" \
   "workers" >&2
 code=0
 python -m pytest -n "${HRI_TEST_WORKERS:-2}" --dist worksteal \
   -m "${not_slow}integration and not exclusive" "$@" || code=$?
 tally "$code"
-echo "[test] pytest, phase 2: exclusive tests one at a time" >&2
+echo "[test] pytest, phase 2: exclusive tests one at a time; beside them the unit tests at" \
+  "nice 19 (their report comes last)" >&2
+unit_log=$(mktemp)
+nice -n 19 python -m pytest -m "${not_slow}not integration" "$@" >"$unit_log" 2>&1 &
+unit_pid=$!
+# A background job of a script ignores SIGINT: end it by PID if the script ends first (^C).
+trap 'kill "$unit_pid" 2>/dev/null || true; rm -f "$unit_log"' EXIT
 code=0
 python -m pytest -m "${not_slow}exclusive" "$@" || code=$?
 tally "$code"
 code=0
 wait "$unit_pid" || code=$?
-echo "[test] unit tests (run beside both phases):" >&2
+echo "[test] unit tests (run beside phase 2):" >&2
 cat "$unit_log"
 tally "$code"
 if [ "$status" -ne 0 ]; then

@@ -47,7 +47,7 @@ tally "$code"
 echo "[test] pytest, phase 2: exclusive tests one at a time; beside them the unit tests at" \
   "nice 19 (their report comes last)" >&2
 unit_log=$(mktemp)
-nice -n 19 python -m pytest -m "${not_slow}not integration" "$@" >"$unit_log" 2>&1 &
+nice -n 19 python -m pytest -n 2 -m "${not_slow}not integration" "$@" >"$unit_log" 2>&1 &
 unit_pid=$!
 # A background job of a script ignores SIGINT: end it by PID if the script ends first (^C).
 trap 'kill "$unit_pid" 2>/dev/null || true; rm -f "$unit_log"' EXIT

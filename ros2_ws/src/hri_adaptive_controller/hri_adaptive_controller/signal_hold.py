@@ -45,6 +45,12 @@ def _hermite_slope_basis(u: float) -> tuple[float, float]:
             1.0 - 18.0 * u2 + 32.0 * u2 * u - 15.0 * u2 * u2)
 
 
+def _message_period(previous: float | None, stamp: float, max_hold: float) -> float:
+    """Time (s) from the previous sample's stamp to this one's, within [0, max_hold]; 0 for the
+    first sample."""
+    return 0.0 if previous is None else min(max(stamp - previous, 0.0), max_hold)
+
+
 class BlendedHold:
     """First-order hold of a sampled vector, continuous (C1) across new samples.
 
@@ -152,8 +158,7 @@ class HandHold:
     def offer(self, position: Sequence[float], stamp: float) -> None:
         """A hand position (2,) m stamped `stamp` s (later than the previous one)."""
         velocity = self._velocity.update(position, stamp).tolist()
-        period = 0.0 if self._stamp is None else min(max(stamp - self._stamp, 0.0),
-                                                    self._max_hold)
+        period = _message_period(self._stamp, stamp, self._max_hold)
         self._stamp = stamp
         self._hold.offer(stamp, position, velocity, period)
 
@@ -187,8 +192,7 @@ class TaskWeightHold:
         if self._hold.empty or key == self._key:
             # On time, a TaskState lands close to the hold: blended over its period, so that
             # da/dt changes smoothly too (it feeds qddot_r, eq. 18).
-            period = 0.0 if self._stamp is None else min(max(stamp - self._stamp, 0.0),
-                                                        self._max_hold)
+            period = _message_period(self._stamp, stamp, self._max_hold)
             self._key, self._payload, self._next = key, payload, None
             self._fading_out, self._stamp = False, stamp
             self._hold.offer(stamp, (weight,), (rate,), period)

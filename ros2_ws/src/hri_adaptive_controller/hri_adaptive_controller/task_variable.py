@@ -408,8 +408,7 @@ def _radial_slopes(radii, drive: TaskDrive) -> np.ndarray:
         raw = pull
     else:
         floor = _approach_floor_values(radii, drive)
-        u = np.clip(np.abs(pull) / drive.approach_speed, 0.0, 1.0)
-        raw = pull + floor * (1.0 - u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u))
+        raw = pull + floor * (1.0 - _smoothstep_values(np.abs(pull) / drive.approach_speed))
     v_max = drive.max_task_speed
     band = CAP_BAND * v_max
     magnitude = np.abs(raw)

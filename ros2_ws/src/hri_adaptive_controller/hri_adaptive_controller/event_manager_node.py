@@ -194,7 +194,9 @@ class EventManager(Node):
         return SetParametersResult(successful=True)
 
     def _publish(self) -> None:
-        now = time.monotonic()
+        # The stamp is the time a is evaluated at (the controller holds a from the stamps): read
+        # together, not after the message is built, which a loaded machine may delay.
+        now, stamp = time.monotonic(), self.get_clock().now()
         if self._initial_task and self._state_publisher.get_subscription_count() > 0:
             self._schedule.request(self._tasks[self._initial_task], now)
             self._initial_task = ''
@@ -206,7 +208,7 @@ class EventManager(Node):
             return
         msg = TaskState(weight=state.weight, weight_rate=state.rate, phase=state.phase,
                         event=self._event_name, pending_task=_name(state.pending_task))
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = stamp.to_msg()
         if state.active_task is not None:
             msg.task = task_message(self._records[state.active_task])
         if state.phase == PHASE_IDLE:

@@ -179,16 +179,28 @@ def test_controller_killed_sim_applies_zero_torque_after_command_timeout(live_lo
     energy = [kinetic_energy(np.array(m.position), np.array(m.velocity), ScaraParameters())
               for m in (after[first_zero], after[-1])]
     assert energy[1] <= energy[0] + 1e-12, energy
-    # How long the last command stayed in force, on the sim's clock (its stamps: a stalled
-    # sim neither moves the arm nor ages the command; wall time would count the stall): the
-    # kill on that clock from the stamps and arrival times in the 3 s before it, the least
-    # transport delay being the best estimate (over 3 s: this process may itself stall).
+    # On the sim's clock (its stamps: a stalled sim neither moves the arm nor ages the
+    # command; wall time would count the stall), the torque falls to zero COMMAND_TIMEOUT after
+    # the sim took the last command, which may be before the kill (a controller starved just
+    # before it), and at most that long after the kill. The last command is read off the
+    # efforts: the first joint state that applied it. The kill on the sim's clock comes from
+    # the stamps and arrival times in the 3 s before it, the least transport delay being the
+    # best estimate (over 3 s: this process may itself stall).
+    zero_stamp = stamp_seconds(after[first_zero].header.stamp)
+    timeline = joints.timed(since=killed_mono - 3.0)
+    applied = [m for _, m in timeline if stamp_seconds(m.header.stamp) < zero_stamp]
+    first = len(applied) - 1
+    while first > 0 and list(applied[first - 1].effort) == list(applied[-1].effort):
+        first -= 1
+    took_last_command = stamp_seconds(applied[first].header.stamp)
     before = [(killed_at + arrived - killed_mono - stamp_seconds(m.header.stamp))
-              for arrived, m in joints.timed(since=killed_mono - 3.0) if arrived <= killed_mono]
+              for arrived, m in timeline if arrived <= killed_mono]
     killed_on_sim_clock = killed_at - min(before)
-    delay = stamp_seconds(after[first_zero].header.stamp) - killed_on_sim_clock
-    print(f'zero torque {delay:.3f} s after the kill (sim clock)')
-    assert COMMAND_TIMEOUT - SLACK < delay < COMMAND_TIMEOUT + MAX_CATCH_UP + SLACK, delay
+    in_force, after_kill = zero_stamp - took_last_command, zero_stamp - killed_on_sim_clock
+    print(f'zero torque {in_force:.3f} s after the last command, {after_kill:.3f} s after the '
+          'kill (sim clock)')
+    assert in_force > COMMAND_TIMEOUT - SLACK, in_force
+    assert after_kill < COMMAND_TIMEOUT + MAX_CATCH_UP + SLACK, after_kill
     assert lines_after(sim, killed_at, f'no joint command for {COMMAND_TIMEOUT:g} s: '
                        'applying zero torque')
     assert sim.alive()

@@ -5,7 +5,7 @@ are read with rosbags (a rosbag2 folder with metadata.yaml, or a bare .mcap/.db3
 
     ros2 bag info BAG
     ros2 bag play BAG [--rate R] [--topics T ...] [--loop] [--delay S]
-                      [--wait-for-all-acked MS]
+                      [--wait-for-all-acked MS] [--qos-profile-overrides-path YAML]
 
 info prints what rosbag2's info prints (Jazzy): Files, Bag size, Storage id, ROS Distro,
 Duration, Start, End (local time, to the nanosecond), Messages, one `Topic: NAME | Type: T |
@@ -16,13 +16,20 @@ play publishes each message's raw CDR bytes, unchanged, at its recorded time off
 start of the bag divided by --rate, through a raw publisher per topic. Each publisher offers
 the reliability and durability that the bag's metadata recorded for the topic
 (offered_qos_profiles) with a history of the last 10, as rosbag2 does; reliable, volatile,
-depth 10 when nothing was recorded or the recorded publishers disagreed. A topic whose type
+depth 10 when nothing was recorded or the recorded publishers disagreed.
+--qos-profile-overrides-path takes rosbag2's override file, a map from topic name to the
+policies to set (history: keep_last | keep_all, depth, reliability: reliable | best_effort,
+durability: volatile | transient_local); play refuses any other key or value in one line. A
+deeper history lets a reliable subscriber that fell behind get every message (rosbag2's
+depth 10 lasts 5 ms at 2 kHz: a message lost on the way is gone before it is asked for
+again). A topic whose type
 has no Python message class here is skipped with a warning. Like rosbag2, play does not wait
 for subscribers: --delay gives them time to appear, --wait-for-all-acked MS waits at the end
 until reliable subscribers have acknowledged every message. SIGINT/SIGTERM stop it (exit 0).
 
 The parts without ROS are plain functions, unit-tested without rclpy.init(): the size,
-duration and time formats, `format_bag_info`, `playback_qos` and `playback_offset`.
+duration and time formats, `format_bag_info`, `playback_qos`, `qos_overrides` and
+`playback_offset`.
 """
 
 import argparse
@@ -212,6 +219,55 @@ def playback_qos(offered: list[Qos]) -> QoSProfile:
     return profile
 
 
+QOS_OVERRIDE_VALUES = {
+    'history': {'keep_last': HistoryPolicy.KEEP_LAST, 'keep_all': HistoryPolicy.KEEP_ALL},
+    'reliability': {'reliable': ReliabilityPolicy.RELIABLE,
+                    'best_effort': ReliabilityPolicy.BEST_EFFORT},
+    'durability': {'volatile': DurabilityPolicy.VOLATILE,
+                   'transient_local': DurabilityPolicy.TRANSIENT_LOCAL},
+}
+
+
+def qos_overrides(document) -> dict[str, dict]:
+    """rosbag2's QoS override file (parsed YAML) as {topic: {policy name: value}}, the values
+    being rclpy's policies and the depth an int >= 1; ValueError names the first bad entry."""
+    if not isinstance(document, dict):
+        raise ValueError('the file must map topic names to QoS policies')
+    overrides = {}
+    for topic, policies in document.items():
+        if not isinstance(topic, str) or not isinstance(policies, dict):
+            raise ValueError(f'{topic!r}: expected a topic name mapped to QoS policies')
+        chosen = {}
+        for name, value in policies.items():
+            if name == 'depth':
+                if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                    raise ValueError(f'{topic}: depth must be an integer >= 1, got {value!r}')
+                chosen[name] = value
+            elif name in QOS_OVERRIDE_VALUES:
+                allowed = QOS_OVERRIDE_VALUES[name]
+                if value not in allowed:
+                    raise ValueError(f'{topic}: {name} must be one of {", ".join(allowed)}, '
+                                     f'got {value!r}')
+                chosen[name] = allowed[value]
+            else:
+                raise ValueError(f'{topic}: unsupported QoS policy {name!r} (supported: depth, '
+                                 f'{", ".join(QOS_OVERRIDE_VALUES)})')
+        overrides[topic] = chosen
+    return overrides
+
+
+def read_qos_overrides(path: str) -> dict[str, dict]:
+    """`qos_overrides` of the YAML file at `path`; CliError in one line if it is unusable."""
+    try:
+        return qos_overrides(yaml.safe_load(Path(path).read_text()))
+    except OSError as error:
+        raise CliError(f'cannot read QoS overrides {path}: {error.strerror or error}') from None
+    except yaml.YAMLError as error:
+        raise CliError(f'QoS overrides {path} are not YAML: {_one_line(error)}') from None
+    except ValueError as error:
+        raise CliError(f'QoS overrides {path}: {error}') from None
+
+
 def offers_agree(offered: list[Qos]) -> bool:
     """Whether there are recorded offers and they all have one reliability and durability."""
     return len({(q.reliability, q.durability) for q in offered}) == 1
@@ -244,6 +300,8 @@ def _wait_for_acknowledgements(publishers, timeout_ms: int, stop: StopRequest) -
 
 def bag_play(args: argparse.Namespace, stop: StopRequest) -> int:
     path = Path(args.bag_path)
+    overrides = (read_qos_overrides(args.qos_profile_overrides_path)
+                 if args.qos_profile_overrides_path else {})
     reader = open_bag(path)
     try:
         wanted = set(args.topics) if args.topics else None
@@ -267,8 +325,11 @@ def bag_play(args: argparse.Namespace, stop: StopRequest) -> int:
                         print(f"Topic '{connection.topic}' was recorded from publishers with "
                               'different QoS: playing it reliable, volatile',
                               file=sys.stderr)
+                    qos = playback_qos(offered)
+                    for name, value in overrides.get(connection.topic, {}).items():
+                        setattr(qos, name, value)
                     by_topic[connection.topic] = session.node.create_publisher(
-                        cls, connection.topic, playback_qos(offered))
+                        cls, connection.topic, qos)
                 publisher_of[connection.id] = by_topic[connection.topic]
             playable = [c for c in connections if c.id in publisher_of]
             while playable and not stop.is_set():
@@ -312,6 +373,9 @@ def build_parser() -> ArgumentParser:
                       help='wait up to TIMEOUT ms at the end until reliable subscribers '
                            'acknowledged every message; 0 waits without a limit; negative '
                            '(default) does not wait')
+    play.add_argument('--qos-profile-overrides-path', metavar='YAML', default='',
+                      help='YAML mapping topic names to the QoS policies (history, depth, '
+                           'reliability, durability) to play them with')
     return parser
 
 

@@ -20,6 +20,7 @@ from builtin_interfaces.msg import Time  # noqa: E402
 from geometry_msgs.msg import PointStamped, Polygon, PoseWithCovariance  # noqa: E402
 from rclpy.qos import (  # noqa: E402
     DurabilityPolicy,
+    HistoryPolicy,
     QoSProfile,
     ReliabilityPolicy,
     qos_profile_sensor_data,
@@ -46,6 +47,7 @@ from hri_bringup.cli_bag import (  # noqa: E402
     format_time_point,
     playback_offset,
     playback_qos,
+    qos_overrides,
     read_bag_summary,
 )
 from hri_bringup.cli_common import (  # noqa: E402
@@ -535,6 +537,31 @@ def test_playback_qos_takes_the_recorded_reliability_and_durability_with_depth_1
     assert policies(playback_qos(disagreeing)) == (reliable, volatile, 10)
     unknown = [recorded_offer(QosReliability.SYSTEM_DEFAULT, QosDurability.UNKNOWN)]
     assert policies(playback_qos(unknown)) == (reliable, volatile, 10)
+
+
+def test_qos_overrides_take_rosbag2s_policy_names_and_refuse_anything_else():
+    overrides = qos_overrides({'/joint_states': {'history': 'keep_last', 'depth': 10000},
+                               '/demo/reference': {'history': 'keep_all',
+                                                   'reliability': 'best_effort',
+                                                   'durability': 'transient_local'}})
+    assert overrides == {
+        '/joint_states': {'history': HistoryPolicy.KEEP_LAST, 'depth': 10000},
+        '/demo/reference': {'history': HistoryPolicy.KEEP_ALL,
+                            'reliability': ReliabilityPolicy.BEST_EFFORT,
+                            'durability': DurabilityPolicy.TRANSIENT_LOCAL}}
+    assert qos_overrides({}) == {}
+    with pytest.raises(ValueError, match='must map topic names'):
+        qos_overrides(['/joint_states'])
+    with pytest.raises(ValueError, match="/a: depth must be an integer >= 1, got 0"):
+        qos_overrides({'/a': {'depth': 0}})
+    with pytest.raises(ValueError, match='depth must be an integer'):
+        qos_overrides({'/a': {'depth': True}})
+    with pytest.raises(ValueError, match="history must be one of keep_last, keep_all, got 'all'"):
+        qos_overrides({'/a': {'history': 'all'}})
+    with pytest.raises(ValueError, match="unsupported QoS policy 'deadline'"):
+        qos_overrides({'/a': {'deadline': {'sec': 1, 'nsec': 0}}})
+    with pytest.raises(ValueError, match='expected a topic name mapped to QoS policies'):
+        qos_overrides({'/a': 'reliable'})
 
 
 def test_playback_offsets_are_the_recorded_offsets_divided_by_the_rate():

@@ -7,14 +7,23 @@ and decodes them only when the test looks.
 """
 
 import bisect
+import contextlib
+import json
 import math
+import os
+import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
+from hri_bringup.processes import node_environment, ros2_run_command, wait_for
 from hri_core.node_common import stamp_seconds
+from tests.common import REPO_ROOT
 
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -37,9 +46,11 @@ class RawListener:
         arrivals = self.arrivals
         return deserialize_message(arrivals[-1][1], self.msg_type) if arrivals else None
 
-    def messages(self, since: float = -math.inf) -> list:
-        """The messages that arrived after `since` (monotonic s), decoded, in arrival order."""
-        return [message for _, message in self.timed(since)]
+    def messages(self, since: float = -math.inf, start: int = 0) -> list:
+        """The messages that arrived after `since` (monotonic s), from the `start`-th on,
+        decoded, in arrival order."""
+        return [deserialize_message(data, self.msg_type)
+                for arrived, data in self.arrivals[start:] if arrived > since]
 
     def timed(self, since: float = -math.inf) -> list[tuple[float, object]]:
         """(arrival time, message) for the messages that arrived after `since`."""
@@ -132,3 +143,87 @@ def _commands_between(applied: list, commands: list) -> np.ndarray:
             start = index
     return np.array([b - a if a is not None and b is not None and b > a else 1
                      for a, b in zip(where[:-1], where[1:], strict=True)], dtype=float)
+
+
+class ForkedNodes:
+    """tests/node_forker.py as a process of the test: `start` forks a node from it and
+    returns the PID. Every node it started and the forker itself end by PID in `close`."""
+
+    def __init__(self, domain_id: int, log_dir: Path):
+        self.log_dir = Path(log_dir)
+        self.pids: list[int] = []
+        self._logs = 0
+        self._forker = subprocess.Popen(
+            [sys.executable, '-m', 'tests.node_forker'], cwd=REPO_ROOT,
+            env=node_environment(domain_id), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            text=True)
+
+    def start(self, executable: str, params: dict | None = None) -> tuple[int, Path]:
+        """Fork `executable` with `params` (as `ros2 run ... --ros-args -p`); (PID, log)."""
+        self._logs += 1
+        log = self.log_dir / f'forked-{self._logs:03d}-{executable}.log'
+        arguments = ros2_run_command('', executable, params)[4:]
+        self._forker.stdin.write(json.dumps([executable, str(log), *arguments]) + '\n')
+        self._forker.stdin.flush()
+        answer = json.loads(self._forker.stdout.readline() or '{"error": "forker gone"}')
+        if 'pid' not in answer:
+            raise RuntimeError(f'cannot fork {executable}: {answer["error"]}')
+        self.pids.append(answer['pid'])
+        return answer['pid'], log
+
+    @staticmethod
+    def alive(pid: int) -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+
+    def kill(self, pid: int, timeout: float = 5.0) -> bool:
+        """SIGKILL `pid`; True once it is gone (the forker reaps it at once)."""
+        os.kill(pid, signal.SIGKILL)
+        return wait_for(lambda: not self.alive(pid), timeout, period=0.005)
+
+    def close(self) -> None:
+        running = [pid for pid in self.pids if self.alive(pid)]
+        for pid in running:
+            os.kill(pid, signal.SIGINT)
+        if not wait_for(lambda: not any(self.alive(pid) for pid in running), 5.0):
+            for pid in running:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+        self._forker.stdin.close()
+        try:
+            self._forker.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._forker.kill()
+            self._forker.wait()
+        self._forker.stdout.close()
+
+
+def applied_command_holds(timed_states: list, longer_than: float) -> list[tuple]:
+    """Where the sim applied one non-zero command for longer than `longer_than` s in real
+    time: the controller sent no new one (sim clock), while the sim ran on time.
+
+    `timed_states`: (arrival time, JointState) in arrival order. The sim applies the newest
+    command to each 1 ms step, so a controller that computes every cycle changes the effort
+    of (almost) every step. A run of equal efforts is a hold when it spans more than
+    `longer_than` s both by its stamps (sim clock) and by its arrival: a sim that stalled and
+    caught up applies one command to many steps at once, and publishes them in a burst. Zero
+    torque (a documented timeout, or no controller yet) is not a hold. Returns (first stamp,
+    stamp span, arrival span) per hold.
+    """
+    holds = []
+    start = 0
+    for end in range(1, len(timed_states) + 1):
+        if end < len(timed_states) and \
+                list(timed_states[end][1].effort) == list(timed_states[start][1].effort):
+            continue
+        (first_arrival, first), (last_arrival, last) = timed_states[start], timed_states[end - 1]
+        stamp_span = stamp_seconds(last.header.stamp) - stamp_seconds(first.header.stamp)
+        if any(first.effort) and stamp_span > longer_than and \
+                last_arrival - first_arrival > longer_than:
+            holds.append((stamp_seconds(first.header.stamp), stamp_span,
+                          last_arrival - first_arrival))
+        start = end
+    return holds

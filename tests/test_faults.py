@@ -2,7 +2,8 @@
 
 The closed loop (scara_sim, event_manager, controller, hand_sim) runs with Table I's tasks
 while one process is killed with SIGKILL: without the sim the controller commands zero
-torque within `joint_state_timeout` and resumes when a new sim comes (five times in a row);
+torque within `joint_state_timeout` and resumes when a new sim comes (five times in a row;
+with `--all`, every peer killed twenty times in a row);
 without the controller the sim applies zero torque after `command_timeout`; without the
 event_manager the controller fades the task out after `task_state_timeout` and in again when
 TaskStates return, with no torque step. Every node's clean stop on SIGINT and SIGTERM:
@@ -14,6 +15,7 @@ A recorder killed with SIGKILL keeps a readable bag: tests/test_recorder.py
 
 import itertools
 import math
+import os
 import signal
 import time
 
@@ -23,18 +25,19 @@ from hri_interfaces.msg import ControllerState
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_bringup.processes import (
-    wait_for,
-)
+from hri_bringup.processes import READY_LINES, wait_for
 from hri_core.dynamics import ScaraParameters, kinetic_energy
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import MONITOR_QOS
 from tests.common import PAPER_TASKS
 from tests.fault_tools import (
+    ForkedNodes,
     RawListener,
+    applied_command_holds,
     assert_all_finite,
     effort_change_per_step,
     lines_after,
+    log_time,
 )
 
 # The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
@@ -62,7 +65,23 @@ FADE_JITTER = 0.015  # s, see the fade-out test
 TASK_FADE_TIME = 0.5  # s, the controller's fade when TaskStates stop or return (default 1 s)
 MAX_EFFORT_STEP = 1.0 + 1e-9  # N m per 1 ms control cycle (the rate limit's own, to an ulp)
 SIM_RESTARTS = 5
-RESUME_WITHIN = 1.0  # s from a restarted sim's first joint state to control (status ok)
+RESUME_WITHIN = 1.0  # s from a restarted sim's first joint state to control
+# The kill test: each peer killed this many times in a row, DWELL s of running between kills,
+# and the longest the sim may apply one command while it runs: half its command_timeout, so
+# that a stop of the controller shows before the sim would zero the torque itself. The holds
+# measured with SCHED_FIFO were 20-46 ms (issue 15 asks for 20); without it, up to 215 ms.
+OTHER_PEERS = ('hand_sim', 'recorder', 'event_manager')
+PEERS = ('scara_sim', *OTHER_PEERS)
+KILLS = 20
+DWELL = 0.15  # s
+MAX_HOLD = 0.1  # s
+REALTIME_PRIORITY = 50
+# A hand circling 0.1 m or less from the arm: the arm follows it, the torque changes every
+# cycle and stays far below the effort limit (a clamped torque would look like a held one).
+NEAR_CIRCLING_HAND = {'profile': 'circle', 'start': [0.40, 0.25], 'radius': 0.05,
+                      'period': 6.0}
+RECORDED = ['/joint_states', '/effort_controller/commands', '/hri/controller_state',
+            '/hri/task_state', '/target']
 STALL = 0.1  # s without a ControllerState (10 ms apart): the controller did not run
 
 
@@ -152,6 +171,118 @@ def test_sim_killed_and_restarted_five_times_control_resumes_each_time(live_loop
     assert 'Traceback' not in log
     assert_all_finite(states, '/hri/controller_state')
     assert controller.alive()
+
+
+def peer_parameters(name: str, tmp_path, incarnation: int) -> dict:
+    """The parameters of a peer of the kill test; each recorder writes a bag of its own."""
+    if name == 'event_manager':
+        return {'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow', 'ramp_time': RAMP_TIME}
+    if name == 'hand_sim':
+        return NEAR_CIRCLING_HAND
+    if name == 'recorder':
+        return {'output': str(tmp_path / f'bag-{incarnation:02d}'), 'topics': RECORDED}
+    return {'realtime_priority': REALTIME_PRIORITY}
+
+
+# Slow (about 150 s): scripts/test.sh --all runs it.
+@pytest.mark.slow
+def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(nodes, probe,
+                                                                            ros_domain,
+                                                                            tmp_path):
+    """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
+    restarted KILLS times in a row around the real controller, which runs with the sim at
+    SCHED_FIFO (as on a robot's computer; without it, starting three processes on two cores
+    held the controller up to 215 ms). While a sim runs, it never applies one command for over
+    MAX_HOLD; without the sim the controller commands zero torque within
+    joint_state_timeout; a new sim gets commands within RESUME_WITHIN of its ready line. The
+    peers are forked (tests/node_forker.py): the same nodes, started without Python's start-up.
+    """
+    states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
+    joints = RawListener(probe, '/joint_states', JointState)
+    forked = ForkedNodes(ros_domain, tmp_path)
+    peers = {}
+    incarnations = itertools.count()
+
+    events = []
+
+    def start(*names: str) -> list[float]:
+        """Fork `names` at once; the time of each one's ready line (ROS clock, s)."""
+        logs = {}
+        for name in names:
+            peers[name], logs[name] = forked.start(
+                name, peer_parameters(name, tmp_path, next(incarnations)))
+        ready = {}
+
+        def all_ready() -> bool:
+            for name in set(names) - set(ready):
+                lines = [line for line in logs[name].read_text().splitlines()
+                         if READY_LINES[name] in line] if logs[name].exists() else []
+                if lines:
+                    ready[name] = log_time(lines[0])
+            return len(ready) == len(names)
+
+        assert wait_for(all_ready, 10.0, period=0.01), (set(names) - set(ready), [
+            logs[name].read_text() for name in names if logs[name].exists()])
+        events.append((probe_time(probe), f'{", ".join(names)} up'))
+        return [ready[name] for name in names]
+
+    def kill(*names: str) -> None:
+        events.append((probe_time(probe), f'kill {", ".join(names)}'))
+        for name in names:
+            os.kill(peers[name], signal.SIGKILL)
+        assert wait_for(lambda: not any(forked.alive(peers[name]) for name in names), 5.0,
+                        period=0.005), names
+
+    try:
+        start(*PEERS)
+        controller = nodes('hri_adaptive_controller', 'controller',
+                           params={'realtime_priority': REALTIME_PRIORITY})
+        assert wait_for(lambda: states and states[-1].status == 'ok'
+                        and states[-1].weight > 0.99, 30.0), controller.log()
+        resumed = []
+        for kill_round in range(KILLS):
+            kill(*OTHER_PEERS)
+            start(*OTHER_PEERS)
+            time.sleep(DWELL)
+            killed_at = probe_time(probe)
+            kill('scara_sim')
+            assert wait_for(lambda: states[-1].status == 'stale_joint_states', 10.0), states[-1]
+            time.sleep(DWELL)
+            # Zero torque within joint_state_timeout of the kill, held while the sim is gone.
+            delay, stall, _ = zero_for_good(
+                states, killed_at,
+                lambda s: s.status == 'stale_joint_states' and list(s.effort) == [0.0, 0.0])
+            assert delay <= allowed_delay(JOINT_STATE_TIMEOUT, stall), (kill_round, delay, stall)
+            heard = len(joints)
+            sim_up, = start('scara_sim')
+
+            def first_controlled(heard=heard, killed_at=killed_at):
+                """The new sim's first joint state with a command of the controller in it."""
+                return next((m for m in joints.messages(start=heard)
+                             if stamp_seconds(m.header.stamp) > killed_at and any(m.effort)),
+                            None)
+
+            assert wait_for(lambda: first_controlled() is not None, 10.0), \
+                (kill_round, controller.log()[-2000:])
+            resumed.append(stamp_seconds(first_controlled().header.stamp) - sim_up)
+            time.sleep(DWELL)
+        holds = applied_command_holds(joints.timed(), 0.0)
+        longest = max((span for _, span, _ in holds), default=0.0)
+        print(f'{KILLS} kills of each peer; control resumed {max(resumed):.3f} s at most after '
+              f'a new sim\'s first joint state (median {np.median(resumed):.3f}); longest '
+              f'command held by the sim {longest * 1e3:.0f} ms')
+        assert max(resumed) <= RESUME_WITHIN, resumed
+        holds = applied_command_holds(joints.timed(), MAX_HOLD)
+        assert holds == [], [(round(start - events[0][0], 3), round(span, 3), [
+            (round(t - start, 3), what) for t, what in events if -1.0 < t - start < 0.5])
+            for start, span, _ in holds]
+        log = controller.log()
+        assert log.count('joint states resumed') >= KILLS, log
+        assert 'Traceback' not in log
+        assert_all_finite(states, '/hri/controller_state')
+        assert controller.alive()
+    finally:
+        forked.close()
 
 
 def test_controller_killed_sim_applies_zero_torque_after_command_timeout(live_loop, probe):

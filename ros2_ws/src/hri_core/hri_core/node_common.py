@@ -17,6 +17,7 @@ node leaves the loop, logs its summary and exits 0.
 """
 
 import contextlib
+import faulthandler
 import math
 import signal
 import threading
@@ -257,6 +258,9 @@ def run_node(create_node: Callable[[], Node], node_name: str, executor_class=Non
     spin_once here, because its spin() ignores shutdown (docs/design-notes.md).
     """
     logger = rclpy.logging.get_logger(node_name)
+    # `kill -USR1 PID` prints every thread's Python stack to stderr (the node's log), even when
+    # the process hangs in the middleware with the GIL held: how a stuck node is diagnosed.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     stop = init_ros(args)
     node = None
     executor = None

@@ -15,7 +15,9 @@ children: the caller ends those by PID.
 """
 
 import importlib
+import inspect
 import json
+import linecache
 import os
 import signal
 import sys
@@ -27,6 +29,28 @@ NODE_MODULES = {
     'event_manager': 'hri_adaptive_controller.event_manager_node',
     'recorder': 'hri_demo_learning.recorder_node',
 }
+
+
+# The message packages the nodes use: their C type supports load on first use, so the forker
+# loads them once for every child.
+MESSAGE_MODULES = ('builtin_interfaces.msg', 'geometry_msgs.msg', 'hri_interfaces.msg',
+                   'rcl_interfaces.msg', 'rosgraph_msgs.msg', 'sensor_msgs.msg', 'std_msgs.msg')
+
+
+def preload(modules) -> None:
+    """What each child would otherwise load in its first second: the message type supports,
+    and the source lines rclpy's logger reads (inspect) for the file and line of each call."""
+    for name in MESSAGE_MODULES:
+        for message in vars(importlib.import_module(name)).values():
+            if inspect.isclass(message) and hasattr(message, '_TYPE_SUPPORT'):
+                type(message).__import_type_support__()
+    for module in modules:
+        for loaded in list(sys.modules.values()):
+            path = getattr(loaded, '__file__', None)
+            if path and path.endswith('.py') and (
+                    loaded.__name__.startswith(module.__name__.split('.')[0])
+                    or loaded.__name__.startswith(('rclpy', 'hri_core'))):
+                linecache.getlines(path)
 
 
 def run_child(main, executable: str, log_path: str, arguments: list[str]) -> None:
@@ -53,7 +77,9 @@ def run_child(main, executable: str, log_path: str, arguments: list[str]) -> Non
 
 def serve(requests, answers) -> None:
     """Fork one node per request line; answer each with the child's PID (or an error)."""
-    mains = {name: importlib.import_module(module).main for name, module in NODE_MODULES.items()}
+    modules = [importlib.import_module(module) for module in NODE_MODULES.values()]
+    preload(modules)
+    mains = {name: module.main for name, module in zip(NODE_MODULES, modules, strict=True)}
     signal.signal(signal.SIGCHLD, signal.SIG_IGN)
     for line in requests:
         executable, log_path, *arguments = json.loads(line)

@@ -250,15 +250,18 @@ class ScaraSim(Node):
 
     # Stepping ---------------------------------------------------------------------------
 
-    def _drive(self, now: float):
-        """The drive mode and command in force at `now` (monotonic s)."""
-        if now - self._command_time > self._command_timeout:
+    def _inputs(self, t: float):
+        """The drive mode, command and hand force in force at `t` (monotonic s), the end of
+        a step: a command older than command_timeout or a force older than wrench_timeout
+        is no longer applied."""
+        force = self._force if t - self._force_time <= self._wrench_timeout else (0.0, 0.0)
+        if t - self._command_time > self._command_timeout:
             if not self._timed_out:
                 self.get_logger().info(
                     f'no joint command for {self._command_timeout:g} s: applying zero torque')
                 self._timed_out = True
-            return 'idle', None
-        return self._mode, self._command
+            return 'idle', None, force
+        return self._mode, self._command, force
 
     def _on_tick(self) -> None:
         now = time.monotonic()
@@ -272,9 +275,7 @@ class ScaraSim(Node):
             self._publish_joint_state(state)
             self._publish_tip(state)
             return
-        mode, command = self._drive(now)
-        force = self._force if now - self._force_time <= self._wrench_timeout else (0.0, 0.0)
-        states = self._stepper.advance(now, mode, command, force)
+        states = self._stepper.advance(now, self._inputs)
         for state in states:
             self._publish_joint_state(state)
         if states:

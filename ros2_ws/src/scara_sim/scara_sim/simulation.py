@@ -27,6 +27,7 @@ No ROS import: the scara_sim node wires this to topics.
 """
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -273,24 +274,28 @@ class FixedStepClock:
 class RealTimeStepper:
     """A ScaraSimulator kept in step with real time by a FixedStepClock.
 
-    `advance(now, mode, command, force)` integrates the steps due at `now` (s, the clock's
-    time base) and returns one StepState per integrated step, in order, each stamped with its
-    own simulated time: the caller publishes every one, including those caught up after a late
-    tick. Steps dropped beyond `max_catch_up` are skipped in time and not returned.
+    `advance(now, inputs)` integrates the steps due at `now` (s, the clock's time base) and
+    returns one StepState per integrated step, in order, each stamped with its own simulated
+    time: the caller publishes every one, including those caught up after a late tick. Steps
+    dropped beyond `max_catch_up` are skipped in time and not returned. `inputs(t)` gives the
+    (mode, command, force) of the step that ends at time `t` (the clock's time base): a
+    timeout is judged per step, so steps caught up after a stall that end before a command
+    expired still apply it, and those after do not, whenever the tick comes.
     """
 
     sim: ScaraSimulator
     clock: FixedStepClock
 
-    def advance(self, now: float, mode: str, command, force) -> list[StepState]:
+    def advance(self, now: float,
+                inputs: Callable[[float], tuple[str, object, object]]) -> list[StepState]:
         steps = self.clock.steps_due(now)
         if steps == 0:
             return []
-        sim, dt = self.sim, self.sim.dt
+        sim, dt, start = self.sim, self.sim.dt, self.clock.start
         first = self.clock.accounted - steps + 1  # index of the first integrated step
         states = []
         for k in range(steps):
-            sim.step(mode, command, force)
+            sim.step(*inputs(start + (first + k) * dt))
             states.append(StepState((first + k) * dt, tuple(sim.q.tolist()),
                                     tuple(sim.dq.tolist()),
                                     tuple(sim.applied_effort.tolist())))

@@ -177,7 +177,7 @@ def test_stepper_returns_every_integrated_step_with_its_own_time():
         # Ticks mostly on time, some late by up to 30 ms (beyond max_catch_up: dropped).
         now += 1e-3 if rng.uniform() < 0.9 else rng.uniform(1e-3, 0.03)
         before = stepper.sim.q.copy()
-        states = stepper.advance(now, 'effort', [1.0, -0.5], [0.0, 0.0])
+        states = stepper.advance(now, lambda t: ('effort', [1.0, -0.5], [0.0, 0.0]))
         returned.extend(states)
         if states:
             np.testing.assert_array_equal(states[-1].q, stepper.sim.q)
@@ -191,3 +191,21 @@ def test_stepper_returns_every_integrated_step_with_its_own_time():
     # Each step stands for its own millisecond: consecutive steps 1 ms apart unless dropped.
     gaps = np.round(np.diff(times) / 1e-3).astype(int)
     assert gaps.min() == 1 and gaps.sum() - (gaps.size) == clock.dropped
+
+
+def test_a_timeout_is_judged_per_step_in_a_caught_up_tick():
+    # A command that expires at t = 10.5 ms, and one tick at 20 ms after a stall: the steps
+    # ending before the expiry apply it, those after do not, although one tick ran them all.
+    stepper = RealTimeStepper(make_simulator(), FixedStepClock(1e-3, 50, start=0.0))
+    asked = []
+
+    def inputs(t):
+        asked.append(t)
+        return ('effort', [2.0, -1.0], [0.0, 0.0]) if t <= 0.0105 else ('idle', None, [0.0, 0.0])
+
+    stepper.advance(0.0, inputs)
+    states = stepper.advance(0.020, inputs)
+    assert len(states) == 20
+    assert asked == pytest.approx([k * 1e-3 for k in range(1, 21)])
+    assert [list(s.effort) for s in states[:10]] == [[2.0, -1.0]] * 10
+    assert [list(s.effort) for s in states[10:]] == [[0.0, 0.0]] * 10

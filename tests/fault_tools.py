@@ -179,10 +179,13 @@ class ForkedNodes:
             return False
         return True
 
-    def kill(self, pid: int, timeout: float = 5.0) -> bool:
-        """SIGKILL `pid`; True once it is gone (the forker reaps it at once)."""
-        os.kill(pid, signal.SIGKILL)
-        return wait_for(lambda: not self.alive(pid), timeout, period=0.005)
+    def kill(self, *pids: int, timeout: float = 5.0) -> bool:
+        """SIGKILL every one of `pids` at once; True once all are gone (the forker reaps them
+        at once)."""
+        for pid in pids:
+            os.kill(pid, signal.SIGKILL)
+        return wait_for(lambda: not any(self.alive(pid) for pid in pids), timeout,
+                        period=0.005)
 
     def close(self) -> None:
         running = [pid for pid in self.pids if self.alive(pid)]

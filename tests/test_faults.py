@@ -15,7 +15,6 @@ A recorder killed with SIGKILL keeps a readable bag: tests/test_recorder.py
 
 import itertools
 import math
-import os
 import signal
 import time
 
@@ -69,7 +68,7 @@ RESUME_WITHIN = 1.0  # s from a restarted sim's first joint state to control
 # The kill test: each peer killed this many times in a row, DWELL s of running between kills,
 # and the longest the sim may apply one command while it runs: half its command_timeout, so
 # that a stop of the controller shows before the sim would zero the torque itself. The holds
-# measured with SCHED_FIFO were 20-46 ms (issue 15 asks for 20); without it, up to 215 ms.
+# measured with SCHED_FIFO were 20-57 ms (issue 15 asks for 20); without it, up to 215 ms.
 OTHER_PEERS = ('hand_sim', 'recorder', 'event_manager')
 PEERS = ('scara_sim', *OTHER_PEERS)
 KILLS = 20
@@ -190,9 +189,9 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
         nodes, probe, ros_domain, tmp_path, monkeypatch):
     """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
     restarted KILLS times in a row around the real controller, which runs with the sim at
-    SCHED_FIFO (as on a robot's computer; without it, starting three processes on two cores
-    held the controller up to 215 ms). While a sim runs, it never applies one command for over
-    MAX_HOLD; without the sim the controller commands zero torque within
+    SCHED_FIFO (as on a robot's computer; without it, the sim held one command for up to
+    215 ms while peers restarted on the two cores). While a sim runs, it never applies one
+    command for over MAX_HOLD; without the sim the controller commands zero torque within
     joint_state_timeout; a new sim gets commands within RESUME_WITHIN of its ready line. The
     peers are forked (tests/node_forker.py): the same nodes, started without Python's start-up.
     """
@@ -230,10 +229,7 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
 
     def kill(*names: str) -> None:
         events.append((probe_time(probe), f'kill {", ".join(names)}'))
-        for name in names:
-            os.kill(peers[name], signal.SIGKILL)
-        assert wait_for(lambda: not any(forked.alive(peers[name]) for name in names), 5.0,
-                        period=0.005), names
+        assert forked.kill(*(peers[name] for name in names)), names
 
     try:
         start(*PEERS)

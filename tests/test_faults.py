@@ -28,7 +28,7 @@ from hri_bringup.processes import READY_LINES, wait_for
 from hri_core.dynamics import ScaraParameters, kinetic_energy
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import MONITOR_QOS
-from tests.common import PAPER_TASKS, REPO_ROOT
+from tests.common import PAPER_TASKS
 from tests.fault_tools import (
     ForkedNodes,
     RawListener,
@@ -186,7 +186,7 @@ def peer_parameters(name: str, tmp_path, incarnation: int) -> dict:
 # Slow (about 150 s): scripts/test.sh --all runs it.
 @pytest.mark.slow
 def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
-        nodes, probe, ros_domain, tmp_path, monkeypatch):
+        nodes, probe, ros_domain, tmp_path):
     """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
     restarted KILLS times in a row around the real controller, which runs with the sim at
     SCHED_FIFO (as on a robot's computer; without it, the sim held one command for up to
@@ -195,9 +195,6 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
     joint_state_timeout; a new sim gets commands within RESUME_WITHIN of its ready line. The
     peers are forked (tests/node_forker.py): the same nodes, started without Python's start-up.
     """
-    # Over UDP: with shared memory a peer killed while it held its port's lock stops every
-    # sender to it for 1-3 s (config/fastdds_udp.xml).
-    monkeypatch.setenv('FASTRTPS_DEFAULT_PROFILES_FILE', str(REPO_ROOT / 'config/fastdds_udp.xml'))
     states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     joints = RawListener(probe, '/joint_states', JointState)
     forked = ForkedNodes(ros_domain, tmp_path)

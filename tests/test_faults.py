@@ -200,8 +200,7 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
     forked = ForkedNodes(ros_domain, tmp_path)
     peers = {}
     incarnations = itertools.count()
-
-    events = []
+    events = []  # (ROS time, what happened): where a hold falls, in its assertion message
 
     def start(*names: str) -> list[float]:
         """Fork `names` at once; the time of each one's ready line (ROS clock, s)."""
@@ -264,13 +263,13 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
         holds = applied_command_holds(joints.timed(), 0.0)
         longest = max((span for _, span, _ in holds), default=0.0)
         print(f'{KILLS} kills of each peer; control resumed {max(resumed):.3f} s at most after '
-              f'a new sim\'s first joint state (median {np.median(resumed):.3f}); longest '
-              f'command held by the sim {longest * 1e3:.0f} ms')
+              f'a new sim\'s ready line (median {np.median(resumed):.3f}); longest command '
+              f'held by the sim {longest * 1e3:.0f} ms')
         assert max(resumed) <= RESUME_WITHIN, resumed
         holds = applied_command_holds(joints.timed(), MAX_HOLD)
-        assert holds == [], [(round(start - events[0][0], 3), round(span, 3), [
-            (round(t - start, 3), what) for t, what in events if -1.0 < t - start < 0.5])
-            for start, span, _ in holds]
+        assert holds == [], [(round(first - events[0][0], 3), round(span, 3), [
+            (round(t - first, 3), what) for t, what in events if -1.0 < t - first < 0.5])
+            for first, span, _ in holds]
         log = controller.log()
         assert log.count('joint states resumed') >= KILLS, log
         assert 'Traceback' not in log

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
@@ -49,13 +50,13 @@ class RawListener:
     def messages(self, since: float = -math.inf, start: int = 0) -> list:
         """The messages that arrived after `since` (monotonic s), from the `start`-th on,
         decoded, in arrival order."""
-        return [deserialize_message(data, self.msg_type)
-                for arrived, data in self.arrivals[start:] if arrived > since]
+        return [message for _, message in self.timed(since, start)]
 
-    def timed(self, since: float = -math.inf) -> list[tuple[float, object]]:
-        """(arrival time, message) for the messages that arrived after `since`."""
+    def timed(self, since: float = -math.inf, start: int = 0) -> list[tuple[float, object]]:
+        """(arrival time, message) for the messages that arrived after `since`, from the
+        `start`-th on."""
         return [(arrived, deserialize_message(data, self.msg_type))
-                for arrived, data in list(self.arrivals) if arrived > since]
+                for arrived, data in self.arrivals[start:] if arrived > since]
 
 
 def log_time(line: str) -> float:
@@ -171,27 +172,19 @@ class ForkedNodes:
         self.pids.append(answer['pid'])
         return answer['pid'], log
 
-    @staticmethod
-    def alive(pid: int) -> bool:
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        return True
-
     def kill(self, *pids: int, timeout: float = 5.0) -> bool:
         """SIGKILL every one of `pids` at once; True once all are gone (the forker reaps them
         at once)."""
         for pid in pids:
             os.kill(pid, signal.SIGKILL)
-        return wait_for(lambda: not any(self.alive(pid) for pid in pids), timeout,
+        return wait_for(lambda: not any(psutil.pid_exists(pid) for pid in pids), timeout,
                         period=0.005)
 
     def close(self) -> None:
-        running = [pid for pid in self.pids if self.alive(pid)]
+        running = [pid for pid in self.pids if psutil.pid_exists(pid)]
         for pid in running:
             os.kill(pid, signal.SIGINT)
-        if not wait_for(lambda: not any(self.alive(pid) for pid in running), 5.0):
+        if not wait_for(lambda: not any(psutil.pid_exists(pid) for pid in running), 5.0):
             for pid in running:
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(pid, signal.SIGKILL)

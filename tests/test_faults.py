@@ -127,6 +127,18 @@ def allowed_delay(timeout: float, stall: float) -> float:
     return timeout + SLACK + (stall + timeout if stall > STALL else 0.0)
 
 
+def assert_zero_torque_without_sim(states: list, killed_at: float, attempt: int) -> None:
+    """The controller commanded zero torque within joint_state_timeout of the sim's kill at
+    `killed_at` (ROS time, s) and held it (`allowed_delay`); `attempt` names the kill."""
+    delay, stall, _ = zero_for_good(
+        states, killed_at,
+        lambda s: s.status == 'stale_joint_states' and list(s.effort) == [0.0, 0.0])
+    assert delay <= allowed_delay(JOINT_STATE_TIMEOUT, stall), (
+        attempt, delay, stall, [(round(stamp_seconds(s.header.stamp) - killed_at, 3),
+                                 s.status, list(s.effort)) for s in list(states)
+                                if stamp_seconds(s.header.stamp) > killed_at - 0.05][:400:4])
+
+
 def ok_after(states: list, since: float) -> float | None:
     """Stamp (s) of the first ControllerState with status ok stamped after `since`."""
     return next((stamp_seconds(s.header.stamp) for s in list(states)
@@ -147,13 +159,7 @@ def test_sim_killed_and_restarted_five_times_control_resumes_each_time(live_loop
         assert wait_for(lambda: states[-1].status == 'stale_joint_states', 10.0), states[-1]
         time.sleep(0.2)
         # Zero torque within joint_state_timeout of the kill, held while the sim is gone.
-        delay, stall, held = zero_for_good(
-            states, killed_at,
-            lambda s: s.status == 'stale_joint_states' and list(s.effort) == [0.0, 0.0])
-        assert delay <= allowed_delay(JOINT_STATE_TIMEOUT, stall), (
-            restart, delay, stall, [(round(stamp_seconds(s.header.stamp) - killed_at, 3),
-                                     s.status, list(s.effort)) for s in list(states)
-                                    if stamp_seconds(s.header.stamp) > killed_at - 0.05][:400:4])
+        assert_zero_torque_without_sim(states, killed_at, restart)
         heard = len(joints)
         sim = nodes('scara_sim', 'scara_sim')
         assert wait_for(lambda heard=heard: len(joints) > heard, 30.0), sim.log()
@@ -243,10 +249,7 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
             assert wait_for(lambda: states[-1].status == 'stale_joint_states', 10.0), states[-1]
             time.sleep(DWELL)
             # Zero torque within joint_state_timeout of the kill, held while the sim is gone.
-            delay, stall, _ = zero_for_good(
-                states, killed_at,
-                lambda s: s.status == 'stale_joint_states' and list(s.effort) == [0.0, 0.0])
-            assert delay <= allowed_delay(JOINT_STATE_TIMEOUT, stall), (kill_round, delay, stall)
+            assert_zero_torque_without_sim(states, killed_at, kill_round)
             heard = len(joints)
             sim_up, = start('scara_sim')
 

@@ -46,14 +46,6 @@ def child_pids(system) -> dict[str, int]:
     return {name: int(pid) for name, pid in STARTED.findall(system.log())}
 
 
-def gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    return False
-
-
 def kill_leftover(name: str, pid: int) -> None:
     """SIGKILL a child the system left running, if `pid` still is that node."""
     try:
@@ -114,7 +106,7 @@ def test_system_runs_the_loop_and_ends_every_node_on_sigint(system, probe, tmp_p
 
     process.send(signal.SIGINT)
     assert process.wait(30.0) == 0, process.log()
-    assert all(gone(pid) for pid in pids.values()), pids
+    assert not any(psutil.pid_exists(pid) for pid in pids.values()), pids
     log = process.log()
     assert 'Traceback' not in log
     assert system_lines(log, 'INFO')[-1].endswith(
@@ -140,7 +132,7 @@ def test_a_node_that_exits_ends_the_system_with_exit_code_1(system, tmp_path):
     log = process.log()
     pids = child_pids(process)
     assert set(pids) == {'event_manager', 'hand_sim'}
-    assert all(gone(pid) for pid in pids.values()), pids
+    assert not any(psutil.pid_exists(pid) for pid in pids.values()), pids
     errors = system_lines(log, 'ERROR')
     assert len(errors) == 1, log
     assert 'event_manager exited unexpectedly with exit code 1' in errors[0]

@@ -5,12 +5,12 @@ Starts the live loop (hri_bringup.processes.start_live_loop: `ros2 run` on its o
 ROS_DOMAIN_ID, discovery kept on loopback): scara_sim, event_manager (the paper's tasks as
 installed with hri_adaptive_controller, initial task follow), controller and hand_sim (a
 circle: centre (0.45, 0.1) m, radius 0.05 m, period 8 s). Once the controller reports status
-'ok' and `--warmup` s more have passed, a probe (hri_bringup.processes.RosProbe) listens for
-`--duration` s and reports
+'ok' and `--warmup` s more have passed, a probe (hri_bringup.processes.RosProbe on the
+EventsExecutor, raw subscriptions, SCHED_FIFO) listens for `--duration` s and reports
 
 * /joint_states: achieved rate, and the period between messages from their header stamps
-  (the simulated time each state stands for) and from their receive times (middleware receive
-  timestamps): median, p99, max in ms; and the simulated time that passed per wall second
+  (the simulated time each state stands for) and from their arrival times in the probe's
+  callback: median, p99, max in ms; and the simulated time that passed per wall second
   (below 1 when the sim drops steps);
 * the controller, from /hri/controller_state (100 Hz): its achieved rate (rate_hz, its own
   1 s windows), its deadline misses over the window (ticks later than 1.5 periods), and
@@ -20,9 +20,9 @@ circle: centre (0.45, 0.1) m, radius 0.05 m, period 8 s). Once the controller re
   one core);
 * the sim's own count of late ticks and dropped steps over its whole run (its exit line);
 * joint state -> command as this probe sees it: for each /joint_states message, the time from
-  its arrival to the arrival of the next /effort_controller/commands (middleware receive
-  timestamps), median, p99, max; deadline misses: states with no command within 1.5 ms;
-  cycles without control: states followed by another state before any command.
+  its arrival to the arrival of the next /effort_controller/commands, median, p99, max;
+  deadline misses: states with no command within 1.5 ms; cycles without control: states
+  followed by another state before any command.
 
 Before the loop, in the same run, the transport floor: a trivial rclpy echo (bench/echo_node.py,
 the controller's executor and QoS) answers JointState pings sent at 1 kHz for `--echo-seconds`;
@@ -42,6 +42,7 @@ import json
 import os
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -56,6 +57,7 @@ import numpy as np  # noqa: E402
 import psutil  # noqa: E402
 from bench_sim import SUMMARY, node_process, period_statistics  # noqa: E402
 from hri_interfaces.msg import ControllerState  # noqa: E402
+from rclpy.experimental import EventsExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
@@ -70,6 +72,7 @@ CONTROL_RATE_HZ = 1000.0  # the controller's default rate_hz
 DEADLINE_S = 1.5e-3  # a command later than this after its joint state misses its deadline
 ECHO = REPO_ROOT / 'bench' / 'echo_node.py'
 BUSY_LOOP = 'while True: pass'
+STAMP = struct.Struct('<iI')  # builtin_interfaces/Time in little-endian CDR
 
 
 def parse_arguments(argv=None) -> argparse.Namespace:
@@ -96,15 +99,15 @@ def parse_arguments(argv=None) -> argparse.Namespace:
 
 
 class ArrivalTimes:
-    """Middleware receive timestamps (ns) of a topic while `recording` is set."""
+    """Arrival times (ns, taken in the callback) of a topic while `recording` is set."""
 
     def __init__(self, recording: threading.Event):
         self.received: list[int] = []
         self.recording = recording
 
-    def __call__(self, msg, info) -> None:
+    def __call__(self, msg: bytes) -> None:
         if self.recording.is_set():
-            self.received.append(info.get('received_timestamp') or time.time_ns())
+            self.received.append(time.time_ns())
 
 
 def command_latency(states_ns, commands_ns) -> dict:
@@ -204,12 +207,16 @@ class JointStateTimes:
         self.received: list[int] = []
         self.recording = threading.Event()
 
-    def __call__(self, msg: JointState, info) -> None:
-        # Two required arguments: rclpy then passes the MessageInfo (a second argument with a
-        # default would make it call with the message only).
+    def __call__(self, msg: bytes) -> None:
+        # The message is its serialized CDR (a raw subscription: no Python message is built,
+        # so the probe stays light): the 4-byte encapsulation header, then header.stamp's sec
+        # (int32) and nanosec (uint32). The arrival time is taken here: rclpy 7.1's
+        # EventsExecutor fails on callbacks that take the MessageInfo ("SystemError: null
+        # argument to internal routine"), so the middleware's receive timestamp is not at hand.
         if self.recording.is_set():
-            received = info.get('received_timestamp') or time.time_ns()
-            self.stamps.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
+            received = time.time_ns()
+            sec, nanosec = STAMP.unpack_from(msg, 4)
+            self.stamps.append(sec * 10**9 + nanosec)
             self.received.append(received)
 
 
@@ -242,12 +249,14 @@ def run(args: argparse.Namespace) -> dict:
     try:
         echo = (measure_echo(args.domain_id, echo_seconds, args.probe_priority)
                 if echo_seconds > 0 else None)
-        probe = RosProbe(args.domain_id, name='bench_loop_probe')
+        # The EventsExecutor and raw subscriptions: a probe that takes little CPU from the
+        # loop it measures (with a SingleThreadedExecutor and messages, 81 % of a core).
+        probe = RosProbe(args.domain_id, name='bench_loop_probe', executor=EventsExecutor)
         scheduling = request_sched_fifo(args.probe_priority)
         probe.node.create_subscription(JointState, '/joint_states', joint_times,
-                                       JOINT_STATE_PROBE_QOS)
+                                       JOINT_STATE_PROBE_QOS, raw=True)
         probe.node.create_subscription(Float64MultiArray, '/effort_controller/commands',
-                                       command_times, COMMAND_QOS)
+                                       command_times, COMMAND_QOS, raw=True)
         states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
         overrides = {'hand_sim': HAND}
         if args.realtime_priority is not None:

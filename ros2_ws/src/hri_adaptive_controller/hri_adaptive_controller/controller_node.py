@@ -56,8 +56,8 @@ from hri_interfaces.msg import ControllerState, TaskState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.adaptive_law import (
     DEFAULT_GAINS,
@@ -76,6 +76,14 @@ from hri_adaptive_controller.event_weight import (
 )
 from hri_adaptive_controller.signal_hold import HandHold, TaskWeightHold
 from hri_core import topics
+from hri_core.cdr import (
+    POSITION,
+    VELOCITY,
+    float64_array_template,
+    joint_state_layout,
+    read_stamp,
+    read_values,
+)
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
     REALTIME_PRIORITY,
@@ -223,7 +231,10 @@ class Controller(Node):
         self._weight = 0.0
         self._warned: dict[str, float] = {}
         self._input_age = 0.0
-        self._command_msg = Float64MultiArray(data=[0.0, 0.0])
+        # The 1 kHz messages as raw CDR (hri_core.cdr): joint states read at fixed offsets
+        # while their layout holds, commands written from a template.
+        self._joint_layout = None
+        self._command_template = float64_array_template(len(JOINT_NAMES))
 
         command = topics.VELOCITY_COMMANDS if self._velocity_mode else topics.EFFORT_COMMANDS
         self._command_pub = self.create_publisher(command.type, command.name, command.qos)
@@ -231,8 +242,8 @@ class Controller(Node):
         self._state_pub = self.create_publisher(
             ControllerState, topics.CONTROLLER_STATE.name, topics.CONTROLLER_STATE.qos)
         # Only the newest joint state and hand position matter: each joint state starts a cycle.
-        self.create_subscription(JointState, topics.JOINT_STATES.name, self._on_joint_state,
-                                 topics.LATEST_SAMPLE_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES.name, self._on_joint_state_data,
+                                 topics.LATEST_SAMPLE_QOS, raw=True)
         self.create_subscription(PointStamped, topics.TARGET.name, self._on_target,
                                  topics.LATEST_SAMPLE_QOS)
         self.create_subscription(TaskState, topics.TASK_STATE.name, self._on_task_state,
@@ -256,7 +267,30 @@ class Controller(Node):
             self._warned[kind] = now
             self.get_logger().warning(text)
 
+    def _on_joint_state_data(self, data: bytes) -> None:
+        """A joint state as serialized CDR: read at fixed offsets while the layout of the
+        messages holds (names, lengths, frame_id), else through rclpy's deserialiser and
+        _on_joint_state's checks."""
+        layout = self._joint_layout
+        values = None if layout is None else read_values(data, layout)
+        if values is None:
+            layout = joint_state_layout(data, JOINT_NAMES, (POSITION, VELOCITY),
+                                        one_value_per_name=True)
+            if layout is None:
+                try:
+                    msg = deserialize_message(data, JointState)
+                except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
+                    self._warn('joint_state_cdr', f'joint state dropped: unreadable ({error})')
+                    return
+                self._on_joint_state(msg)
+                return
+            self._joint_layout = layout
+            values = read_values(data, layout)
+        sec, nanosec = read_stamp(data)
+        self._accept_joint_state(values[0:2], values[2:4], sec + 1e-9 * nanosec)
+
     def _on_joint_state(self, msg: JointState) -> None:
+        """A joint state whose layout is not the fast path's: checked field by field."""
         names = msg.name
         position, velocity = msg.position, msg.velocity
         if len(position) != len(names) or len(velocity) != len(names):
@@ -275,13 +309,15 @@ class Controller(Node):
                 return
             self._joint_index = (list(names), index)
         i, j = index
-        q = (position[i], position[j])
-        dq = (velocity[i], velocity[j])
+        self._accept_joint_state((position[i], position[j]), (velocity[i], velocity[j]),
+                                 msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+
+    def _accept_joint_state(self, q: tuple, dq: tuple, stamp: float) -> None:
+        """Start a cycle on joint positions q (rad), velocities dq (rad/s), stamp (s)."""
         if not math.isfinite(q[0] + q[1] + dq[0] + dq[1]):
             self._warn('joint_state_non_finite',
                        'joint state dropped: non-finite position or velocity')
             return
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         previous = self._joint_stamp
         verdict = self._joint_gate.offer(stamp)
         if verdict == DROPPED:
@@ -412,9 +448,7 @@ class Controller(Node):
             # At most one period's worth per command (see effort_rate).
             command, self._rate_limited = self._limiter.limit(output.tau,
                                                               min(dt, self._period))
-        msg = self._command_msg
-        msg.data = command
-        self._command_pub.publish(msg)
+        self._command_pub.publish(self._command_template.encode(command))
         if stamp is not None:
             clock = self.get_clock().now().nanoseconds * 1e-9
             self._input_age = clock - stamp

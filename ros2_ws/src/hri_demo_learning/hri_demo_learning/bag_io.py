@@ -21,11 +21,11 @@ Messages are deserialised with the rosbags typestore of ROS 2 Jazzy; types it la
 registered from the bag's own message definitions. `read_demonstration` takes a fast path for
 the two types a demonstration is made of, JointState and PointStamped: `read_bag` keeps their
 raw CDR bytes, and `joint_state_positions` / `point_stamped_xy` read the numbers straight into
-numpy arrays. The first message of a topic gives the byte layout (a small CDR walk); every
-message with the same length and the same bytes where the layout could differ (encoding,
-frame_id, joint names, sequence lengths) has that layout and is read by one fancy-indexed
-view; any other message is deserialised with rosbags, which stays the reference (the unit
-tests hold the two equal on the fixture bags and on a crash-recovered bag).
+numpy arrays (hri_core.cdr). The first message of a topic gives the byte layout (a small CDR
+walk); every message with the same length and the same bytes where the layout could differ
+(encoding, frame_id, joint names, sequence lengths) has that layout and is read by one fancy-
+indexed view; any other message is deserialised with rosbags, which stays the reference (the
+unit tests hold the two equal on the fixture bags and on a crash-recovered bag).
 """
 
 import os
@@ -45,6 +45,7 @@ from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_
 from rosbags.typesys.store import Typestore
 
 from hri_core import topics
+from hri_core.cdr import joint_state_layout, point_stamped_layout, read_float64s
 from hri_core.dynamics import forward_kinematics
 
 #: rosbag2 bag format version that ROS 2 Jazzy's rosbag2 writes.
@@ -615,126 +616,6 @@ class Demonstration:
     recovered: bool = False
 
 
-# Raw CDR fast path ---------------------------------------------------------------------------
-# A CDR message starts with a 4-byte encapsulation header (byte 1: 0x01 = plain CDR, little
-# endian); alignment counts from the byte after it. Header = stamp (int32 sec, uint32 nanosec),
-# frame_id (uint32 length including the NUL, then the characters).
-_CDR_LE = 1
-_FRAME_LENGTH = (12, 16)  # byte range of the frame_id length word
-
-
-@dataclass(frozen=True)
-class CdrLayout:
-    """Where the wanted float64 values are in messages laid out like `template`.
-
-    size: bytes per message; checks: byte ranges that must equal the template's for a message
-    to share the layout (encoding, string and sequence lengths, joint names); offsets: byte
-    offset of each wanted float64.
-    """
-
-    template: bytes
-    size: int
-    checks: tuple[tuple[int, int], ...]
-    offsets: tuple[int, ...]
-
-
-def _u32(data: bytes, at: int) -> int:
-    if at + 4 > len(data):
-        raise IndexError('message too short')
-    return int.from_bytes(data[at:at + 4], 'little')
-
-
-def _aligned(position: int, size: int) -> int:
-    return 4 + -(-(position - 4) // size) * size
-
-
-def _after_header(data: bytes) -> int:
-    """Offset just after a std_msgs/Header (stamp and frame_id) at the start of a message."""
-    return 16 + _u32(data, 12)
-
-
-def point_stamped_layout(data: bytes) -> CdrLayout | None:
-    """The layout of a PointStamped message (x, y wanted); None if not plain little-endian."""
-    try:
-        if data[1] != _CDR_LE:
-            return None
-        point = _aligned(_after_header(data), 8)
-        size = point + 24
-    except IndexError:
-        return None
-    if size != len(data):
-        return None
-    return CdrLayout(bytes(data), size, ((0, 2), _FRAME_LENGTH), (point, point + 8))
-
-
-def joint_state_layout(data: bytes, joints: Sequence[str] = JOINT_NAMES) -> CdrLayout | None:
-    """The layout of a JointState message with the positions of `joints` wanted.
-
-    None if the message is not plain little-endian CDR or does not name every joint.
-    """
-    try:
-        if data[1] != _CDR_LE:
-            return None
-        position = _aligned(_after_header(data), 4)
-        names_start, names = position, []
-        count = _u32(data, position)
-        position += 4
-        for _ in range(count):
-            position = _aligned(position, 4)
-            length = _u32(data, position)
-            names.append(bytes(data[position + 4:position + 3 + length]).decode(
-                'utf-8', errors='replace'))
-            position += 4 + length
-        checks = [(0, 2), _FRAME_LENGTH, (names_start, position)]
-        sequences = []
-        for _ in range(3):  # position, velocity, effort
-            position = _aligned(position, 4)
-            checks.append((position, position + 4))
-            count = _u32(data, position)
-            position += 4
-            if count:
-                position = _aligned(position, 8)
-            sequences.append((position, count))
-            position += 8 * count
-    except IndexError:
-        return None
-    if position != len(data) or not all(joint in names for joint in joints):
-        return None
-    start, count = sequences[0]
-    index = [names.index(joint) for joint in joints]
-    if count <= max(index):
-        return None
-    return CdrLayout(bytes(data), position, tuple(checks),
-                     tuple(start + 8 * i for i in index))
-
-
-def read_float64s(raw: Sequence, layout: CdrLayout) -> tuple[np.ndarray, np.ndarray]:
-    """The layout's float64 values of every message in `raw` that shares it.
-
-    Returns (values (N, len(offsets)), NaN in rows that do not share the layout; matched (N,)
-    bool). One pass over a (N, size) byte table: no per-message Python beyond its length.
-    """
-    count = len(raw)
-    values = np.full((count, len(layout.offsets)), np.nan)
-    lengths = np.fromiter(map(len, raw), dtype=np.int64, count=count)
-    candidates = np.flatnonzero(lengths == layout.size)
-    matched = np.zeros(count, dtype=bool)
-    if candidates.size == 0:
-        return values, matched
-    chosen = raw if candidates.size == count else [raw[i] for i in candidates]
-    table = np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(-1, layout.size)
-    template = np.frombuffer(layout.template, dtype=np.uint8)
-    same = np.ones(candidates.size, dtype=bool)
-    for start, end in layout.checks:
-        same &= np.all(table[:, start:end] == template[start:end], axis=1)
-    rows = candidates[same]
-    matched[rows] = True
-    for column, offset in enumerate(layout.offsets):
-        values[rows, column] = np.ascontiguousarray(
-            table[same, offset:offset + 8]).view('<f8')[:, 0]
-    return values, matched
-
-
 def _decoded(series: TopicMessages, typestore: Typestore, topic: str, path: Path):
     """Yield (index, message) deserialised by rosbags: the messages, or the raw bytes'."""
     if series.messages:
@@ -781,7 +662,7 @@ def _joint_positions(series: TopicMessages, topic: str, path: Path,
                      typestore: Typestore | None = None) -> np.ndarray:
     """(N, 2) joint angles [joint1, joint2] in rad from JointState messages (raw bytes by
     the fast path where their layout allows, else rosbags)."""
-    layout = joint_state_layout(series.raw[0]) if series.raw else None
+    layout = joint_state_layout(series.raw[0], JOINT_NAMES) if series.raw else None
     typestore = typestore if typestore is not None else jazzy_typestore()
     if layout is None:
         return np.array([_joint_row(m, i, path) for i, m in _decoded(

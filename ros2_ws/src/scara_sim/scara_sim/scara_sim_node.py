@@ -32,15 +32,21 @@ import sys
 import time
 
 import numpy as np
-from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_core import topics
+from hri_core.cdr import (
+    float64_array_layout,
+    joint_state_template,
+    point_stamped_template,
+    read_values,
+)
 from hri_core.dynamics import ScaraParameters, forward_kinematics_pair
 from hri_core.node_common import (
     REALTIME_PRIORITY,
@@ -155,15 +161,17 @@ class ScaraSim(Node):
                                                 topics.JOINT_STATES.qos)
         self._ee_pub = self.create_publisher(PointStamped, topics.EE_POSITION.name,
                                              topics.EE_POSITION.qos)
+        # The 1 kHz messages as raw CDR (hri_core.cdr): commands read at fixed offsets while
+        # their layout holds, states written from templates.
+        self._command_layouts = {}
         self.create_subscription(Float64MultiArray, topics.EFFORT_COMMANDS.name,
-                                 self._on_effort, topics.EFFORT_COMMANDS.qos)
+                                 self._on_effort, topics.EFFORT_COMMANDS.qos, raw=True)
         self.create_subscription(Float64MultiArray, topics.VELOCITY_COMMANDS.name,
-                                 self._on_velocity, topics.VELOCITY_COMMANDS.qos)
+                                 self._on_velocity, topics.VELOCITY_COMMANDS.qos, raw=True)
         self.create_subscription(WrenchStamped, topics.HUMAN_WRENCH.name, self._on_wrench,
                                  topics.HUMAN_WRENCH.qos)
-        self._joint_msg = JointState(name=list(JOINT_NAMES))
-        self._ee_msg = PointStamped()
-        self._ee_msg.header.frame_id = self._frame
+        self._joint_template = joint_state_template(JOINT_NAMES)
+        self._ee_template = point_stamped_template(self._frame)
         self._timer = self.create_timer(1.0 / rate_hz, self._on_tick)
         self.get_logger().info(
             f'simulating at {rate_hz:g} Hz (RK4, dt {1e3 / rate_hz:g} ms) from q = '
@@ -216,11 +224,30 @@ class ScaraSim(Node):
 
     # Inputs -------------------------------------------------------------------------------
 
-    def _on_effort(self, msg: Float64MultiArray) -> None:
-        self._accept_command('effort', msg.data)
+    def _on_effort(self, data: bytes) -> None:
+        self._on_command_data('effort', data)
 
-    def _on_velocity(self, msg: Float64MultiArray) -> None:
-        self._accept_command('velocity', msg.data)
+    def _on_velocity(self, data: bytes) -> None:
+        self._on_command_data('velocity', data)
+
+    def _on_command_data(self, mode: str, data: bytes) -> None:
+        """A command as serialized CDR: its values read at fixed offsets while the layout of
+        the messages holds, else through rclpy's deserialiser."""
+        layout = self._command_layouts.get(mode)
+        values = None if layout is None else read_values(data, layout)
+        if values is None:
+            layout = float64_array_layout(data)
+            if layout is None:
+                try:
+                    values = deserialize_message(data, Float64MultiArray).data
+                except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
+                    self.get_logger().warning(f'rejected {mode} command: unreadable ({error})',
+                                              throttle_duration_sec=WARN_THROTTLE)
+                    return
+            else:
+                self._command_layouts[mode] = layout
+                values = read_values(data, layout)
+        self._accept_command(mode, values)
 
     def _accept_command(self, mode: str, data) -> None:
         try:
@@ -283,27 +310,18 @@ class ScaraSim(Node):
         if now - self._last_report >= self._report_period:
             self._report(now)
 
-    def _stamp(self, state: StepState) -> TimeMsg:
-        stamp = TimeMsg()
-        stamp.sec, stamp.nanosec = divmod(self._stamp0 + round(state.sim_time * 1e9), 10 ** 9)
-        return stamp
+    def _stamp(self, state: StepState) -> tuple[int, int]:
+        """(sec, nanosec) of the time `state` stands for."""
+        return divmod(self._stamp0 + round(state.sim_time * 1e9), 10 ** 9)
 
     def _publish_joint_state(self, state: StepState) -> None:
-        stamp = self._stamp(state)
-        joint = self._joint_msg
-        joint.header.stamp = stamp
-        joint.position = state.q
-        joint.velocity = state.dq
-        joint.effort = state.effort
-        self._joint_pub.publish(joint)
+        self._joint_pub.publish(self._joint_template.encode(
+            state.q, state.dq, state.effort, stamp=self._stamp(state)))
 
     def _publish_tip(self, state: StepState) -> None:
-        stamp = self._stamp(state)
         params = self._sim.params
-        point = self._ee_msg
-        point.header.stamp = stamp
-        point.point.x, point.point.y = forward_kinematics_pair(*state.q, params.l1, params.l2)
-        self._ee_pub.publish(point)
+        x, y = forward_kinematics_pair(*state.q, params.l1, params.l2)
+        self._ee_pub.publish(self._ee_template.encode((x, y, 0.0), stamp=self._stamp(state)))
 
     def _report(self, now: float) -> None:
         """Log late ticks and dropped steps since the last report, if there were any."""

@@ -5,8 +5,11 @@ Starts the live loop (hri_bringup.processes.start_live_loop: `ros2 run` on its o
 ROS_DOMAIN_ID, discovery kept on loopback): scara_sim, event_manager (the paper's tasks as
 installed with hri_adaptive_controller, initial task follow), controller and hand_sim (a
 circle: centre (0.45, 0.1) m, radius 0.05 m, period 8 s). Once the controller reports status
-'ok' and `--warmup` s more have passed, a probe (hri_bringup.processes.RosProbe on the
-EventsExecutor, raw subscriptions, SCHED_FIFO) listens for `--duration` s and reports
+'ok' and `--warmup` s more have passed, two windows of `--duration` s each: first the CPU of
+every process with nothing of the probe's on the 1 kHz topics (each reader costs its writer a
+send per message), with the controller's own figures; then a probe (hri_bringup.processes.
+RosProbe on the EventsExecutor, raw subscriptions, SCHED_FIFO) subscribes to /joint_states and
+the commands and, after `--warmup` s, listens. Reported:
 
 * /joint_states: achieved rate, and the period between messages from their header stamps
   (the simulated time each state stands for) and from their arrival times in the probe's
@@ -17,7 +20,7 @@ EventsExecutor, raw subscriptions, SCHED_FIFO) listens for `--duration` s and re
   input_age (command publication time minus the stamp of the joint state used: the
   /joint_states -> controller -> /effort_controller/commands latency) median, p99, max in ms;
 * CPU of each node process and of this probe (user + system time over wall time, psutil, % of
-  one core);
+  one core) in the first window, and again with the probe attached (`cpu_percent_probed`);
 * the sim's own count of late ticks and dropped steps over its whole run (its exit line);
 * joint state -> command as this probe sees it: for each /joint_states message, the time from
   its arrival to the arrival of the next /effort_controller/commands, median, p99, max;
@@ -235,6 +238,17 @@ def cpu_seconds(process: psutil.Process) -> float:
     return times.user + times.system
 
 
+def cpu_percent(processes: dict, seconds: float) -> tuple[dict, float]:
+    """({name: % of one core over the next `seconds`}, wall seconds measured)."""
+    before = {name: cpu_seconds(p) for name, p in processes.items()}
+    start = time.monotonic()
+    time.sleep(seconds)
+    after = {name: cpu_seconds(p) for name, p in processes.items()}
+    wall = time.monotonic() - start
+    return {name: round(100.0 * (after[name] - before[name]) / wall, 1)
+            for name in processes}, wall
+
+
 def run(args: argparse.Namespace) -> dict:
     if shutil.which('ros2') is None:
         raise SystemExit('bench_loop: no `ros2` on PATH; run `source scripts/env.sh` first')
@@ -253,10 +267,6 @@ def run(args: argparse.Namespace) -> dict:
         # loop it measures (with a SingleThreadedExecutor and messages, 81 % of a core).
         probe = RosProbe(args.domain_id, name='bench_loop_probe', executor=EventsExecutor)
         scheduling = request_sched_fifo(args.probe_priority)
-        probe.node.create_subscription(JointState, '/joint_states', joint_times,
-                                       JOINT_STATE_PROBE_QOS, raw=True)
-        probe.node.create_subscription(Float64MultiArray, '/effort_controller/commands',
-                                       command_times, COMMAND_QOS, raw=True)
         states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
         overrides = {'hand_sim': HAND}
         if args.realtime_priority is not None:
@@ -272,15 +282,20 @@ def run(args: argparse.Namespace) -> dict:
         processes = {name: node_process(psutil.Process(node.pid), name)
                      for name, node in started.items()}
         processes['probe'] = psutil.Process()
-        cpu_before = {name: cpu_seconds(p) for name, p in processes.items()}
-        wall_before = time.monotonic()
+        # CPU first, with nothing of the probe's on the 1 kHz topics: a reader of a topic
+        # costs its writer a send per message (a reliable one over UDP: about 13 % of a core
+        # at 1 kHz here), which would be charged to the loop.
         first_state = len(states)
-        joint_times.recording.set()
-        time.sleep(args.duration)
-        joint_times.recording.clear()
+        cpu, wall = cpu_percent(processes, args.duration)
         window = states[first_state:]
-        cpu_after = {name: cpu_seconds(p) for name, p in processes.items()}
-        wall = time.monotonic() - wall_before
+        probe.node.create_subscription(JointState, '/joint_states', joint_times,
+                                       JOINT_STATE_PROBE_QOS, raw=True)
+        probe.node.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                                       command_times, COMMAND_QOS, raw=True)
+        time.sleep(args.warmup)
+        joint_times.recording.set()
+        cpu_probed, probed_wall = cpu_percent(processes, args.duration)
+        joint_times.recording.clear()
         dead = [name for name, node in started.items() if not node.alive()]
         if dead:
             raise SystemExit(f'bench_loop: {", ".join(dead)} ended during the measurement; '
@@ -303,7 +318,7 @@ def run(args: argparse.Namespace) -> dict:
         'hand': HAND,
         'joint_states': {
             'messages': int(stamps.size),
-            'achieved_rate_hz': round(stamps.size / wall, 1),
+            'achieved_rate_hz': round(stamps.size / probed_wall, 1),
             'sim_realtime_factor': round(realtime, 4) if realtime is not None else None,
             'stamp_period': period_statistics(stamps),
             'receive_period': period_statistics(received),
@@ -318,8 +333,8 @@ def run(args: argparse.Namespace) -> dict:
                                       if misses is not None else None),
             'input_age': spread_ms(np.array([s.input_age for s in ok])),
         },
-        'cpu_percent': {name: round(100.0 * (cpu_after[name] - cpu_before[name]) / wall, 1)
-                        for name in processes},
+        'cpu_percent': cpu,
+        'cpu_percent_probed': cpu_probed,
         'load_processes': args.load,
         'probe_scheduling': scheduling.description,
         'state_to_command': command_latency(received, np.array(command_times.received)),
@@ -358,6 +373,8 @@ def print_report(result: dict) -> None:
     print('CPU              ' + ', '.join(f'{name} {value} %'
                                           for name, value in result['cpu_percent'].items())
           + f' (% of one core; {result["cpu_count"]} cores)')
+    print('  probe attached ' + ', '.join(f'{name} {value} %' for name, value
+                                          in result['cpu_percent_probed'].items()))
     link = result['state_to_command']
     if 'latency' in link:
         lat = link['latency']

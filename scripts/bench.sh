@@ -234,6 +234,8 @@ for name in PIECES:
         row(name, 'input_age (stamp -> command)', spread(c['input_age']))
         row(name, 'CPU % of one core', ', '.join(f'{k} {v}' for k, v in
                                                  piece['cpu_percent'].items()))
+        row(name, 'CPU, probe attached', ', '.join(f'{k} {v}' for k, v in
+                                                   piece['cpu_percent_probed'].items()))
         if 'sim_summary' in piece:
             s = piece['sim_summary']
             row(name, 'sim timing (whole run)', f"{s['late_ticks']} late ticks, "

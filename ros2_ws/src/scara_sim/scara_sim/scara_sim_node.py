@@ -1,10 +1,12 @@
 """The `scara_sim` node: a simulated horizontal 2-link SCARA driven by joint commands.
 
 Integrates the arm of `dynamics.py` with RK4 in fixed steps of 1/rate_hz s (default 1 ms).
-A timer at rate_hz runs as many steps as real time has advanced since the last tick (the
-timer drops late ticks; at most `max_catch_up_steps` per tick, the rest are dropped and
-counted), and publishes the state after every step it integrated, those caught up after a
-late tick included (simulation.RealTimeStepper):
+A stepping thread ticks at rate_hz (it sleeps to each tick's absolute time) and runs as many
+steps as real time has advanced since the last tick (at most `max_catch_up_steps` per tick,
+the rest are dropped and counted), and publishes the state after every step it integrated,
+those caught up after a late tick included (simulation.RealTimeStepper); the executor runs
+the input callbacks beside it. A step that fails (a non-finite state) ends the process with
+exit code 1 and one error line:
 
 * /joint_states (sensor_msgs/JointState): joint1, joint2; position (rad), velocity (rad/s),
   effort = the drive torque applied (N m, the human's J^T f not included);
@@ -29,6 +31,7 @@ with a throttled warning; the last good one stays in force.
 
 import math
 import sys
+import threading
 import time
 
 import numpy as np
@@ -146,12 +149,12 @@ class ScaraSim(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        self._mode = 'idle'
-        self._command = np.zeros(2)
-        self._command_time = time.monotonic()
+        # (mode, command, receive time) and (force, receive time): each replaced whole by the
+        # executor's callbacks and read by the stepping thread.
+        self._drive = ('idle', np.zeros(2), time.monotonic())
         self._timed_out = False
-        self._force = np.zeros(2)
-        self._force_time = -math.inf
+        self._hand_force = (np.zeros(2), -math.inf)
+        self.failure = None  # the one-line reason the stepping stopped, if it did
         self._stepper: RealTimeStepper | None = None
         self._stamp0 = 0
         self._reported = (0, 0, 0)
@@ -172,12 +175,18 @@ class ScaraSim(Node):
                                  topics.HUMAN_WRENCH.qos)
         self._joint_template = joint_state_template(JOINT_NAMES)
         self._ee_template = point_stamped_template(self._frame)
-        self._timer = self.create_timer(1.0 / rate_hz, self._on_tick)
+        # The steps run in a thread of their own that sleeps to each tick (absolute times, so
+        # the ticks do not drift): an rclpy timer on the EventsExecutor cost 12 % of a core at
+        # 1 kHz alone and came late behind the command callbacks; this thread, 5 %.
+        self._stopping = threading.Event()
+        self._stepping = threading.Thread(target=self._step_in_real_time,
+                                          name='scara_sim_steps', daemon=True)
         self.get_logger().info(
             f'simulating at {rate_hz:g} Hz (RK4, dt {1e3 / rate_hz:g} ms) from q = '
             f'{np.round(self._sim.q, 4).tolist()} rad; effort limit {self._effort_limit:g} '
             f'N m, command timeout {self._command_timeout:g} s')
         request_realtime(self, values['realtime_priority'])
+        self._stepping.start()  # after request_realtime: the thread inherits the policy
 
     # Parameters -------------------------------------------------------------------------
 
@@ -256,12 +265,12 @@ class ScaraSim(Node):
             self.get_logger().warning(f'rejected {mode} command: {error}',
                                       throttle_duration_sec=WARN_THROTTLE)
             return
-        if mode == 'velocity' and self._mode != 'velocity':
+        if mode == 'velocity' and self._drive[0] != 'velocity':
             self._sim.velocity_loop.reset()
         if self._timed_out:
             self.get_logger().info(f'{mode} commands resumed')
             self._timed_out = False
-        self._mode, self._command, self._command_time = mode, command, time.monotonic()
+        self._drive = (mode, command, time.monotonic())
 
     def _on_wrench(self, msg: WrenchStamped) -> None:
         frame = msg.header.frame_id
@@ -273,7 +282,7 @@ class ScaraSim(Node):
             self.get_logger().warning(f'rejected /human/wrench: {error}',
                                       throttle_duration_sec=WARN_THROTTLE)
             return
-        self._force, self._force_time = force, time.monotonic()
+        self._hand_force = (force, time.monotonic())
 
     # Stepping ---------------------------------------------------------------------------
 
@@ -281,14 +290,46 @@ class ScaraSim(Node):
         """The drive mode, command and hand force in force at `t` (monotonic s), the end of
         a step: a command older than command_timeout or a force older than wrench_timeout
         is no longer applied."""
-        force = self._force if t - self._force_time <= self._wrench_timeout else (0.0, 0.0)
-        if t - self._command_time > self._command_timeout:
+        force, force_time = self._hand_force
+        if t - force_time > self._wrench_timeout:
+            force = (0.0, 0.0)
+        mode, command, command_time = self._drive
+        if t - command_time > self._command_timeout:
             if not self._timed_out:
                 self.get_logger().info(
                     f'no joint command for {self._command_timeout:g} s: applying zero torque')
                 self._timed_out = True
             return 'idle', None, force
-        return self._mode, self._command, force
+        return mode, command, force
+
+    def _step_in_real_time(self) -> None:
+        """The stepping thread: a tick every dt s until stop_stepping; a tick that fails
+        ends the stepping with its reason in `failure` (the process then exits non-zero)."""
+        period = self._sim.dt
+        next_tick = time.monotonic()
+        while not self._stopping.is_set():
+            try:
+                self._on_tick()
+            except Exception as error:  # noqa: BLE001 one line, then the process ends
+                self.failure = f'simulation stopped: {error}'
+                self.get_logger().error(self.failure)
+                return
+            next_tick += period
+            delay = next_tick - time.monotonic()
+            if delay > 0.0:
+                time.sleep(delay)
+            elif delay < -period:
+                next_tick = time.monotonic()  # fell behind: the next tick catches the steps up
+
+    def stop_stepping(self) -> None:
+        """End the stepping thread (before the node's publishers go)."""
+        self._stopping.set()
+        if self._stepping.is_alive() and self._stepping is not threading.current_thread():
+            self._stepping.join(timeout=1.0)
+
+    def destroy_node(self):
+        self.stop_stepping()
+        return super().destroy_node()
 
     def _on_tick(self) -> None:
         now = time.monotonic()
@@ -346,10 +387,16 @@ class ScaraSim(Node):
                 f'{clock.dropped} steps dropped')
 
 
+def _stop(node: ScaraSim) -> None:
+    node.stop_stepping()
+    node.get_logger().info(node.summary())
+
+
 def main(args=None):
-    # EventsExecutor halves the CPU of the 1 kHz loop (bench/bench_sim.py).
+    # The EventsExecutor (for the command callbacks) at a fraction of the CPU of the
+    # SingleThreadedExecutor (bench/bench_sim.py).
     return run_node(ScaraSim, NODE_NAME, EventsExecutor, args,
-                    on_stop=lambda node: node.get_logger().info(node.summary()))
+                    exit_code=lambda node: None if node.failure is None else 1, on_stop=_stop)
 
 
 if __name__ == '__main__':

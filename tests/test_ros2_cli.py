@@ -251,10 +251,12 @@ def test_bag_play_is_recorded_again_message_for_message(nodes, ros_domain, tmp_p
     # --delay: play, like rosbag2's, does not wait for subscribers, and a new participant
     # such as play's learns of a running node only at its next periodic announcement (every
     # 0.5 s with config/fastdds.xml; with Fast DDS's 3 s, 3.5 s of delay once lost the first
-    # 0.1 s of play).
+    # 0.1 s of play). --wait-for-all-acked: play ends only once the recorder has everything
+    # (with 5 s, a recorder slowed down beside the unit tests had 3883 of 12246 when play
+    # ended, and the rest went with it).
     play = ros2(ros_domain, 'bag', 'play', FOLLOW_BAG, '--rate', '2', '--topics', *topics,
-                '--delay', '2', '--wait-for-all-acked', '5000',
-                '--qos-profile-overrides-path', str(overrides), timeout=60.0)
+                '--delay', '2', '--wait-for-all-acked', '30000',
+                '--qos-profile-overrides-path', str(overrides), timeout=90.0)
     assert (play.returncode, play.stdout, play.stderr) == (0, '', '')
     with Reader(FOLLOW_BAG) as reader:
         total = sum(c.msgcount for c in reader.connections if c.topic in topics)

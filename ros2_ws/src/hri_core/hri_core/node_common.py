@@ -17,6 +17,7 @@ node leaves the loop, logs its summary and exits 0.
 """
 
 import faulthandler
+import gc
 import math
 import os
 import signal
@@ -244,6 +245,22 @@ def spin_until_stopped(executor, stop: threading.Event,
         executor.spin_once(timeout_sec=0.1)
 
 
+def leave_startup_objects_to_the_collector() -> None:
+    """Move every object alive now (the imported modules, message types) out of the garbage
+    collector's reach (gc.freeze), after one full collection; run before the node is made.
+
+    A full pass of Python's cyclic collector visits every tracked object: the controller holds
+    about 38,500 once up, and a full pass took 14.7 ms (idle machine), a stall of the 1 kHz
+    loop whenever the collector's heuristics start one (in 20 kill rounds of the kill test,
+    15 commands held over 20 ms, some far from any kill; with the freeze after the node was
+    made, one, 57 ms, in a new sim: that collection itself, with its stepping thread already
+    running). Frozen, a full pass visits only what was made since (0.0 ms right after).
+    Objects made later are collected as usual.
+    """
+    gc.collect()
+    gc.freeze()
+
+
 def run_node(create_node: Callable[[], Node], node_name: str, executor_class=None,
              args=None, exit_code: Callable[[Node], int | None] | None = None,
              on_stop: Callable[[Node], None] | None = None) -> int:
@@ -268,6 +285,7 @@ def run_node(create_node: Callable[[], Node], node_name: str, executor_class=Non
     executor = None
     code = 0
     try:
+        leave_startup_objects_to_the_collector()
         node = create_node()
         executor = (executor_class or SingleThreadedExecutor)()
         executor.add_node(node)

@@ -13,7 +13,7 @@ import time
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
-from rclpy.experimental import EventsExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from hri_core import topics
@@ -126,8 +126,7 @@ class HandSim(Node):
 
 
 def main(args=None):
-    # The EventsExecutor: a 100 Hz timer on the SingleThreadedExecutor took 12.5 % of a core.
-    return run_node(HandSim, NODE_NAME, EventsExecutor, args)
+    return run_node(HandSim, NODE_NAME, SingleThreadedExecutor, args)
 
 
 if __name__ == '__main__':

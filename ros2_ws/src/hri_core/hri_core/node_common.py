@@ -254,8 +254,8 @@ def leave_startup_objects_to_the_collector() -> None:
     loop whenever the collector's heuristics start one (in 20 kill rounds of the kill test,
     15 commands held over 20 ms, some far from any kill; with the freeze after the node was
     made, one, 57 ms, in a new sim: that collection itself, with its stepping thread already
-    running). Frozen, a full pass visits only what was made since (0.0 ms right after).
-    Objects made later are collected as usual.
+    running). Frozen, a full pass visits only what was made since: the controller node's
+    4,800 objects, 1.3 ms. Objects made later are collected as usual.
     """
     gc.collect()
     gc.freeze()

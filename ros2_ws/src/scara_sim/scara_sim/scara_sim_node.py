@@ -186,7 +186,16 @@ class ScaraSim(Node):
             f'{np.round(self._sim.q, 4).tolist()} rad; effort limit {self._effort_limit:g} '
             f'N m, command timeout {self._command_timeout:g} s')
         request_realtime(self, values['realtime_priority'])
-        self._stepping.start()  # after request_realtime: the thread inherits the policy
+        # The first tick once the executor runs, as with the timer before: the process's own
+        # set-up after this (the executor, its entities) could keep a running stepping thread
+        # from its ticks, and a stall of over max_catch_up_steps drops steps, after which the
+        # stamps lag real time for good.
+        self._start_timer = self.create_timer(0.0, self._start_stepping)
+
+    def _start_stepping(self) -> None:
+        self._start_timer.cancel()
+        if not self._stepping.is_alive() and not self._stopping.is_set():
+            self._stepping.start()
 
     # Parameters -------------------------------------------------------------------------
 

@@ -45,7 +45,6 @@ import json
 import os
 import shutil
 import signal
-import struct
 import subprocess
 import sys
 import tempfile
@@ -66,6 +65,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from hri_bringup.processes import RosProbe, start_live_loop, wait_for  # noqa: E402
+from hri_core.cdr import read_stamp  # noqa: E402
 from hri_core.realtime import request_sched_fifo  # noqa: E402
 from hri_core.topics import COMMAND_QOS, MONITOR_QOS  # noqa: E402
 
@@ -75,7 +75,6 @@ CONTROL_RATE_HZ = 1000.0  # the controller's default rate_hz
 DEADLINE_S = 1.5e-3  # a command later than this after its joint state misses its deadline
 ECHO = REPO_ROOT / 'bench' / 'echo_node.py'
 BUSY_LOOP = 'while True: pass'
-STAMP = struct.Struct('<iI')  # builtin_interfaces/Time in little-endian CDR
 
 
 def parse_arguments(argv=None) -> argparse.Namespace:
@@ -218,7 +217,7 @@ class JointStateTimes:
         # argument to internal routine"), so the middleware's receive timestamp is not at hand.
         if self.recording.is_set():
             received = time.time_ns()
-            sec, nanosec = STAMP.unpack_from(msg, 4)
+            sec, nanosec = read_stamp(msg)
             self.stamps.append(sec * 10**9 + nanosec)
             self.received.append(received)
 

@@ -79,10 +79,10 @@ from hri_core import topics
 from hri_core.cdr import (
     POSITION,
     VELOCITY,
+    LayoutReader,
     float64_array_template,
     joint_state_layout,
     read_stamp,
-    read_values,
 )
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
@@ -233,7 +233,8 @@ class Controller(Node):
         self._input_age = 0.0
         # The 1 kHz messages as raw CDR (hri_core.cdr): joint states read at fixed offsets
         # while their layout holds, commands written from a template.
-        self._joint_layout = None
+        self._joint_reader = LayoutReader(lambda data: joint_state_layout(
+            data, JOINT_NAMES, (POSITION, VELOCITY), one_value_per_name=True))
         self._command_template = float64_array_template(len(JOINT_NAMES))
 
         command = topics.VELOCITY_COMMANDS if self._velocity_mode else topics.EFFORT_COMMANDS
@@ -271,21 +272,15 @@ class Controller(Node):
         """A joint state as serialized CDR: read at fixed offsets while the layout of the
         messages holds (names, lengths, frame_id), else through rclpy's deserialiser and
         _on_joint_state's checks."""
-        layout = self._joint_layout
-        values = None if layout is None else read_values(data, layout)
+        values = self._joint_reader.read(data)
         if values is None:
-            layout = joint_state_layout(data, JOINT_NAMES, (POSITION, VELOCITY),
-                                        one_value_per_name=True)
-            if layout is None:
-                try:
-                    msg = deserialize_message(data, JointState)
-                except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
-                    self._warn('joint_state_cdr', f'joint state dropped: unreadable ({error})')
-                    return
-                self._on_joint_state(msg)
+            try:
+                msg = deserialize_message(data, JointState)
+            except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
+                self._warn('joint_state_cdr', f'joint state dropped: unreadable ({error})')
                 return
-            self._joint_layout = layout
-            values = read_values(data, layout)
+            self._on_joint_state(msg)
+            return
         sec, nanosec = read_stamp(data)
         self._accept_joint_state(values[0:2], values[2:4], sec + 1e-9 * nanosec)
 

@@ -8,7 +8,8 @@ sequence lengths), so the nodes and the bag reader read and write them as serial
 * reading: the first message of a stream gives a `CdrLayout` (a short CDR walk); every later
   message with the same length and the same bytes wherever the layout could differ
   (encoding, string and sequence lengths, joint names) shares it, and its float64 values are
-  read at fixed offsets (`read_values`; `read_float64s` does a whole bag at once); any other
+  read at fixed offsets (`read_values`, `LayoutReader` for a stream; `read_float64s` does a
+  whole bag at once); any other
   message goes to the full deserialiser (rclpy's or rosbags'), which stays the reference;
 * writing: `MessageTemplate` lays a message out once (`joint_state_template`,
   `point_stamped_template`, `float64_array_template`) and then fills in the stamp and the
@@ -16,14 +17,16 @@ sequence lengths), so the nodes and the bag reader read and write them as serial
 
 CDR here is plain little-endian CDR (XCDR1) as Fast DDS writes it on this hardware: a 4-byte
 encapsulation header (byte 1: 0x01), then the fields, each aligned to its size counted from the
-byte after that header (a float64 sequence is aligned to 8 even when empty, as Fast CDR does;
-padding bytes are left unset by it, so they are never compared). A std_msgs/Header is the stamp
-(int32 sec, uint32 nanosec) and the frame_id (uint32 length including the NUL, the characters,
-the NUL). No ROS import: the unit tests hold these equal to rclpy's serialiser.
+byte after that header (an empty float64 sequence is not aligned; Fast CDR leaves padding bytes
+unset, so they are never compared, and for messages with an empty sequence rclpy's serialiser
+gave 4-8 bytes more than their fields, which a layout does not take: such messages go to the
+full deserialiser). A std_msgs/Header is the stamp (int32 sec, uint32 nanosec) and the frame_id
+(uint32 length including the NUL, the characters, the NUL). No ROS import: the unit tests hold
+these equal to rclpy's serialiser.
 """
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +70,27 @@ def read_values(data: bytes, layout: CdrLayout) -> tuple[float, ...] | None:
         return None
     unpack = _FLOAT64.unpack_from
     return tuple(unpack(data, offset)[0] for offset in layout.offsets)
+
+
+class LayoutReader:
+    """The float64 values of one stream's messages, read at the offsets of the last layout
+    found: `find_layout(data)` gives a message's CdrLayout (or None) when the last one no
+    longer fits."""
+
+    def __init__(self, find_layout: Callable[[bytes], CdrLayout | None]):
+        self._find_layout = find_layout
+        self._layout: CdrLayout | None = None
+
+    def read(self, data: bytes) -> tuple[float, ...] | None:
+        """The wanted values of `data`; None if it has no layout that `find_layout` knows."""
+        values = None if self._layout is None else read_values(data, self._layout)
+        if values is None:
+            layout = self._find_layout(data)
+            if layout is None:
+                return None
+            self._layout = layout
+            values = read_values(data, layout)
+        return values
 
 
 def read_stamp(data: bytes) -> tuple[int, int]:
@@ -132,7 +156,9 @@ def joint_state_layout(data: bytes, joints: Sequence[str],
             position = _aligned(position, 4)
             checks.append((position, position + 4))
             count = _u32(data, position)
-            position = _aligned(position + 4, 8)
+            position += 4
+            if count:
+                position = _aligned(position, 8)
             sequences.append((position, count))
             position += 8 * count
     except IndexError:
@@ -166,7 +192,9 @@ def float64_array_layout(data: bytes) -> CdrLayout | None:
         position = _aligned(position, 4) + 4  # data_offset
         counted = position
         count = _u32(data, position)
-        position = _aligned(position + 4, 8)
+        position += 4
+        if count:
+            position = _aligned(position, 8)
     except IndexError:
         return None
     size = position + 8 * count
@@ -224,8 +252,9 @@ class _Writer:
         self.data.extend(encoded)
 
     def float64s(self, count: int) -> None:
-        """A run of `count` float64 values (zeros in the template)."""
-        self._align(8)
+        """A run of `count` float64 values (zeros in the template), aligned if any."""
+        if count:
+            self._align(8)
         self.runs.append((len(self.data), count))
         self.data.extend(b'\x00' * (8 * count))
 

@@ -45,10 +45,10 @@ from std_msgs.msg import Float64MultiArray
 
 from hri_core import topics
 from hri_core.cdr import (
+    LayoutReader,
     float64_array_layout,
     joint_state_template,
     point_stamped_template,
-    read_values,
 )
 from hri_core.dynamics import ScaraParameters, forward_kinematics_pair
 from hri_core.node_common import (
@@ -166,7 +166,8 @@ class ScaraSim(Node):
                                              topics.EE_POSITION.qos)
         # The 1 kHz messages as raw CDR (hri_core.cdr): commands read at fixed offsets while
         # their layout holds, states written from templates.
-        self._command_layouts = {}
+        self._command_readers = {mode: LayoutReader(float64_array_layout)
+                                 for mode in ('effort', 'velocity')}
         self.create_subscription(Float64MultiArray, topics.EFFORT_COMMANDS.name,
                                  self._on_effort, topics.EFFORT_COMMANDS.qos, raw=True)
         self.create_subscription(Float64MultiArray, topics.VELOCITY_COMMANDS.name,
@@ -251,20 +252,14 @@ class ScaraSim(Node):
     def _on_command_data(self, mode: str, data: bytes) -> None:
         """A command as serialized CDR: its values read at fixed offsets while the layout of
         the messages holds, else through rclpy's deserialiser."""
-        layout = self._command_layouts.get(mode)
-        values = None if layout is None else read_values(data, layout)
+        values = self._command_readers[mode].read(data)
         if values is None:
-            layout = float64_array_layout(data)
-            if layout is None:
-                try:
-                    values = deserialize_message(data, Float64MultiArray).data
-                except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
-                    self.get_logger().warning(f'rejected {mode} command: unreadable ({error})',
-                                              throttle_duration_sec=WARN_THROTTLE)
-                    return
-            else:
-                self._command_layouts[mode] = layout
-                values = read_values(data, layout)
+            try:
+                values = deserialize_message(data, Float64MultiArray).data
+            except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
+                self.get_logger().warning(f'rejected {mode} command: unreadable ({error})',
+                                          throttle_duration_sec=WARN_THROTTLE)
+                return
         self._accept_command(mode, values)
 
     def _accept_command(self, mode: str, data) -> None:

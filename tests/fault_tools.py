@@ -23,24 +23,37 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from hri_bringup.processes import node_environment, ros2_run_command, wait_for
+from hri_core.cdr import EFFORT, LayoutReader, joint_state_layout, read_stamp
 from hri_core.node_common import stamp_seconds
 from tests.common import REPO_ROOT
 
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+SIM_JOINTS = ('joint1', 'joint2')  # scara_sim's joints, in its order
 
 
 class RawListener:
-    """The serialised messages of one topic with their arrival times (time.monotonic())."""
+    """The serialised messages of one topic: (arrival time (time.monotonic(), s), bytes, time
+    the publisher sent it (its source timestamp, system clock, s)) each.
+
+    The arrival times are when the probe's executor took each message, which lags behind on a
+    loaded machine and then takes one message of each topic in turn; the times of sending
+    order the messages of two topics as their publishers sent them.
+    """
 
     def __init__(self, probe, topic: str, msg_type, qos: QoSProfile = RELIABLE):
         self.msg_type = msg_type
-        self.arrivals: list[tuple[float, bytes]] = []
-        probe.node.create_subscription(
-            msg_type, topic, lambda data: self.arrivals.append((time.monotonic(), data)),
-            qos, raw=True)
+        self.arrivals: list[tuple[float, bytes, float]] = []
+        probe.node.create_subscription(msg_type, topic, self._take, qos, raw=True)
+
+    def _take(self, data: bytes, info) -> None:
+        self.arrivals.append((time.monotonic(), data, info['source_timestamp'] * 1e-9))
 
     def __len__(self) -> int:
         return len(self.arrivals)
+
+    def sent_times(self) -> np.ndarray:
+        """When the publisher sent each message (system clock, s), in arrival order."""
+        return np.array([sent for _, _, sent in list(self.arrivals)])
 
     def last(self):
         """The message that arrived last, decoded (None before the first)."""
@@ -56,7 +69,7 @@ class RawListener:
         """(arrival time, message) for the messages that arrived after `since`, from the
         `start`-th on."""
         return [(arrived, deserialize_message(data, self.msg_type))
-                for arrived, data in self.arrivals[start:] if arrived > since]
+                for arrived, data, _ in self.arrivals[start:] if arrived > since]
 
 
 def log_time(line: str) -> float:
@@ -197,29 +210,85 @@ class ForkedNodes:
         self._forker.stdout.close()
 
 
-def applied_command_holds(timed_states: list, longer_than: float) -> list[tuple]:
-    """Where the sim applied one non-zero command for longer than `longer_than` s in real
-    time: the controller sent no new one (sim clock), while the sim ran on time.
+def sim_joint_efforts(listener: RawListener, start: int = 0
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times sent, stamps, applied efforts) of the raw JointStates in `listener` from the
+    `start`-th on (s, s, N m by joint1, joint2): read at the CDR offsets of the sim's layout
+    (hri_core.cdr), a message of another layout decoded in full."""
+    reader = LayoutReader(lambda data: joint_state_layout(data, SIM_JOINTS, (EFFORT,)))
+    sent_times, stamps, efforts = [], [], []
+    for _, data, sent in listener.arrivals[start:]:
+        values = reader.read(data)
+        if values is None:
+            message = deserialize_message(data, listener.msg_type)
+            values = tuple(message.effort[:2])
+            stamp = stamp_seconds(message.header.stamp)
+        else:
+            sec, nanosec = read_stamp(data)
+            stamp = sec + nanosec * 1e-9
+        sent_times.append(sent)
+        stamps.append(stamp)
+        efforts.append(values)
+    return np.array(sent_times), np.array(stamps), np.array(efforts).reshape(-1, 2)
 
-    `timed_states`: (arrival time, JointState) in arrival order. The sim applies the newest
-    command to each 1 ms step, so a controller that computes every cycle changes the effort
-    of (almost) every step. A run of equal efforts is a hold when it spans more than
-    `longer_than` s both by its stamps (sim clock) and by its arrival: a sim that stalled and
-    caught up applies one command to many steps at once, and publishes them in a burst. Zero
-    torque (a documented timeout, or no controller yet) is not a hold. Returns (first stamp,
-    stamp span, arrival span) per hold.
+
+def applied_command_holds(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndarray,
+                          longer_than: float) -> list[tuple[float, float, float]]:
+    """Where the sim applied one non-zero command for longer than `longer_than` s in real
+    time, from its joint states (`sim_joint_efforts`).
+
+    The sim applies the newest command to each 1 ms step, so a controller that computes every
+    cycle changes the effort of (almost) every step. A run of equal efforts is a hold when it
+    spans more than `longer_than` s both by its stamps (sim clock) and by when they were sent:
+    a sim that stalled and caught up applies one command to many steps at once, and sends
+    them in a burst. Zero torque (a documented timeout, or no controller yet) is not a hold.
+    Returns (first stamp, stamp span, span of sending) per hold.
     """
+    if len(stamps) == 0:
+        return []
+    changes = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
+    starts = np.concatenate(([0], changes))
+    ends = np.concatenate((changes, [len(stamps)])) - 1
     holds = []
-    start = 0
-    for end in range(1, len(timed_states) + 1):
-        if end < len(timed_states) and \
-                list(timed_states[end][1].effort) == list(timed_states[start][1].effort):
-            continue
-        (first_arrival, first), (last_arrival, last) = timed_states[start], timed_states[end - 1]
-        stamp_span = stamp_seconds(last.header.stamp) - stamp_seconds(first.header.stamp)
-        if any(first.effort) and stamp_span > longer_than and \
-                last_arrival - first_arrival > longer_than:
-            holds.append((stamp_seconds(first.header.stamp), stamp_span,
-                          last_arrival - first_arrival))
-        start = end
+    for first, last in zip(starts, ends, strict=True):
+        stamp_span = stamps[last] - stamps[first]
+        if np.any(efforts[first]) and stamp_span > longer_than and \
+                sent[last] - sent[first] > longer_than:
+            holds.append((float(stamps[first]), float(stamp_span),
+                          float(sent[last] - sent[first])))
     return holds
+
+
+def controller_gaps(joints: RawListener, commands: RawListener, longer_than: float,
+                    steady: float = 0.008) -> list[tuple[float, float, float]]:
+    """Where the sim, running steadily, applied one non-zero command for longer than
+    `longer_than` s of its clock while the controller sent no command at all.
+
+    From the sim's joint states (`sim_joint_efforts`, in the order sent) and the times the
+    controller sent its commands (their source timestamps: the probe's own delays and its
+    order of taking do not count). A run of equal applied efforts is judged only where the sim
+    sent a joint state at least every `steady` s (the probe loses messages of the 1 kHz streams
+    now and then): a sim that stalled holds its last command however the controller runs.
+    A command the controller sent inside the run, which the sim did not apply, is not the
+    controller's gap. Returns (time the run's first joint state was sent, its span by stamps,
+    longest spacing of its joint states) per gap.
+    """
+    sent, stamps, efforts = sim_joint_efforts(joints)
+    if len(sent) < 2:
+        return []
+    order = np.argsort(sent, kind='stable')
+    sent, stamps, efforts = sent[order], stamps[order], efforts[order]
+    command_sent = np.sort(commands.sent_times())
+    changes = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
+    gaps = []
+    for first, end in zip(np.concatenate(([0], changes)),
+                          np.concatenate((changes, [len(sent)])), strict=True):
+        span = stamps[end - 1] - stamps[first]
+        if not np.any(efforts[first]) or span <= longer_than:
+            continue
+        spacing = float(np.max(np.diff(sent[first:end])))
+        answered = np.searchsorted(command_sent, sent[end - 1]) - \
+            np.searchsorted(command_sent, sent[first], side='right')
+        if spacing <= steady and answered == 0:
+            gaps.append((float(sent[first]), float(span), spacing))
+    return gaps

@@ -3,7 +3,7 @@
 The closed loop (scara_sim, event_manager, controller, hand_sim) runs with Table I's tasks
 while one process is killed with SIGKILL: without the sim the controller commands zero
 torque within `joint_state_timeout` and resumes when a new sim comes (five times in a row;
-with `--all`, every peer killed twenty times in a row);
+and every peer killed twenty times in a row, the controller answering every joint state);
 without the controller the sim applies zero torque after `command_timeout`; without the
 event_manager the controller fades the task out after `task_state_timeout` and in again when
 TaskStates return, with no torque step. Every node's clean stop on SIGINT and SIGTERM:
@@ -34,9 +34,11 @@ from tests.fault_tools import (
     RawListener,
     applied_command_holds,
     assert_all_finite,
+    controller_gaps,
     effort_change_per_step,
     lines_after,
     log_time,
+    sim_joint_efforts,
 )
 
 # The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
@@ -65,18 +67,18 @@ TASK_FADE_TIME = 0.5  # s, the controller's fade when TaskStates stop or return 
 MAX_EFFORT_STEP = 1.0 + 1e-9  # N m per 1 ms control cycle (the rate limit's own, to an ulp)
 SIM_RESTARTS = 5
 RESUME_WITHIN = 1.0  # s from a restarted sim's first joint state to control
-# The kill test: each peer killed this many times in a row, DWELL s of running between kills,
-# and the longest the sim may apply one command while it runs: a quarter of its
-# command_timeout, so that a stop of the controller shows long before the sim would zero the
-# torque itself. With SCHED_FIFO, the holds were 20-57 ms while every node's start-up objects
-# were left to Python's cyclic collector (a full pass: about 15 ms in the controller); with
-# them frozen (node_common.leave_startup_objects_to_the_collector), at most 24 ms (issue 15
-# asks for 20); without SCHED_FIFO, up to 215 ms.
+# The kill test: each peer killed this many times in a row, DWELL s of running between kills.
+# The controller must answer every joint state it gets within MAX_ANSWER (issue 15: no gap
+# over 20 ms in its commands while it has fresh input; a zero-torque timeout is an answer).
+# How long the sim applied one command is reported, not bounded: it also counts the sim's own
+# stalls, and on this 2-core virtual machine a SCHED_FIFO thread that only sleeps to 1 ms
+# ticks woke up to 7-10 ms late (the host's scheduling), and a publish of the sim's stepping
+# thread, with the interpreter lock held, was seen to take 15-57 ms.
 OTHER_PEERS = ('hand_sim', 'recorder', 'event_manager')
 PEERS = ('scara_sim', *OTHER_PEERS)
 KILLS = 20
 DWELL = 0.15  # s
-MAX_HOLD = 0.05  # s
+MAX_ANSWER = 0.02  # s
 REALTIME_PRIORITY = 50
 # A hand circling 0.1 m or less from the arm: the arm follows it, the torque changes every
 # cycle and stays far below the effort limit (a clamped torque would look like a held one).
@@ -192,31 +194,33 @@ def peer_parameters(name: str, tmp_path, incarnation: int) -> dict:
     return {'realtime_priority': REALTIME_PRIORITY}
 
 
-# Slow (about 150 s): scripts/test.sh --all runs it.
-@pytest.mark.slow
-def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
+def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
         nodes, probe, ros_domain, tmp_path):
     """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
     restarted KILLS times in a row around the real controller, which runs with the sim at
-    SCHED_FIFO (as on a robot's computer; without it, the sim held one command for up to
-    215 ms while peers restarted on the two cores). While a sim runs, it never applies one
-    command for over MAX_HOLD; without the sim the controller commands zero torque within
+    SCHED_FIFO (as on a robot's computer). The controller answers every joint state it gets
+    with a command within MAX_ANSWER; without the sim it commands zero torque within
     joint_state_timeout; a new sim gets commands within RESUME_WITHIN of its ready line. The
-    peers are forked (tests/node_forker.py): the same nodes, started without Python's start-up.
+    peers are forked (tests/node_forker.py): the same nodes, started without Python's start-up;
+    the others start while the sim is killed and restarted.
     """
     states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     joints = RawListener(probe, '/joint_states', JointState)
+    commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
     forked = ForkedNodes(ros_domain, tmp_path)
     peers = {}
+    logs = {}
     incarnations = itertools.count()
-    events = []  # (ROS time, what happened): where a hold falls, in its assertion message
+    events = []  # (system time, what happened): where a late answer falls, in its message
 
-    def start(*names: str) -> list[float]:
-        """Fork `names` at once; the time of each one's ready line (ROS clock, s)."""
-        logs = {}
+    def fork(*names: str) -> None:
         for name in names:
             peers[name], logs[name] = forked.start(
                 name, peer_parameters(name, tmp_path, next(incarnations)))
+        events.append((time.time(), f'fork {", ".join(names)}'))
+
+    def ready_times(*names: str) -> list[float]:
+        """The time of each one's ready line (ROS clock, s), once all have logged it."""
         ready = {}
 
         def all_ready() -> bool:
@@ -229,15 +233,15 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
 
         assert wait_for(all_ready, 10.0, period=0.01), (set(names) - set(ready), [
             logs[name].read_text() for name in names if logs[name].exists()])
-        events.append((probe_time(probe), f'{", ".join(names)} up'))
         return [ready[name] for name in names]
 
     def kill(*names: str) -> None:
-        events.append((probe_time(probe), f'kill {", ".join(names)}'))
+        events.append((time.time(), f'kill {", ".join(names)}'))
         assert forked.kill(*(peers[name] for name in names)), names
 
     try:
-        start(*PEERS)
+        fork(*PEERS)
+        ready_times(*PEERS)
         controller = nodes('hri_adaptive_controller', 'controller',
                            params={'realtime_priority': REALTIME_PRIORITY})
         assert wait_for(lambda: states and states[-1].status == 'ok'
@@ -245,7 +249,7 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
         resumed = []
         for kill_round in range(KILLS):
             kill(*OTHER_PEERS)
-            start(*OTHER_PEERS)
+            fork(*OTHER_PEERS)
             time.sleep(DWELL)
             killed_at = probe_time(probe)
             kill('scara_sim')
@@ -254,28 +258,31 @@ def test_each_peer_killed_twenty_times_the_controller_commands_every_cycle(
             # Zero torque within joint_state_timeout of the kill, held while the sim is gone.
             assert_zero_torque_without_sim(states, killed_at, kill_round)
             heard = len(joints)
-            sim_up, = start('scara_sim')
+            fork('scara_sim')
+            sim_up, *_ = ready_times('scara_sim', *OTHER_PEERS)
 
-            def first_controlled(heard=heard, killed_at=killed_at):
-                """The new sim's first joint state with a command of the controller in it."""
-                return next((m for m in joints.messages(start=heard)
-                             if stamp_seconds(m.header.stamp) > killed_at and any(m.effort)),
-                            None)
+            def first_controlled(heard=heard, killed_at=killed_at) -> float | None:
+                """Stamp of the new sim's first joint state with a command of the controller
+                in it."""
+                _, stamps, efforts = sim_joint_efforts(joints, heard)
+                controlled = np.flatnonzero((stamps > killed_at) & np.any(efforts, axis=1))
+                return float(stamps[controlled[0]]) if len(controlled) else None
 
             assert wait_for(lambda: first_controlled() is not None, 10.0), \
                 (kill_round, controller.log()[-2000:])
-            resumed.append(stamp_seconds(first_controlled().header.stamp) - sim_up)
+            resumed.append(first_controlled() - sim_up)
             time.sleep(DWELL)
-        holds = applied_command_holds(joints.timed(), 0.0)
-        longest = max((span for _, span, _ in holds), default=0.0)
+        late = controller_gaps(joints, commands, MAX_ANSWER)
+        holds = applied_command_holds(*sim_joint_efforts(joints), 0.0)
         print(f'{KILLS} kills of each peer; control resumed {max(resumed):.3f} s at most after '
-              f'a new sim\'s ready line (median {np.median(resumed):.3f}); longest command '
-              f'held by the sim {longest * 1e3:.0f} ms')
+              f'a new sim\'s ready line (median {np.median(resumed):.3f}); '
+              f'{len(joints)} joint states, {len(commands)} commands, {len(late)} gaps of '
+              f'the controller over {MAX_ANSWER * 1e3:.0f} ms; longest command held by the sim '
+              f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms')
         assert max(resumed) <= RESUME_WITHIN, resumed
-        holds = applied_command_holds(joints.timed(), MAX_HOLD)
-        assert holds == [], [(round(first - events[0][0], 3), round(span, 3), [
-            (round(t - first, 3), what) for t, what in events if -1.0 < t - first < 0.5])
-            for first, span, _ in holds]
+        assert late == [], [(round(at - events[0][0], 3), round(span, 3), [
+            (round(t - at, 3), what) for t, what in events if -1.0 < t - at < 0.5])
+            for at, span, _ in late[:20]]
         log = controller.log()
         assert log.count('joint states resumed') >= KILLS, log
         assert 'Traceback' not in log

@@ -78,7 +78,7 @@ class Streams:
         """Times (N,) s and end-effector positions (N, 2) m stamped in [start, end]."""
         arrivals = list(self.raw_ee.arrivals)
         self.ee += [deserialize_message(data, PointStamped)  # only the new ones
-                    for _, data in arrivals[len(self.ee):]]
+                    for _, data, _ in arrivals[len(self.ee):]]
         rows = np.array([(stamp(m), m.point.x, m.point.y) for m in self.ee]).reshape(-1, 3)
         rows = rows[(rows[:, 0] >= start) & (rows[:, 0] <= end)]
         return rows[:, 0], rows[:, 1:]

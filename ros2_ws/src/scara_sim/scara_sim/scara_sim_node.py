@@ -377,8 +377,10 @@ class ScaraSim(Node):
         if late or dropped:
             self.get_logger().info(
                 f'timing over {now - self._last_report:.1f} s: {ticks} ticks, {late} late '
-                f'(caught up), {dropped} steps dropped (> {self._max_catch_up} per tick)')
+                f'(caught up; at most {clock.longest_catch_up} steps at one tick), '
+                f'{dropped} steps dropped (> {self._max_catch_up} per tick)')
         self._reported = (clock.late_ticks, clock.dropped, clock.ticks)
+        clock.start_window()
         self._last_report = now
 
     def summary(self) -> str:

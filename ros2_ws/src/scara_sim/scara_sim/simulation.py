@@ -242,6 +242,7 @@ class FixedStepClock:
     ticks: int = 0
     late_ticks: int = 0
     idle_ticks: int = 0
+    longest_catch_up: int = 0  # most steps owed at one tick since start_window()
 
     def __post_init__(self):
         if not (math.isfinite(self.dt) and self.dt > 0.0):
@@ -258,11 +259,16 @@ class FixedStepClock:
             return 0
         if owed > 1:
             self.late_ticks += 1
+        self.longest_catch_up = max(self.longest_catch_up, owed)
         steps = min(owed, self.max_catch_up)
         self.dropped += owed - steps
         self.accounted += owed
         self.integrated += steps
         return steps
+
+    def start_window(self) -> None:
+        """Start a new window of `longest_catch_up` (a report period)."""
+        self.longest_catch_up = 0
 
     @property
     def sim_time(self) -> float:

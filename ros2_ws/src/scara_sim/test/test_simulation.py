@@ -140,8 +140,11 @@ def test_fixed_step_clock_counts_late_ticks_and_bounds_catch_up():
     assert clock.steps_due(10.0019) == 1          # slightly early: one step
     assert clock.steps_due(10.0040) == 2          # one tick dropped by the timer
     assert clock.late_ticks == 1
+    assert clock.longest_catch_up == 2
+    clock.start_window()
     assert clock.steps_due(10.0140) == 5          # ten owed, five run, five dropped
     assert clock.dropped == 5
+    assert clock.longest_catch_up == 10
     assert clock.integrated == 9
     assert clock.sim_time == pytest.approx(0.014)
     assert clock.steps_due(10.0141) == 0

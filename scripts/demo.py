@@ -94,6 +94,7 @@ QUICK_PAUSE = 2.0  # s, longest pause of a hand at a waypoint
 # --quick demonstrations: the human pushes sooner and holds still 1.5 s (the learner needs the
 # final rest, not its length).
 QUICK_DEMONSTRATION = {'start_delay': 0.5, 'hold_time': 1.5}
+MAX_DOMAIN_ID = 232  # the highest ROS_DOMAIN_ID whose Fast DDS ports fit below 65536
 SEQUENCE_HAND = {'profile': 'hold', 'start': [0.45, 0.10]}
 SEQUENCE_EVENTS = (('hand_too_close', 'avoid'), ('keep_company', 'follow_safe'))
 RUN_TOPICS = ['/hri/controller_state', '/hri/task_state', '/target', '/ee_position',
@@ -193,8 +194,11 @@ class Demo:
         self._last_progress = ('', -1)
 
     # -- processes ---------------------------------------------------------------------
-    def start(self, package: str, executable: str, **params) -> NodeProcess:
-        process = start_node(package, executable, self.domain_id, params=params,
+    def start(self, package: str, executable: str, domain: int | None = None,
+              **params) -> NodeProcess:
+        """Start a node on `domain` (default: the demo's) with `params`."""
+        process = start_node(package, executable,
+                             self.domain_id if domain is None else domain, params=params,
                              log_dir=self.logs)
         self.running.append(process)
         return process
@@ -245,25 +249,32 @@ class Demo:
 
     # -- stage 1 -----------------------------------------------------------------------
     def record_demonstrations(self) -> None:
-        for name, demo in DEMONSTRATIONS.items():
+        # The demonstrations are independent: each runs on a domain of its own (the demo's
+        # domain and the ones after it), side by side.
+        sessions = {}
+        for offset, (name, demo) in enumerate(DEMONSTRATIONS.items()):
             bag = self.bags / name
             shutil.rmtree(bag, ignore_errors=True)
             stop = demo.get('stop_distance', demo.get('safe_distance'))
             print(f'  demonstration {name!r}: human pushes the arm ({demo["mode"]}), '
                   f'x_r = {demo["reference"]}, stops {stop} m from it')
             self.metrics.setdefault('demonstrations', {})[name] = demo
-            sim = self.start('scara_sim', 'scara_sim')
-            recorder = self.start('hri_demo_learning', 'recorder', output=str(bag))
+            domain = self.domain_id + offset
+            sim = self.start('scara_sim', 'scara_sim', domain=domain)
+            recorder = self.start('hri_demo_learning', 'recorder', domain=domain,
+                                  output=str(bag))
             timing = QUICK_DEMONSTRATION if self.quick else {}
-            human = self.start('scara_sim', 'demonstrator', **demo, **timing)
-            started = time.monotonic()
-            while human.alive():
-                if time.monotonic() - started > 90.0:
-                    raise StageError(f'demonstrator {name} did not finish in 90 s')
-                self.progress(f'{name}: demonstrating', min((time.monotonic() - started) / 15,
-                                                            0.99))
-                time.sleep(0.2)
-            self.progress_done(f'{name}: demonstrating')
+            human = self.start('scara_sim', 'demonstrator', domain=domain, **demo, **timing)
+            sessions[name] = (bag, sim, recorder, human)
+        started = time.monotonic()
+        label = f'{", ".join(sessions)}: demonstrating'
+        while any(human.alive() for *_, human in sessions.values()):
+            if time.monotonic() - started > 90.0:
+                raise StageError('the demonstrators did not finish in 90 s')
+            self.progress(label, min((time.monotonic() - started) / 15, 0.99))
+            time.sleep(0.2)
+        self.progress_done(label)
+        for name, (bag, sim, recorder, human) in sessions.items():
             if human.process.returncode != 0:
                 raise StageError(f'demonstrator {name} exited {human.process.returncode}; '
                                  f'log {human.log_path}')
@@ -611,7 +622,14 @@ def main() -> int:
     out = args.out.resolve()
     for sub in ('logs', 'bags', 'tasks', 'figures'):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    domain = int(os.environ.get('HRI_DEMO_DOMAIN_ID', 60 + os.getpid() % 40))
+    domain_text = os.environ.get('HRI_DEMO_DOMAIN_ID', str(60 + os.getpid() % 40))
+    # The demonstrations run side by side on this domain and the ones after it.
+    highest = MAX_DOMAIN_ID - (len(DEMONSTRATIONS) - 1)
+    if not (domain_text.isdigit() and int(domain_text) <= highest):
+        print(f'[demo] HRI_DEMO_DOMAIN_ID must be an integer from 0 to {highest}, got '
+              f'{domain_text!r}', file=sys.stderr)
+        return 2
+    domain = int(domain_text)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     demo = Demo(out, args.quick, domain)
     stages = [

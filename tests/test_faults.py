@@ -1,12 +1,12 @@
 """Process faults on topics: nodes killed and restarted mid-run, and every node's clean stop.
 
 The closed loop (scara_sim, event_manager, controller, hand_sim) runs with Table I's tasks
-while one process is killed with SIGKILL: each peer killed and restarted twenty times in a
-row, the controller answering every joint state, commanding zero torque within
-`joint_state_timeout` of a sim's kill and controlling a new sim within a second; without the controller the sim applies zero torque after `command_timeout`; without the
-event_manager the controller fades the task out after `task_state_timeout` and in again when
-TaskStates return, with no torque step. Every node's clean stop on SIGINT and SIGTERM:
-tests/test_node_exit.py.
+while processes are killed with SIGKILL: each peer killed and restarted twenty times in a row,
+the controller answering every joint state, commanding zero torque within
+`joint_state_timeout` of a sim's kill and controlling a new sim within a second; without the
+controller the sim applies zero torque after `command_timeout`; without the event_manager the
+controller fades the task out after `task_state_timeout` and in again when TaskStates return,
+with no torque step. Every node's clean stop on SIGINT and SIGTERM: tests/test_node_exit.py.
 
 A recorder killed with SIGKILL keeps a readable bag: tests/test_recorder.py
 (test_sigkill_loses_at_most_the_last_second).

@@ -37,14 +37,17 @@ if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; 
     "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --require-virtualenv "$@"
   }
   # uv (pinned in the lock, bootstrapped with pip) installs the ~180 wheels in parallel and
-  # byte-compiles them: seconds instead of pip's minute. It copies rather than hard-links from
-  # its cache, since fix_wheel_cmake_paths.py edits installed files. The lock is the whole
-  # resolved set, so no resolution (--no-deps); `uv pip check` proves it complete. uv does not
-  # read pip.conf: it takes the system's CA store and UV_INDEX_URL; where that is not enough
-  # (a proxy or mirror configured for pip only), pip installs the same pins.
+  # byte-compiles them: seconds instead of pip's minute. It hard-links the files from its cache
+  # (16-18 s for the whole set-up of the environment, against 39 s copying them); nothing here
+  # edits an installed file in place (fix_wheel_cmake_paths.py writes new files and renames
+  # them over the old), so the cache keeps its originals. Where the cache is on another file
+  # system uv copies instead. The lock is the whole resolved set, so no resolution
+  # (--no-deps); `uv pip check` proves it complete. uv does not read pip.conf: it takes the
+  # system's CA store and UV_INDEX_URL; where that is not enough (a proxy or mirror configured
+  # for pip only), pip installs the same pins.
   pip_install "$(grep -E '^uv==' "$lock")"
   if ! "$venv/bin/uv" pip install --quiet --system-certs --python "$venv/bin/python" \
-      --no-deps --compile-bytecode --link-mode copy -r "$lock"; then
+      --no-deps --compile-bytecode --link-mode hardlink -r "$lock"; then
     say "uv could not install the lock (above); installing it with pip instead"
     pip_install -r "$lock"
   fi

@@ -10,7 +10,8 @@
 # lowest CPU priority (nice 19): a closed-loop test keeps about 1.7 of the two cores busy, less
 # while its processes start and stop, and the unit tests take what it leaves idle without
 # delaying it (beside phase 1, which keeps both cores busy, they slowed it by about 20 s). The
-# unit tests' report comes at the end. The exit code is non-zero if any part fails.
+# unit tests' report comes at the end. The exit code is non-zero if any part fails. The two
+# topic-level phases do not collect the packages' unit tests (HRI_TEST_SCOPE, conftest.py).
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -41,7 +42,7 @@ not_slow=${selection:+$selection and }
 echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-2}" \
   "workers" >&2
 code=0
-python -m pytest -n "${HRI_TEST_WORKERS:-2}" --dist worksteal \
+HRI_TEST_SCOPE=integration python -m pytest -n "${HRI_TEST_WORKERS:-2}" --dist worksteal \
   -m "${not_slow}integration and not exclusive" "$@" || code=$?
 tally "$code"
 echo "[test] pytest, phase 2: exclusive tests one at a time; beside them the unit tests at" \
@@ -52,7 +53,7 @@ unit_pid=$!
 # A background job of a script ignores SIGINT: end it by PID if the script ends first (^C).
 trap 'kill "$unit_pid" 2>/dev/null || true; rm -f "$unit_log"' EXIT
 code=0
-python -m pytest -m "${not_slow}exclusive" "$@" || code=$?
+HRI_TEST_SCOPE=integration python -m pytest -m "${not_slow}exclusive" "$@" || code=$?
 tally "$code"
 code=0
 wait "$unit_pid" || code=$?

@@ -153,6 +153,20 @@ def peer_parameters(name: str, tmp_path, incarnation: int) -> dict:
     return {'realtime_priority': REALTIME_PRIORITY}
 
 
+def largest_step(joints: RawListener) -> float:
+    """Largest change of the torque the sims applied per 1 ms step of their clocks (N m),
+    over the joint states the probe got (a change across lost ones is spread over their
+    steps)."""
+    sent, stamps, efforts = sim_joint_efforts(joints)
+    order = np.argsort(sent, kind='stable')
+    stamps, efforts = stamps[order], efforts[order]
+    elapsed = np.diff(stamps)
+    same_sim = (elapsed > 0.0) & (elapsed < 0.05)
+    changes = np.max(np.abs(np.diff(efforts, axis=0)), axis=1)[same_sim]
+    return float(np.max(changes / np.maximum(np.round(elapsed[same_sim] / 1e-3), 1.0),
+                        initial=0.0))
+
+
 def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
         nodes, probe, ros_domain, tmp_path):
     """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
@@ -237,7 +251,8 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
               f'a new sim\'s ready line (median {np.median(resumed):.3f}); '
               f'{len(joints)} joint states, {len(commands)} commands, {len(late)} gaps of '
               f'the controller over {MAX_ANSWER * 1e3:.0f} ms; longest command held by the sim '
-              f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms')
+              f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms; largest '
+              f'change of the applied torque per 1 ms step {largest_step(joints):.2f} N m')
         assert max(resumed) <= RESUME_WITHIN, resumed
         assert late == [], [(round(at - events[0][0], 3), round(span, 3), [
             (round(t - at, 3), what) for t, what in events if -1.0 < t - at < 0.5])

@@ -260,6 +260,7 @@ def applied_command_holds(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndar
 
 
 def controller_gaps(joints: RawListener, commands: RawListener, longer_than: float,
+                    since: float = -math.inf,
                     steady: float = 0.008) -> list[tuple[float, float, float]]:
     """Where the sim, running steadily, applied one non-zero command for longer than
     `longer_than` s of its clock while the controller sent no command at all.
@@ -270,8 +271,9 @@ def controller_gaps(joints: RawListener, commands: RawListener, longer_than: flo
     sent a joint state at least every `steady` s (the probe loses messages of the 1 kHz streams
     now and then): a sim that stalled holds its last command however the controller runs.
     A command the controller sent inside the run, which the sim did not apply, is not the
-    controller's gap. Returns (time the run's first joint state was sent, its span by stamps,
-    longest spacing of its joint states) per gap.
+    controller's gap. Only runs that start after `since` (system clock, s) are judged.
+    Returns (time the run's first joint state was sent, its span by stamps, longest spacing of
+    its joint states) per gap.
     """
     sent, stamps, efforts = sim_joint_efforts(joints)
     if len(sent) < 2:
@@ -284,7 +286,7 @@ def controller_gaps(joints: RawListener, commands: RawListener, longer_than: flo
     for first, end in zip(np.concatenate(([0], changes)),
                           np.concatenate((changes, [len(sent)])), strict=True):
         span = stamps[end - 1] - stamps[first]
-        if not np.any(efforts[first]) or span <= longer_than:
+        if sent[first] < since or not np.any(efforts[first]) or span <= longer_than:
             continue
         spacing = float(np.max(np.diff(sent[first:end])))
         answered = np.searchsorted(command_sent, sent[end - 1]) - \

@@ -619,9 +619,6 @@ def main() -> int:
     parser.add_argument('--out', type=Path, default=REPO_ROOT / 'report',
                         help='output folder (default: report/)')
     args = parser.parse_args()
-    out = args.out.resolve()
-    for sub in ('logs', 'bags', 'tasks', 'figures'):
-        (out / sub).mkdir(parents=True, exist_ok=True)
     domain_text = os.environ.get('HRI_DEMO_DOMAIN_ID', str(60 + os.getpid() % 40))
     # The demonstrations run side by side on this domain and the ones after it.
     highest = MAX_DOMAIN_ID - (len(DEMONSTRATIONS) - 1)
@@ -630,6 +627,9 @@ def main() -> int:
               f'{domain_text!r}', file=sys.stderr)
         return 2
     domain = int(domain_text)
+    out = args.out.resolve()
+    for sub in ('logs', 'bags', 'tasks', 'figures'):
+        (out / sub).mkdir(parents=True, exist_ok=True)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     demo = Demo(out, args.quick, domain)
     stages = [

@@ -213,8 +213,9 @@ class ForkedNodes:
 def sim_joint_efforts(listener: RawListener, start: int = 0
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(times sent, stamps, applied efforts) of the raw JointStates in `listener` from the
-    `start`-th on (s, s, N m by joint1, joint2): read at the CDR offsets of the sim's layout
-    (hri_core.cdr), a message of another layout decoded in full."""
+    `start`-th on (s, s, N m by joint1, joint2), in the order they were sent: read at the CDR
+    offsets of the sim's layout (hri_core.cdr), a message of another layout decoded in
+    full."""
     reader = LayoutReader(lambda data: joint_state_layout(data, SIM_JOINTS, (EFFORT,)))
     sent_times, stamps, efforts = [], [], []
     for _, data, sent in listener.arrivals[start:]:
@@ -229,7 +230,18 @@ def sim_joint_efforts(listener: RawListener, start: int = 0
         sent_times.append(sent)
         stamps.append(stamp)
         efforts.append(values)
-    return np.array(sent_times), np.array(stamps), np.array(efforts).reshape(-1, 2)
+    order = np.argsort(sent_times, kind='stable')
+    return (np.array(sent_times)[order], np.array(stamps)[order],
+            np.array(efforts).reshape(-1, 2)[order])
+
+
+def equal_effort_runs(efforts: np.ndarray) -> list[tuple[int, int]]:
+    """(first, end) index ranges of the consecutive rows of `efforts` (N, 2) that are equal."""
+    if len(efforts) == 0:
+        return []
+    changes = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
+    return list(zip(np.concatenate(([0], changes)).tolist(),
+                    np.concatenate((changes, [len(efforts)])).tolist(), strict=True))
 
 
 def applied_command_holds(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndarray,
@@ -244,13 +256,9 @@ def applied_command_holds(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndar
     them in a burst. Zero torque (a documented timeout, or no controller yet) is not a hold.
     Returns (first stamp, stamp span, span of sending) per hold.
     """
-    if len(stamps) == 0:
-        return []
-    changes = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
-    starts = np.concatenate(([0], changes))
-    ends = np.concatenate((changes, [len(stamps)])) - 1
     holds = []
-    for first, last in zip(starts, ends, strict=True):
+    for first, end in equal_effort_runs(efforts):
+        last = end - 1
         stamp_span = stamps[last] - stamps[first]
         if np.any(efforts[first]) and stamp_span > longer_than and \
                 sent[last] - sent[first] > longer_than:
@@ -276,15 +284,9 @@ def controller_gaps(joints: RawListener, commands: RawListener, longer_than: flo
     its joint states) per gap.
     """
     sent, stamps, efforts = sim_joint_efforts(joints)
-    if len(sent) < 2:
-        return []
-    order = np.argsort(sent, kind='stable')
-    sent, stamps, efforts = sent[order], stamps[order], efforts[order]
     command_sent = np.sort(commands.sent_times())
-    changes = np.flatnonzero(np.any(efforts[1:] != efforts[:-1], axis=1)) + 1
     gaps = []
-    for first, end in zip(np.concatenate(([0], changes)),
-                          np.concatenate((changes, [len(sent)])), strict=True):
+    for first, end in equal_effort_runs(efforts):
         span = stamps[end - 1] - stamps[first]
         if sent[first] < since or not np.any(efforts[first]) or span <= longer_than:
             continue

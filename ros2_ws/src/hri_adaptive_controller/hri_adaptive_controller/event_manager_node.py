@@ -47,6 +47,7 @@ from hri_core.node_common import (
     load_defaults,
     run_node,
 )
+from hri_core.paired_clocks import read_together
 from hri_core.potential import reach_shortfall
 from hri_core.task_file import TaskRecord, load_task_directory
 from hri_core.task_message import task_message, task_record
@@ -195,8 +196,9 @@ class EventManager(Node):
 
     def _publish(self) -> None:
         # The stamp is the time a is evaluated at (the controller holds a from the stamps): read
-        # together, not after the message is built, which a loaded machine may delay.
-        now, stamp = time.monotonic(), self.get_clock().now()
+        # as one instant (paired_clocks), not after the message is built, which a loaded
+        # machine may delay.
+        now, stamp = read_together(time.monotonic, self.get_clock().now)
         if self._initial_task and self._state_publisher.get_subscription_count() > 0:
             self._schedule.request(self._tasks[self._initial_task], now)
             self._initial_task = ''

@@ -54,7 +54,6 @@ import numpy as np
 from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState, TaskState
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.duration import Duration
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -96,7 +95,6 @@ from hri_core.node_common import (
     run_node,
     stamp_seconds,
 )
-from hri_core.paired_clocks import read_together
 from hri_core.potential import TaskShape
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
 
@@ -523,10 +521,7 @@ class Controller(Node):
                               input_age=self._input_age,
                               status=self._status, effort=[float(v) for v in command],
                               theta_hat=[float(v) for v in self._law.theta_hat])
-        # Stamped with the cycle's time (`now`, which a and the distance stand for) on the ROS
-        # clock, not with the time of publishing, which a preempted process may reach late.
-        read_at, clock = read_together(time.monotonic, self.get_clock().now)
-        msg.header.stamp = (clock - Duration(nanoseconds=round((read_at - now) * 1e9))).to_msg()
+        msg.header.stamp = self.get_clock().now().to_msg()
         if self._task_state is not None:
             msg.task = self._task_state.task.name
         if output is not None:

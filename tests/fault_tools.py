@@ -267,24 +267,24 @@ def applied_command_holds(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndar
     return holds
 
 
-def controller_gaps(joints: RawListener, commands: RawListener, longer_than: float,
-                    since: float = -math.inf,
+def controller_gaps(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndarray,
+                    command_sent: np.ndarray, longer_than: float, since: float = -math.inf,
                     steady: float = 0.008) -> list[tuple[float, float, float]]:
     """Where the sim, running steadily, applied one non-zero command for longer than
     `longer_than` s of its clock while the controller sent no command at all.
 
     From the sim's joint states (`sim_joint_efforts`, in the order sent) and the times the
-    controller sent its commands (their source timestamps: the probe's own delays and its
-    order of taking do not count). A run of equal applied efforts is judged only where the sim
-    sent a joint state at least every `steady` s (the probe loses messages of the 1 kHz streams
-    now and then): a sim that stalled holds its last command however the controller runs.
+    controller sent its commands (`RawListener.sent_times`, their source timestamps: the
+    probe's own delays and its order of taking do not count). A run of equal applied efforts
+    is judged only where the sim sent a joint state at least every `steady` s (the probe loses
+    messages of the 1 kHz streams now and then): a sim that stalled holds its last command
+    however the controller runs.
     A command the controller sent inside the run, which the sim did not apply, is not the
     controller's gap. Only runs that start after `since` (system clock, s) are judged.
     Returns (time the run's first joint state was sent, its span by stamps, longest spacing of
     its joint states) per gap.
     """
-    sent, stamps, efforts = sim_joint_efforts(joints)
-    command_sent = np.sort(commands.sent_times())
+    command_sent = np.sort(command_sent)
     gaps = []
     for first, end in equal_effort_runs(efforts):
         span = stamps[end - 1] - stamps[first]

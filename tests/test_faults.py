@@ -197,11 +197,10 @@ def peer_parameters(name: str, tmp_path, incarnation: int) -> dict:
     return {'realtime_priority': REALTIME_PRIORITY}
 
 
-def largest_step(joints: RawListener) -> float:
+def largest_step(stamps: np.ndarray, efforts: np.ndarray) -> float:
     """Largest change of the torque the sims applied per 1 ms step of their clocks (N m),
-    over the joint states the probe got (a change across lost ones is spread over their
-    steps)."""
-    _, stamps, efforts = sim_joint_efforts(joints)
+    from their joint states in the order sent (`sim_joint_efforts`) that the probe got (a
+    change across lost ones is spread over their steps)."""
     elapsed = np.diff(stamps)
     same_sim = (elapsed > 0.0) & (elapsed < 0.05)
     changes = np.max(np.abs(np.diff(efforts, axis=0)), axis=1)[same_sim]
@@ -295,14 +294,16 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
                 (kill_round, controller.log()[-2000:])
             resumed.append(first_controlled() - sim_up)
             time.sleep(DWELL)
-        late = controller_gaps(joints, commands, MAX_ANSWER, since=loop_up)
-        holds = applied_command_holds(*sim_joint_efforts(joints), 0.0)
+        sent, stamps, efforts = sim_joint_efforts(joints)  # decoded once, for all three
+        late = controller_gaps(sent, stamps, efforts, commands.sent_times(), MAX_ANSWER,
+                               since=loop_up)
+        holds = applied_command_holds(sent, stamps, efforts, 0.0)
         print(f'{KILLS} kills of each peer; control resumed {max(resumed):.3f} s at most after '
               f'a new sim\'s ready line (median {np.median(resumed):.3f}); '
               f'{len(joints)} joint states, {len(commands)} commands, {len(late)} gaps of '
               f'the controller over {MAX_ANSWER * 1e3:.0f} ms; longest command held by the sim '
-              f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms; largest '
-              f'change of the applied torque per 1 ms step {largest_step(joints):.2f} N m')
+              f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms; largest change '
+              f'of the applied torque per 1 ms step {largest_step(stamps, efforts):.2f} N m')
         assert max(resumed) <= RESUME_WITHIN, resumed
         assert late == [], [(round(at - events[0][0], 3), round(span, 3), [
             (round(t - at, 3), what) for t, what in events if -1.0 < t - at < 0.5])

@@ -9,8 +9,8 @@ sequence lengths), so the nodes and the bag reader read and write them as serial
   message with the same length and the same bytes wherever the layout could differ
   (encoding, string and sequence lengths, joint names) shares it, and its float64 values are
   read at fixed offsets (`read_values`, `LayoutReader` for a stream; `read_float64s` does a
-  whole bag at once); any other
-  message goes to the full deserialiser (rclpy's or rosbags'), which stays the reference;
+  whole bag at once); any other message goes to the full deserialiser (rclpy's or rosbags'),
+  which stays the reference;
 * writing: `MessageTemplate` lays a message out once (`joint_state_template`,
   `point_stamped_template`, `float64_array_template`) and then fills in the stamp and the
   float64 values of each new message.

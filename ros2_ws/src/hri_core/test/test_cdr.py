@@ -199,4 +199,3 @@ def test_a_layout_reader_follows_a_stream_whose_layout_changes():
     assert reader.read(serialize_message(joint_state(('joint1',), [7.0], [0.0], [0.0]))) is None
     assert reader.read(swapped) == (6.0, 5.0)  # the last layout found is kept
     assert len(found) == 3
-

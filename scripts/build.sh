@@ -32,4 +32,7 @@ colcon --log-level error build --symlink-install --base-paths ros2_ws/src \
     cat "$root/log/build.out" >&2
     exit 1
   }
+# The project's own modules byte-compiled now (0.5 s): with PYTHONDONTWRITEBYTECODE set, every
+# process would otherwise compile them again at import (0.1 s of CPU per node start).
+"$venv/bin/python" -m compileall -q -j 0 ros2_ws/src tests scripts bench conftest.py >/dev/null
 echo "$sources" > "$stamp"

@@ -62,6 +62,9 @@ DEMONSTRATIONS = {
     'avoid': {'mode': 'avoid', 'reference': [0.355, 0.295], 'safe_distance': 0.165},
 }
 GAUSS_NEWTON_MAX_UPDATES = 5000  # the paper's iteration counts are about 2000
+# --quick: the comparison's Gauss-Newton stops sooner (its 5000 updates took 6 s of CPU for
+# follow_safe, a third of the learning stage).
+QUICK_GAUSS_NEWTON_MAX_UPDATES = 1000
 LEARNING = {
     'follow': (['follow'], [0.0]),
     'avoid': (['avoid'], [0.0]),
@@ -85,11 +88,12 @@ BEHAVIOURS = {
                     'waypoints': [0.40, 0.25, 0.55, 0.0, 0.60, -0.05]},
 }
 # --quick: the same paths at QUICK_SPEED_UP times the speed, the hand still for at most
-# QUICK_START_DELAY s first (the robot reaches a still hand in about 0.5 s), and each run ends
-# QUICK_SETTLE s after its hand stops (time to settle plus the 2 s window of the metrics).
+# QUICK_START_DELAY s first (the robot reaches a still hand in about 0.5 s, once the task has
+# faded in over 1 s), and each run ends QUICK_SETTLE s after its hand stops (1 s to settle, then
+# the 2 s window whose median distance the metrics judge).
 QUICK_SPEED_UP = 1.6
-QUICK_START_DELAY = 2.0  # s
-QUICK_SETTLE = 4.0  # s
+QUICK_START_DELAY = 1.0  # s
+QUICK_SETTLE = 3.0  # s
 QUICK_PAUSE = 2.0  # s, longest pause of a hand at a waypoint
 # --quick demonstrations: the human pushes sooner and holds still 1.5 s (the learner needs the
 # final rest, not its length).
@@ -138,10 +142,12 @@ def effort_steps(bag: Path) -> tuple[float, float]:
     return float(np.max(np.abs(efforts[first]))), largest
 
 
-def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures: Path) -> dict:
+def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures: Path,
+                       gauss_newton_updates: int) -> dict:
     """Table I's columns for one task: the learner's fit again in-process (same defaults),
     the paper's a1, a2 scored on the same demonstration, the paper's Gauss-Newton
-    iteration run on it, and the figure overlaying P_d, the learned P and the paper's."""
+    iteration run on it (at most `gauss_newton_updates` updates), and the figure overlaying
+    P_d, the learned P and the paper's."""
     settings = load_defaults('hri_demo_learning', 'learner')
     keys = ('n', 'stationary_speed', 'workspace_radius', 'tolerance', 'max_iterations',
             'l1', 'l2', 'rest_fraction', 'max_task_speed', 'max_cost')
@@ -154,7 +160,7 @@ def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures:
     gauss_newton = fit_task_parameters(
         profile.distance, profile.energy, record.s, record.d1, record.d2, n=record.n,
         method='gauss_newton', tolerance=settings['tolerance'],
-        max_iterations=GAUSS_NEWTON_MAX_UPDATES, a1_max=learned.a1_max)
+        max_iterations=gauss_newton_updates, a1_max=learned.a1_max)
     paper_row = TaskShape(paper['s'], paper['a1'], paper['a2'], paper['d1'], paper['d2'],
                           record.n)
     plot_task_fit(profile.distance, profile.energy, record.shape,
@@ -184,6 +190,8 @@ class Demo:
     def __init__(self, out: Path, quick: bool, domain_id: int):
         self.out = out
         self.quick = quick
+        self.gauss_newton_updates = (QUICK_GAUSS_NEWTON_MAX_UPDATES if quick
+                                     else GAUSS_NEWTON_MAX_UPDATES)
         self.domain_id = domain_id
         self.logs = out / 'logs'
         self.bags = out / 'bags'
@@ -294,7 +302,7 @@ class Demo:
         with ProcessPoolExecutor(max_workers=2) as pool:
             comparisons = {name: pool.submit(compare_with_paper, name,
                                              [str(self.bags / b) for b in bags], shifts,
-                                             self.figures)
+                                             self.figures, self.gauss_newton_updates)
                            for name, (bags, shifts) in LEARNING.items()}
             self._collect_learned(learners, comparisons)
 
@@ -375,7 +383,7 @@ class Demo:
             self.behaviour_report(task, bag)
 
     def run_sequence(self) -> None:
-        step = 4.0 if self.quick else 12.0
+        step = 3.0 if self.quick else 12.0
         events = [(step * (i + 1), event, task) for i, (event, task)
                   in enumerate(SEQUENCE_EVENTS)]
         print(f'  sequence follow -> avoid -> follow_safe, events at '
@@ -549,7 +557,7 @@ class Demo:
                   'of the paper\'s a1, a2 with the learned S, d1, d2, on the same '
                   'demonstration. Gauss-Newton updates: the paper\'s iteration (eq. 9-11, the '
                   'paper\'s "Iteration" column) run on the same demonstration from the same '
-                  f'start, capped at {GAUSS_NEWTON_MAX_UPDATES}. trf evaluations: the default '
+                  f'start, capped at {self.gauss_newton_updates}. trf evaluations: the default '
                   'solver\'s (scipy least_squares) evaluations, the count in the task file.', '',
                   'Eq. 7 fits the *shape* of P to the normalised task energy, so a1, a2 need '
                   'not equal the paper\'s: they depend on how the demonstrator moved, and a1 is '

@@ -57,6 +57,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
+from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
 from hri_adaptive_controller.adaptive_law import (
@@ -444,16 +445,19 @@ class Controller(Node):
             command, self._rate_limited = self._limiter.limit(output.tau,
                                                               min(dt, self._period))
         self._command_pub.publish(self._command_template.encode(command))
+        # One read of the clock for input_age and the ControllerState's stamp: the stamp minus
+        # input_age is then exactly the stamp of the joint state the cycle ran on, and the
+        # cycle's own time lies between the two.
+        published = self.get_clock().now()
         if stamp is not None:
-            clock = self.get_clock().now().nanoseconds * 1e-9
-            self._input_age = clock - stamp
+            self._input_age = published.nanoseconds * 1e-9 - stamp
             if self._input_age > self._late:
                 self._misses += 1
         if now >= self._next_state:
             # On a fixed schedule, whatever the rate of the cycles; no catching up.
             due = self._next_state + self._state_period
             self._next_state = due if due > now else now + self._state_period
-            self._publish_state(now, output, command)
+            self._publish_state(now, output, command, published)
 
     def _link_state(self, now: float) -> WeightState:
         """The link weight at `now` (monotonic s): the first cycle more than
@@ -512,7 +516,7 @@ class Controller(Node):
             return None
         return output
 
-    def _publish_state(self, now: float, output, command) -> None:
+    def _publish_state(self, now: float, output, command, published: Time) -> None:
         started, ticks = self._window
         if now - started >= 1.0:
             self._rate = (self._cycles - ticks) / (now - started)
@@ -521,7 +525,7 @@ class Controller(Node):
                               input_age=self._input_age,
                               status=self._status, effort=[float(v) for v in command],
                               theta_hat=[float(v) for v in self._law.theta_hat])
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = published.to_msg()
         if self._task_state is not None:
             msg.task = self._task_state.task.name
         if output is not None:

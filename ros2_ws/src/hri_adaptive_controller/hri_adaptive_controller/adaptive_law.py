@@ -221,7 +221,8 @@ class LeanOutput:
     tau, tau_requested (2,) N m; s (2,) rad/s; qdot_r (2,) rad/s (eq. 14; the velocity-mode
     command); distance |x - x_d| (m; None on a fault); lyapunov V (J), task_potential Q
     (m^2/s), lyapunov_rate (W): None unless monitored; theta_hat (7,) used for this step;
-    task_gain k (m^2/s); torque_limited, fault (bool); fault_reason (str).
+    task_gain k (m^2/s); torque_limited, fault (bool); fault_reason (str); damping: lambda^2
+    of the pseudo-inverse J+ (m^2/rad^2; 0 on a fault).
     """
 
     tau: tuple[float, float]
@@ -237,6 +238,7 @@ class LeanOutput:
     torque_limited: bool
     fault: bool
     fault_reason: str = ''
+    damping: float = 0.0
 
 
 def limit_torque(tau, effort_limit: float) -> tuple[np.ndarray, bool]:
@@ -457,13 +459,16 @@ class AdaptiveController:
     def step_lean(self, q, dq, x_d, xdot_d, xddot_d, a: float, da: float,
                   shape: TaskShape | None, dt: float, monitor: bool = False,
                   theta_true=None, friction=None, k: float = 0.0,
-                  rest=None) -> LeanOutput:
+                  rest=None, with_potential: bool = True) -> LeanOutput:
         """`step` for the 2-joint arm in plain floats, without per-call checks.
 
         Same arguments and equations as `step`; q, dq, x_d, xdot_d, xddot_d are pairs of
         finite floats (rad, rad/s, m, m/s, m/s^2), a in [0, 1], da finite, dt > 0 s: the
         caller checks them where they enter (the node, when a message arrives). A non-finite
         result still gives zero torque and fault=True, theta_hat unchanged.
+        with_potential=False (with monitor): task_potential is None, and V and dV/dt leave out
+        their task terms kp a Q and kp da Q, for a caller that adds them for many steps at
+        once (`closed_loop.simulate`, with task_variable.task_potentials).
         """
         q1, q2 = q
         w1, w2 = dq
@@ -577,7 +582,8 @@ class AdaptiveController:
         self._theta = tuple(theta_next)
         q_value = v_value = v_rate = None
         if monitor:
-            q_value = 0.0 if drive is None else task_potential(distance, drive)
+            q_value = (task_potential(distance, drive) if with_potential and drive is not None
+                       else 0.0)
             model = theta if theta_true is None else tuple(float(v) for v in theta_true)
             mi1, mi2, mi3 = model[0], model[1], model[2]
             m11, m12 = mi1 + 2.0 * mi2 * cq2, mi3 + mi2 * cq2
@@ -590,7 +596,8 @@ class AdaptiveController:
             v_rate = (-((ks1 + f1) * sn1 * sn1 + (ks2 + f2) * sn2 * sn2)
                       - kp * (m1 * m1 + m2 * m2) + kp * da * q_value)
         return LeanOutput(tau, (tau1, tau2), (sn1, sn2), (qr1, qr2), distance, v_value,
-                          q_value, v_rate, theta, k, limited, False)
+                          q_value if with_potential else None, v_rate, theta, k, limited,
+                          False, damping=lam2)
 
     def _lean_fault(self, theta, k: float, reason: str) -> LeanOutput:
         zero = (0.0, 0.0)

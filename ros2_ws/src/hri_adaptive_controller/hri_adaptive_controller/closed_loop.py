@@ -33,13 +33,15 @@ from hri_adaptive_controller.adaptive_law import (
 from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
 from hri_adaptive_controller.signal_hold import HandHold
-from hri_adaptive_controller.task_variable import pseudo_inverse_damping
+from hri_adaptive_controller.task_variable import pseudo_inverse_damping, task_potentials
 from hri_core.dynamics import (
     ScaraParameters,
+    _rk4_step_scalar,
+    _scalar_constants,
     dynamic_parameters,
     forward_kinematics,
+    forward_kinematics_pair,
     jacobian,
-    rk4_step,
 )
 from hri_core.potential import TaskShape
 from hri_core.validation import planar_vector
@@ -199,7 +201,10 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
     schedule = EventWeightSchedule(ramp_time, initial_task)
     controller = AdaptiveController(gains, theta_hat0, params.l1, params.l2, params.gravity)
     friction = (params.b1, params.b2)
-    q, dq = planar_vector(q0, 'q0'), planar_vector(dq0, 'dq0')
+    # The arm's state in plain floats, stepped by hri_core's scalar RK4 (as scara_sim does).
+    q = tuple(planar_vector(q0, 'q0').tolist())
+    dq = tuple(planar_vector(dq0, 'dq0').tolist())
+    constants = _scalar_constants(params)
     gains_k = dict(task_gains or {})
     fixed_rest = None if rest_position is None else planar_vector(rest_position, 'rest')
     rest, rest_task = fixed_rest, None
@@ -217,6 +222,7 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
     phase = np.empty(steps, dtype=object)
     active_task = np.empty(steps, dtype=object)
 
+    drives = np.full(steps, None, dtype=object)  # the lean path's task drive per step
     event_index = 0
     for i, t in enumerate(time):
         while event_index < len(pending_events) and pending_events[event_index][0] <= t:
@@ -229,7 +235,7 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
         if name != rest_task:  # a task became active: its rest position is here
             rest_task = name
             rest = fixed_rest if fixed_rest is not None else forward_kinematics(
-                q, params.l1, params.l2)
+                np.array(q), params.l1, params.l2)
         x_d, xdot_d, xddot_d = target(t)
         if hand is not None:
             if t >= next_target - 1e-9 * dt:
@@ -238,15 +244,21 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
             held_x, held_v = hand.evaluate(float(t))
             x_d, xdot_d, xddot_d = np.array(held_x), np.array(held_v), np.zeros(2)
         if reference_step:
-            out = controller.step(q, dq, x_d, xdot_d, xddot_d, weight.weight, weight.rate,
-                                  shape, dt, theta_true=theta_true, friction=friction,
-                                  monitor=monitor, k=gains_k.get(name, 0.0), rest=rest)
+            out = controller.step(np.array(q), np.array(dq), x_d, xdot_d, xddot_d,
+                                  weight.weight, weight.rate, shape, dt, theta_true=theta_true,
+                                  friction=friction, monitor=monitor,
+                                  k=gains_k.get(name, 0.0), rest=rest)
         else:
+            # Q for the whole run at once after the loop (task_potentials): one quadrature per
+            # step cost about as much as the rest of the step.
             out = controller.step_lean(
-                tuple(q.tolist()), tuple(dq.tolist()), tuple(x_d.tolist()),
+                q, dq, tuple(x_d.tolist()),
                 tuple(xdot_d.tolist()), tuple(xddot_d.tolist()), weight.weight, weight.rate,
                 shape, dt, monitor=monitor, theta_true=theta_true, friction=friction,
-                k=gains_k.get(name, 0.0), rest=None if rest is None else tuple(rest.tolist()))
+                k=gains_k.get(name, 0.0), rest=None if rest is None else tuple(rest.tolist()),
+                with_potential=False)
+            if monitor and not out.fault and shape is not None:
+                drives[i] = controller.drive(shape, gains_k.get(name, 0.0))
         # The rate limit after the clamp; a fault's zero torque bypasses it (as in the node).
         if out.fault:
             limiter.reset()
@@ -259,19 +271,32 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
         rows['q'][i], rows['dq'][i], rows['target'][i] = q, dq, x_d
         rows['tau'][i], rows['s'][i] = applied, out.s
         if not out.fault:
-            rows['position'][i] = forward_kinematics(q, params.l1, params.l2)
-            scalars['damping'][i] = pseudo_inverse_damping(jacobian(q, params.l1, params.l2),
-                                                           gains.damping)[0]
+            rows['position'][i] = forward_kinematics_pair(*q, params.l1, params.l2)
+            scalars['damping'][i] = (pseudo_inverse_damping(jacobian(q, params.l1, params.l2),
+                                                            gains.damping)[0]
+                                     if reference_step else out.damping)
         scalars['distance'][i] = np.nan if out.distance is None else out.distance
         for name, value in (('lyapunov', out.lyapunov), ('lyapunov_rate', out.lyapunov_rate),
                             ('task_potential', out.task_potential)):
             scalars[name][i] = np.nan if value is None else value
+        if monitor and not reference_step and not out.fault:
+            scalars['task_potential'][i] = 0.0  # the task's Q is added after the loop
         scalars['weight'][i], scalars['weight_rate'][i] = weight.weight, weight.rate
         theta_hat[i] = out.theta_hat
         torque_limited[i], fault[i] = out.torque_limited, out.fault
         phase[i], active_task[i] = weight.phase, weight.active_task
-        q, dq = rk4_step(q, dq, applied, dt, params)
+        state = _rk4_step_scalar((*q, *dq), applied.tolist(), dt, constants)
+        if not all(map(math.isfinite, state)):
+            raise ValueError(f'the arm\'s state became non-finite at t = {t:.3f} s: {state}')
+        q, dq = state[:2], state[2:]
 
+    for drive in set(drives[drives != None]):  # noqa: E711 (elementwise)
+        steps_of = np.flatnonzero(drives == drive)
+        potential = task_potentials(scalars['distance'][steps_of], drive)
+        scalars['task_potential'][steps_of] = potential
+        scalars['lyapunov'][steps_of] += gains.kp * scalars['weight'][steps_of] * potential
+        scalars['lyapunov_rate'][steps_of] += (gains.kp * scalars['weight_rate'][steps_of]
+                                               * potential)
     return SimulationResult(
         time=time, **rows, **scalars, phase=phase, active_task=active_task,
         theta_hat=theta_hat, torque_limited=torque_limited, fault=fault,

@@ -104,6 +104,7 @@ _SECH_LIMIT = 350.0
 _GAUSS_NODES, _GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(12)
 _PANEL_EDGES = np.concatenate([[0.0], 2.0 ** np.arange(-7, 0), 1.0 - 2.0 ** np.arange(-2, -8, -1),
                                [1.0]])
+_INTEGRALS_AT_ONCE = 1000
 
 
 @dataclass(frozen=True)
@@ -429,19 +430,24 @@ def task_potential(distance: float, drive: TaskDrive) -> float:
     r = float(distance)
     if not (math.isfinite(r) and r >= 0.0):
         raise ValueError(f'distance must be finite and >= 0 m, got {distance}')
+    return float(task_potentials(np.array([r]), drive)[0])
+
+
+def task_potentials(distances, drive: TaskDrive) -> np.ndarray:
+    """task_potential at each of `distances` (n,) m (finite, >= 0), in one evaluation of Q'
+    at every quadrature node: (n,) m^2/s. A closed-loop simulation's whole run at once costs
+    about what one distance costs alone."""
+    r = np.asarray(distances, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(r)) or np.any(r < 0.0):
+        raise ValueError('distances must be finite and >= 0 m')
     d1, d2 = drive.region()
     if drive.shape.s == 1:
-        if r > d2:
-            return abs(_radial_integral(drive, d2, r))
-        if r < d1:
-            return abs(_radial_integral(drive, d1, r))
-        return 0.0
-    if r <= d1:
-        return 0.0
+        start = np.where(r > d2, d2, d1)
+        return np.where((r > d2) | (r < d1), np.abs(_radial_integrals(drive, start, r)), 0.0)
     peak = _potential_peak(drive)
-    if r <= peak:
-        return _radial_integral(drive, d1, r)
-    return _radial_integral(drive, d1, peak) + _radial_integral(drive, peak, min(r, d2))
+    rising = _radial_integrals(drive, np.full(r.shape, d1), np.clip(r, d1, peak))
+    falling = _radial_integrals(drive, np.full(r.shape, peak), np.clip(r, peak, d2))
+    return np.where(r <= d1, 0.0, rising + np.where(r > peak, falling, 0.0))
 
 
 def _potential_peak(drive: TaskDrive) -> float:
@@ -460,14 +466,19 @@ def _potential_peak(drive: TaskDrive) -> float:
                         radii[change[0]], radii[change[0] + 1]))
 
 
-def _radial_integral(drive: TaskDrive, start: float, end: float) -> float:
-    """Integral of Q' from `start` (a boundary of the zero set) to `end` (m^2/s)."""
-    edges = start + (end - start) * _PANEL_EDGES
-    half = 0.5 * np.diff(edges)
-    centre = 0.5 * (edges[1:] + edges[:-1])
-    radii = centre[:, None] + half[:, None] * _GAUSS_NODES[None, :]
+def _radial_integrals(drive: TaskDrive, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Integrals of Q' from each `start` (a boundary of the zero set) to its `end` (n,), m^2/s."""
+    if start.size > _INTEGRALS_AT_ONCE:  # bounds the temporaries (168 nodes per integral)
+        return np.concatenate([
+            _radial_integrals(drive, start[i:i + _INTEGRALS_AT_ONCE],
+                              end[i:i + _INTEGRALS_AT_ONCE])
+            for i in range(0, start.size, _INTEGRALS_AT_ONCE)])
+    edges = start[:, None] + (end - start)[:, None] * _PANEL_EDGES[None, :]
+    half = 0.5 * np.diff(edges, axis=1)
+    centre = 0.5 * (edges[:, 1:] + edges[:, :-1])
+    radii = centre[:, :, None] + half[:, :, None] * _GAUSS_NODES[None, None, :]
     slopes = _radial_slopes(radii.ravel(), drive).reshape(radii.shape)
-    return float(np.sum(half[:, None] * _GAUSS_WEIGHTS[None, :] * slopes))
+    return np.sum(half[:, :, None] * _GAUSS_WEIGHTS[None, None, :] * slopes, axis=(1, 2))
 
 
 def _gram_damping(gram: np.ndarray, settings: DampingSettings) -> tuple[float, float]:

@@ -244,16 +244,20 @@ def test_bag_play_is_recorded_again_message_for_message(nodes, ros_domain, tmp_p
     assert recorder.wait_for_line(READY_LINES['recorder'], START_TIMEOUT), recorder.log()
     # rosbag2's depth 10 lasts 5 ms at 2 kHz: a message lost on the way (1365 of 11004
     # /joint_states once, beside the unit tests) was overwritten before the recorder asked for
-    # it again. Ten seconds of history, as a user asks rosbag2 for lossless playback.
+    # it again. The whole bag's history, transient local, as a user asks rosbag2 for lossless
+    # playback: the recorder subscribes once it has seen play's publishers on the graph, and
+    # a volatile writer sends nothing it published before that (a fresh-clone run once
+    # recorded 4625 of 12246 messages, the first 60 % lost); a transient-local one sends its
+    # history to the recorder, which subscribes transient local to such publishers.
     overrides = tmp_path / 'qos.yaml'
-    overrides.write_text(''.join(f'{topic}: {{history: keep_last, depth: 20000}}\n'
-                                 for topic in topics))
+    overrides.write_text(''.join(
+        f'{topic}: {{history: keep_last, depth: 20000, durability: transient_local}}\n'
+        for topic in topics))
     # --delay: play, like rosbag2's, does not wait for subscribers, and a new participant
     # such as play's learns of a running node only at its next periodic announcement (every
-    # 0.5 s with config/fastdds.xml; with Fast DDS's 3 s, 3.5 s of delay once lost the first
-    # 0.1 s of play). --wait-for-all-acked: play ends only once the recorder has everything
-    # (with 5 s, a recorder slowed down beside the unit tests had 3883 of 12246 when play
-    # ended, and the rest went with it).
+    # 0.5 s with config/fastdds.xml). --wait-for-all-acked: play ends only once the recorder
+    # has everything (with 5 s, a recorder slowed down beside the unit tests had 3883 of 12246
+    # when play ended, and the rest went with it).
     play = ros2(ros_domain, 'bag', 'play', FOLLOW_BAG, '--rate', '2', '--topics', *topics,
                 '--delay', '2', '--wait-for-all-acked', '30000',
                 '--qos-profile-overrides-path', str(overrides), timeout=90.0)

@@ -65,8 +65,7 @@ MAX_WEIGHT_STEP = 0.3
 FADE_JITTER = 0.01  # s, see the fade-out test
 TASK_FADE_TIME = 0.5  # s, the controller's fade when TaskStates stop or return (default 1 s)
 MAX_EFFORT_STEP = 1.0 + 1e-9  # N m per 1 ms control cycle (the rate limit's own, to an ulp)
-SIM_RESTARTS = 5
-RESUME_WITHIN = 1.0  # s from a new sim's first joint state (kill test: ready line) to control
+RESUME_WITHIN = 1.0  # s from a new sim's ready line to control (the kill test)
 # The kill test: each peer killed this many times in a row, DWELL s of running between kills.
 # No stretch over MAX_ANSWER in which the sim ran steadily and applied one command while the
 # controller sent none (a zero-torque timeout is a command). Issue 15 asks for 20 ms: in 15
@@ -147,45 +146,6 @@ def assert_zero_torque_without_sim(states: list, killed_at: float, attempt: int)
                                 if stamp_seconds(s.header.stamp) > killed_at - 0.05][:400:4])
 
 
-def ok_after(states: list, since: float) -> float | None:
-    """Stamp (s) of the first ControllerState with status ok stamped after `since`."""
-    return next((stamp_seconds(s.header.stamp) for s in list(states)
-                 if s.status == 'ok' and stamp_seconds(s.header.stamp) > since), None)
-
-
-def test_sim_killed_and_restarted_five_times_control_resumes_each_time(live_loop, nodes,
-                                                                       probe):
-    processes, states = start_loop(live_loop, probe)
-    controller = processes['controller']
-    sim = processes['scara_sim']
-    joints = RawListener(probe, '/joint_states', JointState)
-    resumed = []
-    for restart in range(SIM_RESTARTS):
-        sim.send(signal.SIGKILL)
-        killed_at = probe_time(probe)
-        assert sim.wait(5.0) == -signal.SIGKILL
-        assert wait_for(lambda: states[-1].status == 'stale_joint_states', 10.0), states[-1]
-        time.sleep(0.2)
-        # Zero torque within joint_state_timeout of the kill, held while the sim is gone.
-        assert_zero_torque_without_sim(states, killed_at, restart)
-        heard = len(joints)
-        sim = nodes('scara_sim', 'scara_sim')
-        assert wait_for(lambda heard=heard: len(joints) > heard, 30.0), sim.log()
-        first_state = stamp_seconds(joints.messages()[heard].header.stamp)
-        # Control resumes: the controller is ok again, on the new sim's clock.
-        assert wait_for(lambda since=first_state: ok_after(states, since) is not None, 10.0), \
-            (restart, states[-1], controller.log())
-        resumed.append(ok_after(states, first_state) - first_state)
-    print(f'control resumed {np.round(resumed, 3).tolist()} s after the new sim\'s first '
-          'joint state')
-    assert max(resumed) <= RESUME_WITHIN, resumed
-    log = controller.log()
-    assert log.count('joint states resumed') >= SIM_RESTARTS, log
-    assert 'Traceback' not in log
-    assert_all_finite(states, '/hri/controller_state')
-    assert controller.alive()
-
-
 def peer_parameters(name: str, tmp_path, incarnation: int) -> dict:
     """The parameters of a peer of the kill test; each recorder writes a bag of its own."""
     if name == 'event_manager':
@@ -208,10 +168,6 @@ def largest_step(stamps: np.ndarray, efforts: np.ndarray) -> float:
                         initial=0.0))
 
 
-# Slow (about 50 s): scripts/test.sh --all runs it. With it in the default run, 4 of 10
-# fresh-clone runs on 2026-12-02 were red, three of them in timing tests that had not failed
-# before (see the README's kill test); not traced.
-@pytest.mark.slow
 def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
         nodes, probe, ros_domain, tmp_path):
     """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
@@ -295,13 +251,15 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
             resumed.append(first_controlled() - sim_up)
             time.sleep(DWELL)
         sent, stamps, efforts = sim_joint_efforts(joints)  # decoded once, for all three
-        late = controller_gaps(sent, stamps, efforts, commands.sent_times(), MAX_ANSWER,
-                               since=loop_up)
+        answers = controller_gaps(sent, stamps, efforts, commands.sent_times(), 0.005,
+                                  since=loop_up)
+        late = [gap for gap in answers if gap[1] > MAX_ANSWER]
         holds = applied_command_holds(sent, stamps, efforts, 0.0)
         print(f'{KILLS} kills of each peer; control resumed {max(resumed):.3f} s at most after '
               f'a new sim\'s ready line (median {np.median(resumed):.3f}); '
-              f'{len(joints)} joint states, {len(commands)} commands, {len(late)} gaps of '
-              f'the controller over {MAX_ANSWER * 1e3:.0f} ms; longest command held by the sim '
+              f'{len(joints)} joint states, {len(commands)} commands; the controller\'s '
+              f'longest gap {max((span for _, span, _ in answers), default=0.0) * 1e3:.0f} ms '
+              f'({len(late)} over {MAX_ANSWER * 1e3:.0f} ms); longest command held by the sim '
               f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms; largest change '
               f'of the applied torque per 1 ms step {largest_step(stamps, efforts):.2f} N m')
         assert max(resumed) <= RESUME_WITHIN, resumed

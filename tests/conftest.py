@@ -4,10 +4,23 @@ import os
 
 import pytest
 
-from hri_bringup.processes import NodeProcess, RosProbe, start_live_loop, start_node, stop_all
+from hri_bringup.processes import (
+    NodeProcess,
+    RosProbe,
+    remove_dead_shared_memory,
+    start_live_loop,
+    start_node,
+    stop_all,
+)
 from tests.common import next_domain_id
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """The shared-memory segments the killed nodes left behind (the fault tests kill about
+    a hundred) are removed when the session ends."""
+    remove_dead_shared_memory()
 
 
 @pytest.fixture

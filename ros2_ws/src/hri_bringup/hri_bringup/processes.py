@@ -12,8 +12,11 @@ What the topic-level tests, scripts/demo.py, the benchmarks and the `system` nod
 - `start_live_loop`: the live loop (scara_sim, event_manager, controller, hand_sim; the
   recorder on request) with its default parameters and per-node overrides.
 - `RosProbe`: an rclpy node in a Context of its own, spun in a thread, to listen and publish.
+- `remove_dead_shared_memory`: the Fast DDS shared-memory segments of processes that ended
+  without closing them (SIGKILL), which nothing else removes.
 """
 
+import fcntl
 import itertools
 import json
 import os
@@ -57,6 +60,44 @@ READY_LINES: dict[str, str] = {
     'event_manager': 'task(s) loaded',
     'controller': 'control on each /joint_states',
 }
+
+
+# A Fast DDS shared-memory segment (about 0.5 MB) and its lock file, which its process holds
+# locked (flock) while it lives; the file names of Fast DDS 2.x.
+_SEGMENT_LOCK = re.compile(r'^fastrtps_[0-9a-f]{16}_el$')
+
+
+def remove_dead_shared_memory(directory: Path = Path('/dev/shm'), min_age: float = 10.0) -> int:
+    """Remove the shared-memory segments whose owner has died; the number removed.
+
+    Every participant creates a segment in `directory` and removes it when it closes; a
+    process ended with SIGKILL leaves it behind for good (tens of thousands of them after a
+    day of kill tests: half a megabyte of RAM each). A segment counts as dead when nobody holds
+    its lock file, as `fastdds shm clean` judges, and the lock file is over `min_age` s old (a
+    process that has just created it may not have locked it yet).
+    """
+    removed = 0
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return 0
+    now = time.time()
+    for name in names:
+        if not _SEGMENT_LOCK.match(name):
+            continue
+        lock_path = Path(directory) / name
+        try:
+            if now - lock_path.stat().st_mtime < min_age:
+                continue
+            with open(lock_path, 'ab') as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                # Unlinked while locked: a process that opens it now gets a new file.
+                Path(directory, name[:-len('_el')]).unlink(missing_ok=True)
+                lock_path.unlink(missing_ok=True)
+            removed += 1
+        except OSError:  # locked by a living process, or gone meanwhile
+            continue
+    return removed
 
 
 def wait_for(condition: Callable[[], bool], timeout: float, period: float = 0.05) -> bool:

@@ -4,9 +4,11 @@ No ROS node runs here: the process tests start small Python scripts with
 `NodeProcess.from_command`.
 """
 
+import fcntl
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -21,6 +23,7 @@ from hri_bringup.processes import (  # noqa: E402
     format_parameter,
     live_loop_parameters,
     node_environment,
+    remove_dead_shared_memory,
     ros2_run_command,
     start_live_loop,
     start_nodes,
@@ -77,6 +80,27 @@ def test_node_environment_sets_the_domain_only_when_given(monkeypatch):
     assert env['ROS_DOMAIN_ID'] == '42'
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert env['PYTHONUNBUFFERED'] == '1'
+
+
+def test_only_the_unlocked_old_shared_memory_segments_are_removed(tmp_path):
+    def segment(name: str, age: float) -> tuple[Path, Path]:
+        data, lock = tmp_path / name, tmp_path / f'{name}_el'
+        data.write_bytes(b'segment')
+        lock.touch()
+        then = time.time() - age
+        os.utime(lock, (then, then))
+        return data, lock
+
+    dead = segment('fastrtps_00000000000000aa', 60.0)
+    alive = segment('fastrtps_00000000000000bb', 60.0)
+    young = segment('fastrtps_00000000000000cc', 1.0)
+    port = segment('fastrtps_port7411', 60.0)  # a port, shared by its users: not a segment
+    with open(alive[1], 'ab') as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)  # a living owner holds its lock
+        assert remove_dead_shared_memory(tmp_path, min_age=10.0) == 1
+    assert not any(path.exists() for path in dead)
+    assert all(path.exists() for path in (*alive, *young, *port))
+    assert remove_dead_shared_memory(tmp_path / 'missing') == 0
 
 
 def test_live_loop_parameters_default_to_table_one_and_follow():

@@ -247,7 +247,7 @@ class EventWeightSchedule:
     def _state(self, now: float) -> WeightState:
         value, rate, acceleration = self._weight_derivatives(now)
         return WeightState(
-            weight=float(np.clip(value, 0.0, 1.0)),
+            weight=min(max(float(value), 0.0), 1.0),  # np.clip costs 10 us on a float
             rate=float(rate),
             acceleration=float(acceleration),
             phase=self._phase,

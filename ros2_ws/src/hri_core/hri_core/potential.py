@@ -92,7 +92,11 @@ def _signed_log_sum(terms):
     top = max(log for log, _ in terms)
     if top == _NEG_INF:
         return _NEG_INF, 0
-    total = math.fsum(sign * math.exp(log - top) for log, sign in terms)
+    if len(terms) == 2:  # one rounded addition, as fsum's (the per-cycle path's usual case)
+        (log_a, sign_a), (log_b, sign_b) = terms
+        total = sign_a * math.exp(log_a - top) + sign_b * math.exp(log_b - top)
+    else:
+        total = math.fsum(sign * math.exp(log - top) for log, sign in terms)
     if total == 0.0:
         return _NEG_INF, 0
     return top + math.log(abs(total)), (1 if total > 0.0 else -1)

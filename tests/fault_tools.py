@@ -210,6 +210,50 @@ class ForkedNodes:
         self._forker.stdout.close()
 
 
+class SchedulingCanaries:
+    """tests/scheduling_canary.py on every CPU this test may use, at SCHED_FIFO `priority`
+    (above the nodes'): how long the machine itself held a real-time thread back, and when.
+    `stalls` ends them and returns their notes; `close` ends any left, by PID."""
+
+    def __init__(self, priority: int):
+        self._processes = [
+            subprocess.Popen([sys.executable, str(REPO_ROOT / 'tests' / 'scheduling_canary.py'),
+                              str(cpu), str(priority)], stdout=subprocess.PIPE, text=True)
+            for cpu in sorted(os.sched_getaffinity(0))]
+        for process in self._processes:
+            line = process.stdout.readline()
+            if line.strip() != 'canary up':
+                self.close()
+                raise RuntimeError(f'scheduling canary did not start: {line!r}')
+
+    def stalls(self) -> np.ndarray:
+        """(n, 2): each late wake-up's time (system clock, s) and lateness (s), of all CPUs."""
+        notes = []
+        for process in self._processes:
+            process.send_signal(signal.SIGTERM)
+            output, _ = process.communicate(timeout=5.0)
+            notes.extend(json.loads(output)['stalls'])
+        return np.array(sorted(notes), dtype=float).reshape(-1, 2)
+
+    def close(self) -> None:
+        for process in self._processes:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+            if process.stdout is not None:
+                process.stdout.close()
+
+
+def machine_stall(stalls: np.ndarray, start: float, end: float) -> float:
+    """Longest stall (s) of the canaries (`SchedulingCanaries.stalls`) that overlaps the time
+    from `start` to `end` (system clock, s); 0 if none does."""
+    if stalls.size == 0:
+        return 0.0
+    wake, late = stalls[:, 0], stalls[:, 1]
+    overlapping = (wake - late < end) & (wake > start)
+    return float(np.max(late[overlapping], initial=0.0))
+
+
 def sim_joint_efforts(listener: RawListener, start: int = 0
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(times sent, stamps, applied efforts) of the raw JointStates in `listener` from the

@@ -32,12 +32,14 @@ from tests.common import PAPER_TASKS
 from tests.fault_tools import (
     ForkedNodes,
     RawListener,
+    SchedulingCanaries,
     applied_command_holds,
     assert_all_finite,
     controller_gaps,
     effort_change_per_step,
     lines_after,
     log_time,
+    machine_stall,
     sim_joint_efforts,
 )
 
@@ -67,21 +69,21 @@ TASK_FADE_TIME = 0.5  # s, the controller's fade when TaskStates stop or return 
 MAX_EFFORT_STEP = 1.0 + 1e-9  # N m per 1 ms control cycle (the rate limit's own, to an ulp)
 RESUME_WITHIN = 1.0  # s from a new sim's ready line to control (the kill test)
 # The kill test: each peer killed this many times in a row, DWELL s of running between kills.
-# No stretch over MAX_ANSWER in which the sim ran steadily and applied one command while the
-# controller sent none (a zero-torque timeout is a command). Issue 15 asks for 20 ms: in 15
-# runs on 2026-12-02 the controller's longest such gap was 32 ms once (0.1 s after three
-# peers were forked, while it discovered them) and 21 ms once (in its own first 0.2 s), under
-# 20 ms in the others; MAX_ANSWER bounds it with that margin. How long the sim applied one
-# command is reported, not bounded: it also counts the sim's own stalls. On this 2-core
-# virtual machine a SCHED_FIFO thread that only sleeps to 1 ms ticks woke up to 6.7 ms late
-# (10.2 ms with a publish per tick), and a publish of the sim's stepping thread, with the
-# interpreter lock held, was seen to take 15-57 ms while peers started.
+# No stretch over MAX_ANSWER (issue 15's 20 ms) in which the sim ran steadily and applied one
+# command while the controller sent none (a zero-torque timeout is a command), beyond what
+# the machine itself held back a real-time thread on some CPU at that time: scheduling
+# canaries (tests/scheduling_canary.py, SCHED_FIFO at CANARY_PRIORITY, above the nodes', one
+# per CPU) measure that in the same run. On this 2-core virtual machine such a thread, doing
+# nothing but sleep to 1 ms ticks, woke up to 6.7 ms late in 8 s on an otherwise idle machine
+# (the host's scheduling: /proc/stat counts about 0.7 % of the time as stolen). How long the
+# sim applied one command is reported, not bounded: it also counts the sim's own stalls.
 OTHER_PEERS = ('hand_sim', 'recorder', 'event_manager')
 PEERS = ('scara_sim', *OTHER_PEERS)
 KILLS = 20
 DWELL = 0.15  # s
-MAX_ANSWER = 0.05  # s
+MAX_ANSWER = 0.02  # s
 REALTIME_PRIORITY = 50
+CANARY_PRIORITY = 60
 # A hand circling 0.1 m or less from the arm: the arm follows it, the torque changes every
 # cycle and stays far below the effort limit (a clamped torque would look like a held one).
 NEAR_CIRCLING_HAND = {'profile': 'circle', 'start': [0.40, 0.25], 'radius': 0.05,
@@ -173,7 +175,8 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
     """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
     restarted KILLS times in a row around the real controller, which runs with the sim at
     SCHED_FIFO (as on a robot's computer). Once the loop is up the controller answers the
-    joint states of a steadily running sim without a gap over MAX_ANSWER (`controller_gaps`);
+    joint states of a steadily running sim without a gap over MAX_ANSWER beyond what the
+    machine held back a real-time thread at the time (`controller_gaps`, `machine_stall`);
     without the sim it commands zero torque within joint_state_timeout; a new sim gets
     commands within RESUME_WITHIN of its ready line. The peers are forked
     (tests/node_forker.py): the same nodes, started without Python's start-up; the others start
@@ -183,6 +186,7 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
     joints = RawListener(probe, '/joint_states', JointState)
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
     forked = ForkedNodes(ros_domain, tmp_path)
+    canaries = SchedulingCanaries(CANARY_PRIORITY)
     peers = {}
     logs = {}
     incarnations = itertools.count()
@@ -253,19 +257,24 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
         sent, stamps, efforts = sim_joint_efforts(joints)  # decoded once, for all three
         answers = controller_gaps(sent, stamps, efforts, commands.sent_times(), 0.005,
                                   since=loop_up)
-        late = [gap for gap in answers if gap[1] > MAX_ANSWER]
+        stalls = canaries.stalls()
+        excused = [machine_stall(stalls, at, at + span) for at, span, _ in answers]
+        late = [(*gap, excuse) for gap, excuse in zip(answers, excused, strict=True)
+                if gap[1] > MAX_ANSWER + excuse]
         holds = applied_command_holds(sent, stamps, efforts, 0.0)
         print(f'{KILLS} kills of each peer; control resumed {max(resumed):.3f} s at most after '
               f'a new sim\'s ready line (median {np.median(resumed):.3f}); '
               f'{len(joints)} joint states, {len(commands)} commands; the controller\'s '
               f'longest gap {max((span for _, span, _ in answers), default=0.0) * 1e3:.0f} ms '
-              f'({len(late)} over {MAX_ANSWER * 1e3:.0f} ms); longest command held by the sim '
+              f'({len(late)} over {MAX_ANSWER * 1e3:.0f} ms and the machine\'s stall then); '
+              f'the canaries\' longest stall {np.max(stalls[:, 1], initial=0.0) * 1e3:.1f} ms '
+              f'({len(stalls)} over 2 ms); longest command held by the sim '
               f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms; largest change '
               f'of the applied torque per 1 ms step {largest_step(stamps, efforts):.2f} N m')
         assert max(resumed) <= RESUME_WITHIN, resumed
-        assert late == [], [(round(at - events[0][0], 3), round(span, 3), [
+        assert late == [], [(round(at - events[0][0], 3), round(span, 3), round(excuse, 4), [
             (round(t - at, 3), what) for t, what in events if -1.0 < t - at < 0.5])
-            for at, span, _ in late[:20]]
+            for at, span, _, excuse in late[:20]]
         log = controller.log()
         assert log.count('joint states resumed') >= KILLS, log
         assert 'Traceback' not in log
@@ -273,6 +282,7 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
         assert controller.alive()
     finally:
         forked.close()
+        canaries.close()
 
 
 def test_controller_killed_sim_applies_zero_torque_after_command_timeout(live_loop, probe):

@@ -212,14 +212,26 @@ class ForkedNodes:
 
 class SchedulingCanaries:
     """tests/scheduling_canary.py on every CPU this test may use, at SCHED_FIFO `priority`
-    (above the nodes'): how long the machine itself held a real-time thread back, and when.
+    (above the nodes'), in a ring that wakes each from the CPU before it: how long the machine
+    itself held a real-time thread back, on a timer's wake-up or another CPU's, and when.
     `stalls` ends them and returns their notes; `close` ends any left, by PID."""
 
     def __init__(self, priority: int):
-        self._processes = [
-            subprocess.Popen([sys.executable, str(REPO_ROOT / 'tests' / 'scheduling_canary.py'),
-                              str(cpu), str(priority)], stdout=subprocess.PIPE, text=True)
-            for cpu in sorted(os.sched_getaffinity(0))]
+        cpus = sorted(os.sched_getaffinity(0))
+        # Pipe i carries canary i's ticks to canary i + 1 (a single CPU: no ring).
+        pipes = [os.pipe() for _ in cpus] if len(cpus) > 1 else []
+        self._processes = []
+        try:
+            for index, cpu in enumerate(cpus):
+                ends = [] if not pipes else [pipes[index - 1][0], pipes[index][1]]
+                self._processes.append(subprocess.Popen(
+                    [sys.executable, str(REPO_ROOT / 'tests' / 'scheduling_canary.py'),
+                     str(cpu), str(priority), *map(str, ends)],
+                    stdout=subprocess.PIPE, text=True, pass_fds=ends))
+        finally:
+            for pipe in pipes:
+                for end in pipe:
+                    os.close(end)
         for process in self._processes:
             line = process.stdout.readline()
             if line.strip() != 'canary up':
@@ -231,6 +243,7 @@ class SchedulingCanaries:
         notes = []
         for process in self._processes:
             process.send_signal(signal.SIGTERM)
+        for process in self._processes:
             output, _ = process.communicate(timeout=5.0)
             notes.extend(json.loads(output)['stalls'])
         return np.array(sorted(notes), dtype=float).reshape(-1, 2)
@@ -311,11 +324,11 @@ def applied_command_holds(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndar
     return holds
 
 
-def controller_gaps(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndarray,
+def controller_gaps(sent: np.ndarray, efforts: np.ndarray,
                     command_sent: np.ndarray, longer_than: float, since: float = -math.inf,
                     steady: float = 0.008) -> list[tuple[float, float, float]]:
-    """Where the sim, running steadily, applied one non-zero command for longer than
-    `longer_than` s of its clock while the controller sent no command at all.
+    """Where the sim, running steadily, applied one non-zero command to the joint states
+    it sent over more than `longer_than` s while the controller sent no command at all.
 
     From the sim's joint states (`sim_joint_efforts`, in the order sent) and the times the
     controller sent its commands (`RawListener.sent_times`, their source timestamps: the
@@ -324,14 +337,17 @@ def controller_gaps(sent: np.ndarray, stamps: np.ndarray, efforts: np.ndarray,
     messages of the 1 kHz streams now and then): a sim that stalled holds its last command
     however the controller runs.
     A command the controller sent inside the run, which the sim did not apply, is not the
-    controller's gap. Only runs that start after `since` (system clock, s) are judged.
-    Returns (time the run's first joint state was sent, its span by stamps, longest spacing of
+    controller's gap. The span is the time from sending the run's first joint state to
+    sending its last: the controller cannot answer a state before it is sent, and a sim that
+    was held back and caught up sends many steps (their stamps 1 ms apart) with one command
+    at once. Only runs that start after `since` (system clock, s) are judged.
+    Returns (time the run's first joint state was sent, the span of sending, longest spacing of
     its joint states) per gap.
     """
     command_sent = np.sort(command_sent)
     gaps = []
     for first, end in equal_effort_runs(efforts):
-        span = stamps[end - 1] - stamps[first]
+        span = sent[end - 1] - sent[first]
         if sent[first] < since or not np.any(efforts[first]) or span <= longer_than:
             continue
         spacing = float(np.max(np.diff(sent[first:end])))

@@ -46,6 +46,7 @@ EFFORT_LIMIT = CONTROLLER_DEFAULTS['effort_limit']  # N m
 Q_ARM = [0.3, 1.2]  # rad: the stand-in arm's pose
 Q_WRONG = [1.2, 0.3]  # rad: where a message read in the wrong order would put it
 HAND_OFFSET = np.array([0.1, 0.0])  # m from the end-effector
+MIN_COMMANDS_JUDGED = 20
 FOLLOW = TaskParameters(name='follow', s=1, a1=1.291, a2=13.66, d1=0.0, d2=0.041, n=3)
 
 
@@ -136,8 +137,13 @@ def assert_used_only_the_arm_pose(states: list) -> None:
 
 
 def assert_commands_safe(listener: RawListener) -> None:
+    """Every command the probe took is finite and within the effort limit, and there are
+    enough of them to say so. How many there are is not the behaviour judged: the controller
+    answers each joint state of the stand-in arm, whose thread (in this test process, beside
+    other tests) reaches its 200 Hz only on a quiet machine: a fresh-clone run of 2026-12-02
+    took exactly 100 commands in one test, where the bound was more than 100."""
     commands = listener.messages()
-    assert len(commands) > 100
+    assert len(commands) >= MIN_COMMANDS_JUDGED, len(commands)
     assert_all_finite(commands, '/effort_controller/commands')
     assert all(len(c.data) == 2 and max(abs(v) for v in c.data) <= EFFORT_LIMIT + 1e-9
                for c in commands)

@@ -10,7 +10,7 @@ standard ROS 2 parameters file, one section per node:
         nodes: [scara_sim, event_manager, controller, hand_sim]  # add recorder to record
         log_dir: ""          # "" = <ROS log directory>/hri_system_<date-time>_<pid>
         echo_output: true    # the children's output on this stdout, lines prefixed [node]
-        stop_timeout: 5.0    # s from SIGINT to SIGKILL when the children are stopped
+        stop_timeout: 5.0    # s from SIGTERM to SIGKILL when the children are stopped
     hand_sim:
       ros__parameters:
         profile: circle
@@ -36,14 +36,18 @@ the system was started in. Each runs in a session of its own; the system logs
 that it is up. Their output goes to LOG_DIR/NAME-K.log and, with echo_output, line by line
 onto the system's stdout prefixed `[NAME] ` (the system's own lines are ROS log lines).
 
-SIGINT or SIGTERM stops every child (SIGINT; SIGKILL after stop_timeout) and the system
-exits 0. A child that exits on its own is an error: one line names it and its exit code,
-the others are stopped and the system exits 1. A bad config (a missing file, bad YAML, an
-unknown node or package name) is one error line and exit 1, before any child starts.
+SIGINT or SIGTERM stops every child (SIGTERM; SIGKILL after stop_timeout) and the system
+exits 0. SIGTERM, not SIGINT: a running node stops on either as on Ctrl-C (exit 0), but one
+still importing its modules (the others are stopped because one failed at start) ends at
+once on SIGTERM, where SIGINT prints Python's KeyboardInterrupt traceback. A child that exits
+on its own is an error: one line names it and its exit code, the others are stopped and the
+system exits 1. A bad config (a missing file, bad YAML, an unknown node or package name) is
+one error line and exit 1, before any child starts.
 """
 
 import os
 import re
+import signal
 import time
 from pathlib import Path
 
@@ -83,7 +87,7 @@ SETTINGS = {
     'log_dir': (str, 'folder of the nodes\' logs and of the parameters file they get ("": '
                 'a new one in the ROS log directory)'),
     'echo_output': (bool, "the nodes' output on stdout, each line prefixed [node]"),
-    'stop_timeout': (float, 's from SIGINT to SIGKILL when the nodes are stopped'),
+    'stop_timeout': (float, 's from SIGTERM to SIGKILL when the nodes are stopped'),
 }
 TYPE_NAMES = {list: 'a list of node names', str: 'a string', bool: 'true or false',
               float: 'a positive number'}
@@ -279,11 +283,11 @@ class System(Node):
                 print(f'[{name}] {line}', flush=True)
 
     def stop_children(self) -> None:
-        """SIGINT to every child still running, SIGKILL after stop_timeout; log the codes."""
+        """SIGTERM to every child still running, SIGKILL after stop_timeout; log the codes."""
         running = [name for name, child in self._children.items() if child.alive()]
         if running:
             self.get_logger().info(f'stopping {", ".join(running)}')
-        codes = stop_all(self._children.values(), self._stop_timeout)
+        codes = stop_all(self._children.values(), self._stop_timeout, signal.SIGTERM)
         self._echo_output(final=True)
         summary = ', '.join(f'{name} {codes[child]}' for name, child in self._children.items())
         unclean = [name for name in running if codes[self._children[name]] != 0]

@@ -1,13 +1,13 @@
 """Process faults on topics: nodes killed and restarted mid-run, and every node's clean stop.
 
 The closed loop (scara_sim, event_manager, controller, hand_sim) runs with Table I's tasks
-while processes are killed with SIGKILL: without the sim the controller commands zero torque
-within `joint_state_timeout` and controls a new sim within a second (five times in a row; with
-`--all`, every peer killed twenty times in a row, the controller answering every joint
-state); without the controller the sim applies zero torque after `command_timeout`; without
-the event_manager the controller fades the task out after `task_state_timeout` and in again
-when TaskStates return, with no torque step. Every node's clean stop on SIGINT and SIGTERM:
-tests/test_node_exit.py.
+while processes are killed with SIGKILL: every peer (sim, hand, recorder, event_manager) is
+killed and restarted twenty times in a row, and the controller answers every joint state,
+commands zero torque within `joint_state_timeout` without the sim and controls each new sim
+within a second; without the controller the sim applies zero torque after
+`command_timeout`; without the event_manager the controller fades the task out after
+`task_state_timeout` and in again when TaskStates return, with no torque step. Every node's
+clean stop on SIGINT and SIGTERM: tests/test_node_exit.py.
 
 A recorder killed with SIGKILL keeps a readable bag: tests/test_recorder.py
 (test_sigkill_loses_at_most_the_last_second).
@@ -274,7 +274,7 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
             near = (command_times >= at - 0.03) & (command_times <= at + span + 0.03)
             return {'applied': np.unique(efforts[held], axis=0).round(4).tolist(),
                     'commands (ms after the gap began)': sorted(
-                        round((t - at) * 1e3, 1) for t in command_times[near])}
+                        round(float(t - at) * 1e3, 1) for t in command_times[near])}
 
         print(f'{KILLS} kills of each peer; control resumed {max(resumed):.3f} s at most after '
               f'a new sim\'s ready line (median {np.median(resumed):.3f}); '

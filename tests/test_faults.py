@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 import pytest
-from hri_interfaces.msg import ControllerState
+from hri_interfaces.msg import ControllerState, TaskState
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -363,10 +363,14 @@ def test_event_manager_killed_fades_the_task_out_then_in_when_task_states_return
         manager_params={'heartbeat_period': HEARTBEAT_PERIOD})
     joints = RawListener(probe, '/joint_states', JointState)
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
-    assert wait_for(lambda: len(joints) > 100, 10.0)
+    task_states = RawListener(probe, '/hri/task_state', TaskState)
+    assert wait_for(lambda: len(joints) > 100 and len(task_states) > 0, 10.0)
     processes['event_manager'].send(signal.SIGKILL)
     killed_at = probe_time(probe)
     assert processes['event_manager'].wait(5.0) == -signal.SIGKILL
+    # The controller's timeout runs from the last TaskState it got: the last one sent, which a
+    # busy machine may have held back for longer than a heartbeat period before the kill.
+    last_task_state = max(sent for sent in task_states.sent_times() if sent < killed_at)
     def faded_out(state) -> bool:
         return state.status == 'no_task_state' and state.weight == 0.0
 
@@ -378,7 +382,7 @@ def test_event_manager_killed_fades_the_task_out_then_in_when_task_states_return
     delay, stall, held = zero_for_good(states, killed_at, faded_out)
     faded = TASK_STATE_TIMEOUT + TASK_FADE_TIME
     assert delay <= allowed_delay(faded, stall), (delay, stall)
-    assert delay >= faded - HEARTBEAT_PERIOD - SLACK, (delay, stall)
+    assert delay >= last_task_state - killed_at + faded - SLACK, (delay, stall)
     assert held > 50
     # The fade is eq. 13's ramp, seen in the ControllerStates (10 ms apart, further on a busy
     # machine): between two of them a changes by at most the quintic ramp's steepest slope
@@ -397,9 +401,11 @@ def test_event_manager_killed_fades_the_task_out_then_in_when_task_states_return
     assert np.all(np.abs(np.diff(weights_out)) <= allowed), (apart, ages, weights_out)
     # Until the timeout the last TaskState stays in force (a = 1, follow).
     before_timeout = [s for s in after if stamp_seconds(s.header.stamp)
-                      < killed_at + TASK_STATE_TIMEOUT - HEARTBEAT_PERIOD - SLACK]
-    assert all(s.status == 'ok' and s.weight > 0.99 for s in before_timeout), [
-        (round(stamp_seconds(s.header.stamp) - killed_at, 3), s.status, s.weight) for s in after]
+                      < last_task_state + TASK_STATE_TIMEOUT - SLACK]
+    assert all(s.status == 'ok' and s.weight > 0.99 for s in before_timeout), (
+        round(last_task_state - killed_at, 3), [
+            (round(stamp_seconds(s.header.stamp) - killed_at, 3), s.status, s.weight)
+            for s in before_timeout if not (s.status == 'ok' and s.weight > 0.99)][:20])
 
     restart_from = len(states)
     restarted_at = probe_time(probe)

@@ -239,13 +239,18 @@ class SchedulingCanaries:
                 raise RuntimeError(f'scheduling canary did not start: {line!r}')
 
     def stalls(self) -> np.ndarray:
-        """(n, 2): each late wake-up's time (system clock, s) and lateness (s), of all CPUs."""
+        """(n, 2): each late wake-up's time (system clock, s) and lateness (s), of all CPUs.
+        Sets `granted`: whether every canary ran at SCHED_FIFO (if not, the notes include
+        ordinary scheduling delays too)."""
         notes = []
         for process in self._processes:
             process.send_signal(signal.SIGTERM)
+        self.granted = True
         for process in self._processes:
             output, _ = process.communicate(timeout=5.0)
-            notes.extend(json.loads(output)['stalls'])
+            report = json.loads(output)
+            notes.extend(report['stalls'])
+            self.granted = self.granted and report['granted']
         return np.array(sorted(notes), dtype=float).reshape(-1, 2)
 
     def close(self) -> None:

@@ -282,7 +282,8 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
               f'longest gap {max((span for _, span, _ in answers), default=0.0) * 1e3:.0f} ms '
               f'({len(late)} over {MAX_ANSWER * 1e3:.0f} ms and the machine\'s stall then); '
               f'the canaries\' longest stall {np.max(stalls[:, 1], initial=0.0) * 1e3:.1f} ms '
-              f'({len(stalls)} over 2 ms); longest command held by the sim '
+              f'({len(stalls)} over 2 ms; their SCHED_FIFO '
+              f'{"granted" if canaries.granted else "refused"}); longest command held by the sim '
               f'{max((span for _, span, _ in holds), default=0.0) * 1e3:.0f} ms; largest change '
               f'of the applied torque per 1 ms step {largest_step(stamps, efforts):.2f} N m')
         if answers:

@@ -259,14 +259,14 @@ def test_each_peer_killed_twenty_times_the_controller_answers_every_joint_state(
             resumed.append(first_controlled() - sim_up)
             time.sleep(DWELL)
         sent, stamps, efforts = sim_joint_efforts(joints)  # decoded once, for all three
-        answers = controller_gaps(sent, efforts, commands.sent_times(), 0.005,
-                                  since=loop_up)
+        # Read once: the gaps and their diagnosis see the same commands.
+        command_times = commands.sent_times()
+        answers = controller_gaps(sent, efforts, command_times, 0.005, since=loop_up)
         stalls = canaries.stalls()
         excused = [machine_stall(stalls, at, at + span) for at, span, _ in answers]
         late = [(*gap, excuse) for gap, excuse in zip(answers, excused, strict=True)
                 if gap[1] > MAX_ANSWER + excuse]
         holds = applied_command_holds(sent, stamps, efforts, 0.0)
-        command_times = commands.sent_times()
 
         def around(at: float, span: float) -> dict:
             """What the probe had of both streams near a gap, for its diagnosis."""

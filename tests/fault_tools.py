@@ -228,6 +228,9 @@ class SchedulingCanaries:
                     [sys.executable, str(REPO_ROOT / 'tests' / 'scheduling_canary.py'),
                      str(cpu), str(priority), *map(str, ends)],
                     stdout=subprocess.PIPE, text=True, pass_fds=ends))
+        except BaseException:
+            self.close()  # the canaries already started end with it
+            raise
         finally:
             for pipe in pipes:
                 for end in pipe:

@@ -13,6 +13,7 @@ from hri_bringup.processes import (
     stop_all,
 )
 from tests.common import next_domain_id
+from tests.fault_tools import close_intake
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
@@ -71,4 +72,5 @@ def probe(ros_domain):
     try:
         yield ros_probe
     finally:
+        close_intake(ros_probe)
         ros_probe.close()

@@ -38,8 +38,8 @@ MESSAGE_MODULES = ('builtin_interfaces.msg', 'geometry_msgs.msg', 'hri_interface
 
 def preload(packages: tuple[str, ...]) -> None:
     """What each child would otherwise load in its first second: the message type supports,
-    the recorder's message store, and the source lines rclpy's logger reads (inspect) for the file and line of each call
-    from the modules of `packages`."""
+    the recorder's message store, and the source lines rclpy's logger reads (inspect) for the
+    file and line of each call from the modules of `packages`."""
     for name in MESSAGE_MODULES:
         for message in vars(importlib.import_module(name)).values():
             if inspect.isclass(message) and hasattr(message, '_TYPE_SUPPORT'):

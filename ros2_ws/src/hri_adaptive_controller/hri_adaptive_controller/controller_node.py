@@ -12,7 +12,8 @@ With `mode: velocity` it publishes the joint-velocity reference qdot_r of eq. 14
 /velocity_controller/commands instead. theta_hat advances by the time between the joint
 states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
 misses: commands published later than 1.5 periods of `rate_hz` after the stamp of their joint
-state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone computes V.
+state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone computes V,
+the task's term kp a Q of it (0.3-0.4 ms) once the cycle's command is out.
 
 A watchdog timer (every joint_state_timeout / 4) notices missing or stale joint states; while
 they are, a timer at `rate_hz` publishes zero torque (and ControllerState) in place of the
@@ -232,6 +233,7 @@ class Controller(Node):
         self._weight = 0.0
         self._warned: dict[str, float] = {}
         self._input_age = 0.0
+        self._cycle_task = (None, 0.0)  # (shape, k) of the last control step's task
         # The 1 kHz messages as raw CDR (hri_core.cdr): joint states read at fixed offsets
         # while their layout holds, commands written from a template.
         self._joint_reader = LayoutReader(lambda data: joint_state_layout(
@@ -502,10 +504,13 @@ class Controller(Node):
         # The hand where it is at the joint state's time, from the stamps (receive times would
         # add the callbacks' delays, 2.5 mm per 5 ms at 0.5 m/s).
         target, target_velocity = self._hand.evaluate(self._joint_stamp)
+        k = 0.0 if shape is None else k
+        self._cycle_task = (shape, k)
         try:
+            # V without its task term kp a Q, added once the command is out (_publish_state).
             output = self._law.step_lean(self._q, self._dq, target, target_velocity,
                                          (0.0, 0.0), weight, rate, shape, dt, monitor=monitor,
-                                         k=0.0 if shape is None else k, rest=self._rest)
+                                         k=k, rest=self._rest, with_potential=False)
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             self._status = f'fault: {type(error).__name__}'
             self._warn('internal', f'zero torque: control step failed: {error!r}')
@@ -530,7 +535,9 @@ class Controller(Node):
             msg.task = self._task_state.task.name
         if output is not None:
             msg.distance = float(output.distance)
-            msg.lyapunov = float(output.lyapunov) if output.lyapunov is not None else 0.0
+            if output.lyapunov is not None:
+                msg.lyapunov = output.lyapunov + self._weight * self._law.task_energy(
+                    output.distance, *self._cycle_task)
             msg.sliding_norm = math.hypot(*output.s)
             msg.weight = self._weight
             msg.saturated = bool(output.torque_limited or self._rate_limited)

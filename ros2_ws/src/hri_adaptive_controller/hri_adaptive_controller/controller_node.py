@@ -380,12 +380,19 @@ class Controller(Node):
                     return
             self._shape_key, self._task_payload = key, (shape, msg.task.k)
         self._task_state = msg
+        self._task_time = now = time.monotonic()
+        link = None if self._link is None else self._link.evaluate(now).phase
+        if link == PHASE_IDLE:
+            # TaskStates return after the link was down (a = 0): their weight is taken as it
+            # is. Blended from the weight held since the last ones (1 when the old
+            # event_manager was killed, the new one's ramp starting at 0), the task weight
+            # fell while the link faded in: a rose to 0.8 and fell back to 0.05 in 30 ms.
+            self._weights.reset()
         self._weights.offer(key, self._task_payload, stamp_seconds(msg.header.stamp),
                             msg.weight, msg.weight_rate)
-        self._task_time = now = time.monotonic()
         if self._link is None:
             self._link = EventWeightSchedule(self._values['task_fade_time'], LINK)
-        elif self._link.evaluate(now).phase in (PHASE_FADING_OUT, PHASE_IDLE):
+        elif link in (PHASE_FADING_OUT, PHASE_IDLE):
             self.get_logger().info('task states resumed: fading the task in')
             self._link.request(LINK, now)
 

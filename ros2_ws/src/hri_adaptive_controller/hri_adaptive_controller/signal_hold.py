@@ -186,6 +186,16 @@ class TaskWeightHold:
         self._next = None  # (key, payload, stamp, weight, rate) of another task, waiting
         self._fading_out = False  # the task in force fades out for the one waiting
 
+    def reset(self) -> None:
+        """Forget the task in force and its weight: the next TaskState is taken as it is, not
+        blended from the held weight (for TaskStates that return after the link to their
+        source was down, while a = 0 anyway)."""
+        self._hold.reset()
+        self._stamp = None
+        self._key = self._payload = None
+        self._next = None
+        self._fading_out = False
+
     def offer(self, key: Hashable, payload, stamp: float, weight: float, rate: float) -> None:
         """A TaskState: the task `key` (with `payload`) at weight a in [0, 1] and rate da/dt
         (1/s), stamped `stamp` s."""

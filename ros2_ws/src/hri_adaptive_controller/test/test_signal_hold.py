@@ -111,6 +111,19 @@ def test_task_weight_follows_a_ramp_sampled_on_time_without_lag():
         assert a == pytest.approx(u ** 3 * (10 - 15 * u + 6 * u * u), abs=2e-3)
 
 
+def test_task_weight_after_a_reset_is_taken_as_it_comes():
+    weights = TaskWeightHold(pace=1.0, max_extrapolation=0.05)
+    weights.offer('follow', 'F', 0.0, 1.0, 0.0)
+    assert weights.evaluate(0.01)[2] == 1.0
+    # Without a reset the new source's ramp from 0 is blended from the held 1 at the pace.
+    weights.offer('follow', 'F', 3.0, 0.01, 0.9)
+    assert weights.evaluate(3.0)[2] == pytest.approx(1.0)
+    weights.reset()
+    assert weights.evaluate(3.0) is None
+    weights.offer('follow', 'F2', 3.0, 0.01, 0.9)
+    assert weights.evaluate(3.0) == ('follow', 'F2', 0.01, 0.9)
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match='max_extrapolation'):
         BlendedHold(-1.0)

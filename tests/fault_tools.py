@@ -32,6 +32,9 @@ from tests.common import REPO_ROOT
 
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 INTAKE_PERIOD = 0.002  # s between two takes of a probe's raw subscriptions
+# SCHED_FIFO priority of the sim and the controller in the tests that run them as on a robot's
+# computer (the scheduling canaries of the kill test run above it).
+REALTIME_PRIORITY = 50
 SIM_JOINTS = ('joint1', 'joint2')  # scara_sim's joints, in its order
 
 

@@ -30,6 +30,7 @@ from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import MONITOR_QOS
 from tests.common import PAPER_TASKS
 from tests.fault_tools import (
+    REALTIME_PRIORITY,
     ForkedNodes,
     RawListener,
     SchedulingCanaries,
@@ -86,7 +87,6 @@ PEERS = ('scara_sim', *OTHER_PEERS)
 KILLS = 20
 DWELL = 0.15  # s
 MAX_ANSWER = 0.02  # s
-REALTIME_PRIORITY = 50
 CANARY_PRIORITY = 60
 # A hand circling 0.1 m or less from the arm: the arm follows it, the torque changes every
 # cycle and stays far below the effort limit (a clamped torque would look like a held one).

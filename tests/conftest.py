@@ -13,7 +13,7 @@ from hri_bringup.processes import (
     stop_all,
 )
 from tests.common import next_domain_id
-from tests.fault_tools import REALTIME_PRIORITY, close_intake
+from tests.fault_tools import close_intake
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
@@ -48,25 +48,13 @@ def nodes(ros_domain, tmp_path):
 
 
 @pytest.fixture
-def live_loop(ros_domain, tmp_path, request):
+def live_loop(ros_domain, tmp_path):
     """`live_loop(overrides, **kw)` starts the live loop (hri_bringup.processes.
-    start_live_loop) on the test's domain; {name: process}; all stopped when the test ends.
-
-    In a test marked `exclusive` the sim and the controller ask for SCHED_FIFO
-    (REALTIME_PRIORITY, unless the overrides say otherwise), as on a robot's computer: on this
-    2-core virtual machine, at normal priority beside the test's own process and the unit
-    tests, their 1 kHz stream stopped for over the controller's joint_state_timeout now and
-    then (ci80). The other topic-level tests run two at a time and keep normal priority.
-    """
+    start_live_loop) on the test's domain; {name: process}; all stopped when the test ends."""
     started: list[NodeProcess] = []
-    realtime = ({'realtime_priority': REALTIME_PRIORITY}
-                if request.node.get_closest_marker('exclusive') else {})
 
     def start(overrides: dict | None = None, **kwargs) -> dict[str, NodeProcess]:
         kwargs.setdefault('log_dir', tmp_path)
-        overrides = dict(overrides or {})
-        for name in ('scara_sim', 'controller'):
-            overrides[name] = {**realtime, **(overrides.get(name) or {})}
         processes = start_live_loop(ros_domain, overrides, **kwargs)
         started.extend(processes.values())
         return processes

@@ -36,7 +36,7 @@ from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import LEARNED_TASKS_QOS, MONITOR_QOS, TASK_STATE_QOS
 from tests.common import PAPER_TASKS, REPO_ROOT
-from tests.fault_tools import RELIABLE, RawListener, assert_all_finite
+from tests.fault_tools import REALTIME_PRIORITY, RELIABLE, RawListener, assert_all_finite
 
 pytestmark = pytest.mark.integration
 
@@ -381,11 +381,14 @@ def test_a_burst_of_1000_events_in_one_second_under_the_closed_loop(live_loop, p
     states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
     ramp_time = 0.5
-    # The sim and the controller run at SCHED_FIFO (the live_loop fixture, exclusive tests):
-    # the burst and the event_manager's backlog load both cores, and at normal priority the
-    # joint states stopped for over joint_state_timeout after the burst once (ci80).
+    # The sim and the controller at SCHED_FIFO, as on a robot's computer: the burst and the
+    # event_manager's backlog load both cores, and at normal priority the joint states then
+    # stopped for over joint_state_timeout now and then, also after the burst (ci80). What is
+    # judged here is the handling of the events.
+    realtime = {'realtime_priority': REALTIME_PRIORITY}
     processes = live_loop({'event_manager': {'ramp_time': ramp_time},
-                           'hand_sim': {'profile': 'circle', 'period': 4.0}})
+                           'hand_sim': {'profile': 'circle', 'period': 4.0},
+                           'scara_sim': realtime, 'controller': realtime})
     manager, controller = processes['event_manager'], processes['controller']
     assert wait_for(lambda: states and states[-1].status == 'ok', 30.0), controller.log()
     events = probe.publisher('/hri/events', TaskEvent, RELIABLE)

@@ -543,8 +543,13 @@ class Controller(Node):
         if output is not None:
             msg.distance = float(output.distance)
             if output.lyapunov is not None:
-                msg.lyapunov = output.lyapunov + self._weight * self._law.task_energy(
-                    output.distance, *self._cycle_task)
+                try:
+                    task = self._weight * self._law.task_energy(output.distance,
+                                                                *self._cycle_task)
+                except Exception as error:  # noqa: BLE001 monitoring must not stop control
+                    self._warn('lyapunov', f'V reported without its task term: {error!r}')
+                    task = 0.0
+                msg.lyapunov = output.lyapunov + task
             msg.sliding_norm = math.hypot(*output.s)
             msg.weight = self._weight
             msg.saturated = bool(output.torque_limited or self._rate_limited)

@@ -259,6 +259,26 @@ def assert_lean_equals_reference(lean, reference):
             assert value == pytest.approx(expected, rel=1e-12, abs=1e-12), name
 
 
+
+def test_v_without_its_task_term_plus_task_energy_is_v():
+    """The controller publishes its command, then adds a kp Q to V (controller_node)."""
+    rng = np.random.default_rng(7)
+    for i in range(60):
+        whole, split = controller(), controller()
+        q, dq = tuple(rng.uniform(-2.0, 2.0, 2)), tuple(rng.normal(0.0, 1.0, 2))
+        x_d = tuple(rng.uniform(-0.5, 0.5, 2))
+        a, da = float(rng.uniform(0.0, 1.0)), float(rng.normal(0.0, 1.0))
+        shape = LEAN_SHAPES[i % len(LEAN_SHAPES)]
+        k = float(rng.choice([0.0, 30.0]))
+        args = (q, dq, x_d, (0.01, 0.0), (0.0, 0.0), a, da, shape, 1e-3)
+        full = whole.step_lean(*args, monitor=True, k=k)
+        part = split.step_lean(*args, monitor=True, k=k, with_potential=False)
+        if full.fault:
+            continue
+        v = part.lyapunov + a * split.task_energy(part.distance, shape, k)
+        assert v == pytest.approx(full.lyapunov, rel=1e-12, abs=1e-12)
+    assert controller().task_energy(0.1, None) == 0.0
+
 @pytest.mark.parametrize('seed', range(4))
 def test_lean_step_equals_the_reference_step_on_random_states(seed):
     rng = np.random.default_rng(seed)

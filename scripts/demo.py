@@ -217,20 +217,15 @@ class Demo:
         self.running.append(process)
         return process
 
-    def stop(self, process: NodeProcess, expect_clean: bool = True) -> None:
-        code = process.stop(timeout=5.0)
-        self.running.remove(process)
-        if expect_clean and code != 0:
-            raise StageError(f'{process.name} exited {code} when stopped; log {process.log_path}')
-
-    def stop_together(self, processes: list[NodeProcess]) -> None:
-        """`stop` for several at once (SIGINT to all, then the waits)."""
+    def stop(self, *processes: NodeProcess) -> None:
+        """Stop `processes` together (SIGINT to all, then the waits); each must exit 0."""
         codes = stop_all(processes, timeout=5.0)
         for process in processes:
             self.running.remove(process)
-        failed = [f'{p.name} exited {code}' for p, code in codes.items() if code != 0]
+        failed = [f'{p.name} exited {code} when stopped; log {p.log_path}'
+                  for p, code in codes.items() if code != 0]
         if failed:
-            raise StageError(f'{", ".join(failed)} when stopped; logs in {self.logs}')
+            raise StageError('; '.join(failed))
 
     def stop_all(self) -> None:
         for process in list(self.running):
@@ -383,7 +378,7 @@ class Demo:
         # the loop's nodes together.
         for name in ('hand_sim', 'recorder'):
             self.stop(loop[name])
-        self.stop_together([loop[name] for name in ('controller', 'event_manager', 'scara_sim')])
+        self.stop(*(loop[name] for name in ('controller', 'event_manager', 'scara_sim')))
         return bag
 
     def run_behaviours(self) -> None:

@@ -8,6 +8,7 @@ and decodes them only when the test looks.
 
 import bisect
 import contextlib
+import copy
 import json
 import math
 import os
@@ -36,12 +37,6 @@ INTAKE_PERIOD = 0.002  # s between two takes of a probe's raw subscriptions
 # computer (the scheduling canaries of the kill test run above it).
 REALTIME_PRIORITY = 50
 SIM_JOINTS = ('joint1', 'joint2')  # scara_sim's joints, in its order
-
-
-def _qos_fields(qos: QoSProfile) -> dict:
-    return {name: getattr(qos, name) for name in
-            ('history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
-             'liveliness', 'liveliness_lease_duration')}
 
 
 class ProbeIntake:
@@ -99,7 +94,8 @@ class RawListener:
         self.msg_type = msg_type
         self.arrivals: list[tuple[float, bytes, float]] = []
         # Deep enough for the messages of a thread held back for a second: none is lost.
-        profile = QoSProfile(**{**_qos_fields(qos), 'depth': max(qos.depth, 1000)})
+        profile = copy.copy(qos)
+        profile.depth = max(qos.depth, 1000)
         intake = ProbeIntake.of(probe)
         self._subscription = intake.node.create_subscription(
             msg_type, topic, lambda *_: None, profile, raw=True)

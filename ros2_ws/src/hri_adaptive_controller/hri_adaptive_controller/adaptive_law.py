@@ -47,6 +47,7 @@ import numpy as np
 from hri_adaptive_controller.task_variable import (
     DampingSettings,
     JointReference,
+    PotentialAlongPath,
     TaskDrive,
     joint_velocity_reference,
     rest_term,
@@ -345,6 +346,7 @@ class AdaptiveController:
         self._ks = np.asarray(gains.ks, dtype=float)
         self._adaptation = np.asarray(gains.adaptation, dtype=float)
         self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
+        self._potentials: dict[tuple[TaskShape, float], PotentialAlongPath] = {}
         # The lean step's constants as Python floats.
         self._ks_floats = tuple(self._ks.tolist())
         self._adaptation_floats = tuple(self._adaptation.tolist())
@@ -389,11 +391,19 @@ class AdaptiveController:
 
     def task_energy(self, distance: float, shape: TaskShape | None, k: float = 0.0) -> float:
         """kp Q(distance) (J per unit of a): the task's part of V (eq. 21) that
-        `step_lean(..., with_potential=False)` leaves out, for a caller that adds
-        a kp Q after the cycle's command is out (Q costs 0.3-0.4 ms, the rest of the step
-        tens of microseconds). distance m, finite and >= 0; 0 without a task."""
+        `step_lean(..., with_potential=False)` leaves out, for a caller that adds a kp Q once
+        the cycle's command is out. Q along the controller's path of distances
+        (task_variable.PotentialAlongPath, one per task: about 0.07 ms a call, against
+        0.25-0.4 ms for task_potential, which it agrees with to the latter's accuracy).
+        distance m, finite and >= 0; 0 without a task."""
         drive = self.drive(shape, k)
-        return 0.0 if drive is None else self._gains.kp * task_potential(distance, drive)
+        if drive is None:
+            return 0.0
+        key = (shape, k)
+        potential = self._potentials.get(key)
+        if potential is None:
+            potential = self._potentials[key] = PotentialAlongPath(drive)
+        return self._gains.kp * potential(distance)
 
     def task_gain(self, shape: TaskShape | None, k: float = 0.0) -> float:
         """Task gain K (m^2/s) used for `shape` with gain k (0 for no task)."""

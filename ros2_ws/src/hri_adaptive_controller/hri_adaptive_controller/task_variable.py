@@ -105,6 +105,13 @@ _GAUSS_NODES, _GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(12)
 _PANEL_EDGES = np.concatenate([[0.0], 2.0 ** np.arange(-7, 0), 1.0 - 2.0 ** np.arange(-2, -8, -1),
                                [1.0]])
 _INTEGRALS_AT_ONCE = 1000
+ANCHOR_SPACING = 0.0005
+"""m between the anchors of PotentialAlongPath."""
+MAX_NEW_PIECES = 8
+"""Anchors a PotentialAlongPath call may add (each about 40 us: 0.3 ms at most)."""
+_MAX_CHAIN = 50_000  # anchors from one breakpoint (100 m): beyond, task_potential
+_PIECE_RULE = tuple(zip(*(values.tolist() for values in np.polynomial.legendre.leggauss(5)),
+                        strict=True))
 
 
 @dataclass(frozen=True)
@@ -448,6 +455,76 @@ def task_potentials(distances, drive: TaskDrive) -> np.ndarray:
     rising = _radial_integrals(drive, np.full(r.shape, d1), np.clip(r, d1, peak))
     falling = _radial_integrals(drive, np.full(r.shape, peak), np.clip(r, peak, d2))
     return np.where(r <= d1, 0.0, rising + np.where(r > peak, falling, 0.0))
+
+
+class PotentialAlongPath:
+    """task_potential for one drive at the distances of a running controller (its V, eq. 21,
+    at 100 Hz): Q(r) = Q(anchor) + the integral of Q' from the anchor to r by a 5-node
+    Gauss-Legendre rule in floats, about 0.07 ms against 0.25-0.4 ms for task_potential.
+
+    Q is the integral of Q' from a breakpoint (an edge of the zero set d1', d2'; for S = -1
+    also the peak of P, where |K dP/dr| in the approach term turns) to r, and Q' may have a
+    kink at a breakpoint. The anchors lie every ANCHOR_SPACING m from the breakpoints, their
+    values chained piece by piece with the same rule, kept for the next calls: no piece
+    crosses a breakpoint. A call extends a chain by at most MAX_NEW_PIECES; one that would
+    need more (a distance far from every anchor made so far, as when a task starts) returns
+    task_potential's value, and the next calls go on extending it.
+
+    Agreement: within 1e-8 of Q's scale of a 0.1 mm composite rule on the test tasks
+    (test_task_variable); task_potential, whose 14 panels are set by the whole interval,
+    differs from both by up to 3e-4 of it on steep tasks.
+    """
+
+    def __init__(self, drive: TaskDrive):
+        self._drive = drive
+        self._s = drive.shape.s
+        self._d1, self._d2 = drive.region()
+        self._peak = _potential_peak(drive) if self._s == -1 else None
+        # The anchors' values from each breakpoint: [0, Q' integrated over 1, 2, ... pieces].
+        self._chains: dict[float, list[float]] = {}
+
+    def __call__(self, distance: float) -> float:
+        """Q at `distance` (m, finite, >= 0; unchecked: the caller's per-cycle path), m^2/s."""
+        r, d1, d2 = distance, self._d1, self._d2
+        budget = [MAX_NEW_PIECES]
+        try:
+            if self._s == 1:
+                if d1 <= r <= d2:
+                    return 0.0
+                return abs(self._along(d2, 1.0, r, budget) if r > d2
+                           else self._along(d1, -1.0, r, budget))
+            if r <= d1:
+                return 0.0
+            r, peak = min(r, d2), self._peak
+            if r <= peak:
+                return self._along(d1, 1.0, r, budget)
+            return self._along(d1, 1.0, peak, budget) + self._along(peak, 1.0, r, budget)
+        except _ChainTooShortError:
+            return task_potential(distance, self._drive)
+
+    def _along(self, origin: float, direction: float, r: float, budget: list[int]) -> float:
+        """The integral of Q' from the breakpoint `origin` to r, on its `direction` side."""
+        chain = self._chains.setdefault(origin, [0.0])
+        steps = int((r - origin) * direction / ANCHOR_SPACING)
+        if steps >= _MAX_CHAIN:
+            raise _ChainTooShortError
+        while len(chain) <= steps:
+            if budget[0] == 0:
+                raise _ChainTooShortError
+            budget[0] -= 1
+            start = origin + direction * (len(chain) - 1) * ANCHOR_SPACING
+            chain.append(chain[-1] + self._piece(start, start + direction * ANCHOR_SPACING))
+        return chain[steps] + self._piece(origin + direction * steps * ANCHOR_SPACING, r)
+
+    def _piece(self, start: float, end: float) -> float:
+        half, centre = 0.5 * (end - start), 0.5 * (end + start)
+        drive = self._drive
+        return half * sum(weight * radial_drive(centre + half * node, drive)[0]
+                          for node, weight in _PIECE_RULE)
+
+
+class _ChainTooShortError(Exception):
+    """PotentialAlongPath: the anchors do not reach the distance yet."""
 
 
 def _potential_peak(drive: TaskDrive) -> float:

@@ -261,7 +261,9 @@ def assert_lean_equals_reference(lean, reference):
 
 
 def test_v_without_its_task_term_plus_task_energy_is_v():
-    """The controller publishes its command, then adds a kp Q to V (controller_node)."""
+    """The controller publishes its command, then adds a kp Q to V (controller_node). Each
+    controller here is new, so its task_energy is task_potential's value (its path of
+    distances is tested in test_task_variable)."""
     rng = np.random.default_rng(7)
     for i in range(60):
         whole, split = controller(), controller()

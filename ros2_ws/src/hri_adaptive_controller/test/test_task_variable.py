@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from hri_adaptive_controller.task_variable import (
+    ANCHOR_SPACING,
     CAP_BAND,
     DampingSettings,
+    PotentialAlongPath,
     TaskDrive,
     _approach_floor,
     _approach_floor_values,
@@ -226,6 +228,76 @@ def test_task_potential_integrates_the_radial_slope(name):
         # fixed Gauss-Legendre panels resolve to a few per cent.
         assert numeric == pytest.approx(slope, rel=3e-2, abs=1e-4)
         assert task_potential(r, task) >= 0.0
+
+
+def fine_potential(task, r, panel=2e-4):
+    """Q at r by a 5-node Gauss-Legendre rule on `panel`-wide panels from the breakpoint."""
+    d1, d2 = task.region()
+    nodes, weights = np.polynomial.legendre.leggauss(5)
+
+    def integral(start, end):
+        edges = np.linspace(start, end, max(1, math.ceil(abs(end - start) / panel)) + 1)
+        half, centre = 0.5 * np.diff(edges), 0.5 * (edges[1:] + edges[:-1])
+        rule = tuple(zip(nodes, weights, strict=True))
+        return sum(h * sum(w * radial_drive(c + h * x, task)[0] for x, w in rule)
+                   for h, c in zip(half, centre, strict=True))
+
+    if task.shape.s == 1:
+        return 0.0 if d1 <= r <= d2 else abs(integral(d2 if r > d2 else d1, r))
+    return 0.0 if r <= d1 else integral(d1, min(r, d2))
+
+
+def walked(task, distances):
+    """A PotentialAlongPath that has seen `distances` in turn, as a controller's V does."""
+    along = PotentialAlongPath(task)
+    for r in distances:
+        along(float(r))
+    return along
+
+
+@pytest.mark.parametrize('name', ['follow', 'avoid', 'learned_follow', 'learned_avoid'])
+def test_potential_along_a_path_equals_a_fine_rule(name):
+    task = drive(name)
+    along = walked(task, np.linspace(0.0, 0.6, 1201))
+    rng = np.random.default_rng(5)
+    for r in rng.uniform(0.0, 0.6, 4):
+        assert along(r) == pytest.approx(fine_potential(task, r), rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize('name', sorted(SHAPES))
+def test_potential_along_a_path_agrees_with_task_potential(name):
+    """Within task_potential's own accuracy (its panels span the whole interval)."""
+    task = drive(name)
+    distances = np.concatenate([np.linspace(0.0, 0.8, 1601), np.linspace(0.8, 0.0, 1601)])
+    along = walked(task, distances)
+    values = np.array([along(r) for r in distances[::40]])
+    expected = np.array([task_potential(r, task) for r in distances[::40]])
+    assert np.all(values >= 0.0) or name == 'trap'
+    assert np.max(np.abs(values - expected)) <= 1e-3 * max(np.max(np.abs(expected)), 1e-9)
+
+
+@pytest.mark.parametrize('name', [*sorted(TABLE_I), 'trap'])
+def test_potential_along_a_path_integrates_the_radial_slope(name):
+    task = drive(name)
+    along = walked(task, np.linspace(0.0, 0.75, 1501))
+    h = 1e-6
+    for r in (0.02, 0.1, 0.17, 0.2, 0.28, 0.4, 0.7):
+        numeric = (along(r + h) - along(r - h)) / (2 * h)
+        slope = radial_drive(r, task)[0]
+        if task.region()[0] <= r <= task.region()[1] and task.shape.s == 1:
+            slope = 0.0  # Q is 0 on its zero set, whatever the approach term there
+        assert numeric == pytest.approx(slope, rel=1e-5, abs=1e-7)
+
+
+def test_potential_along_a_path_far_from_its_anchors_is_task_potentials():
+    """A distance its anchors do not reach yet (a task just started): task_potential's
+    value; the anchors grow towards it, a few per call, until they reach it."""
+    task = drive('follow')
+    along = PotentialAlongPath(task)
+    assert along(0.5) == task_potential(0.5, task)
+    for _ in range(int(0.5 / ANCHOR_SPACING)):
+        along(0.5)
+    assert along(0.5) == pytest.approx(fine_potential(task, 0.5), rel=1e-9)
 
 
 def test_task_potential_is_k_p_below_the_cap():

@@ -233,6 +233,7 @@ class Controller(Node):
         self._weight = 0.0
         self._warned: dict[str, float] = {}
         self._input_age = 0.0
+        self._system_clock = not self.get_clock().ros_time_is_active
         self._cycle_task = (None, 0.0)  # (shape, k) of the last control step's task
         # The 1 kHz messages as raw CDR (hri_core.cdr): joint states read at fixed offsets
         # while their layout holds, commands written from a template.
@@ -456,10 +457,12 @@ class Controller(Node):
         self._command_pub.publish(self._command_template.encode(command))
         # One read of the clock for input_age and the ControllerState's stamp: the stamp minus
         # input_age is then exactly the stamp of the joint state the cycle ran on, and the
-        # cycle's own time lies between the two.
-        published = self.get_clock().now()
+        # cycle's own time lies between the two. The node's clock is the system clock unless
+        # ROS time is active (use_sim_time): time.time_ns() reads that in 0.1 us, against 4 us
+        # for get_clock().now().
+        published = time.time_ns() if self._system_clock else self.get_clock().now().nanoseconds
         if stamp is not None:
-            self._input_age = published.nanoseconds * 1e-9 - stamp
+            self._input_age = published * 1e-9 - stamp
             if self._input_age > self._late:
                 self._misses += 1
         if now >= self._next_state:
@@ -467,6 +470,8 @@ class Controller(Node):
             due = self._next_state + self._state_period
             self._next_state = due if due > now else now + self._state_period
             self._publish_state(now, output, command, published)
+            # use_sim_time may change at run time: looked at again at each ControllerState.
+            self._system_clock = not self.get_clock().ros_time_is_active
 
     def _link_state(self, now: float) -> WeightState:
         """The link weight at `now` (monotonic s): the first cycle more than
@@ -528,7 +533,7 @@ class Controller(Node):
             return None
         return output
 
-    def _publish_state(self, now: float, output, command, published: Time) -> None:
+    def _publish_state(self, now: float, output, command, published: int) -> None:
         started, ticks = self._window
         if now - started >= 1.0:
             self._rate = (self._cycles - ticks) / (now - started)
@@ -537,7 +542,7 @@ class Controller(Node):
                               input_age=self._input_age,
                               status=self._status, effort=[float(v) for v in command],
                               theta_hat=[float(v) for v in self._law.theta_hat])
-        msg.header.stamp = published.to_msg()
+        msg.header.stamp = Time(nanoseconds=published).to_msg()
         if self._task_state is not None:
             msg.task = self._task_state.task.name
         if output is not None:

@@ -55,6 +55,7 @@ Event rules (the latest event wins)
 - An event naming no task (None) fades out and ends in 'idle'.
 """
 
+import math
 from collections.abc import Hashable
 from dataclasses import dataclass
 
@@ -199,7 +200,7 @@ class EventWeightSchedule:
         self._ramps.append(_Ramp(float(now), duration, target))
 
     def _advance(self, now: float) -> None:
-        if not np.isfinite(now):
+        if not math.isfinite(now):
             raise ValueError(f'time must be finite, got {now}')
         if self._last_time is not None and now < self._last_time - _TIME_TOLERANCE:
             raise ValueError(

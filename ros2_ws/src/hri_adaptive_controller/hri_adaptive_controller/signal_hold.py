@@ -108,6 +108,8 @@ class BlendedHold:
         if self._sample is None:
             return None
         value, rate = self._extrapolation(t)
+        if not self._blends:
+            return value, rate
         out, out_rate = list(value), list(rate)
         running = []
         for blend in self._blends:

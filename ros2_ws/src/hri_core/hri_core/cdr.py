@@ -25,6 +25,7 @@ full deserialiser). A std_msgs/Header is the stamp (int32 sec, uint32 nanosec) a
 these equal to rclpy's serialiser.
 """
 
+import operator
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -55,12 +56,23 @@ class CdrLayout:
     checks: tuple[tuple[int, int], ...]
     offsets: tuple[int, ...]
 
+    def __post_init__(self):
+        # The checked byte ranges of a message in one C call (1 us against 2.5 for a loop).
+        getter = operator.itemgetter(*(slice(start, end) for start, end in self.checks))
+        if len(self.checks) > 1:
+            ranges = getter
+        elif self.checks:
+            def ranges(data):
+                return (getter(data),)
+        else:
+            def ranges(data):
+                return ()
+        object.__setattr__(self, '_ranges', ranges)
+        object.__setattr__(self, '_expected', ranges(self.template))
+
     def matches(self, data: bytes) -> bool:
         """Whether `data` (one serialized message) shares this layout."""
-        if len(data) != self.size:
-            return False
-        template = self.template
-        return all(data[start:end] == template[start:end] for start, end in self.checks)
+        return len(data) == self.size and self._ranges(data) == self._expected
 
 
 def read_values(data: bytes, layout: CdrLayout) -> tuple[float, ...] | None:

@@ -4,9 +4,11 @@ Integrates the arm of `dynamics.py` with RK4 in fixed steps of 1/rate_hz s (defa
 A stepping thread ticks at rate_hz (it sleeps to each tick's absolute time) and runs as many
 steps as real time has advanced since the last tick (at most `max_catch_up_steps` per tick,
 the rest are dropped and counted), and publishes the state after every step it integrated,
-those caught up after a late tick included (simulation.RealTimeStepper); the executor runs
-the input callbacks beside it. A step that fails (a non-finite state) ends the process with
-exit code 1 and one error line:
+those caught up after a late tick included (simulation.RealTimeStepper). The stepping thread
+takes the joint commands received since the last tick itself, at each tick (from the
+subscriptions of a second node, `<name>_commands`, that no executor spins); the executor runs
+the other callbacks (the wrench, parameters) beside it. A step that fails (a non-finite
+state) ends the process with exit code 1 and one error line:
 
 * /joint_states (sensor_msgs/JointState): joint1, joint2; position (rad), velocity (rad/s),
   effort = the drive torque applied (N m, the human's J^T f not included);
@@ -124,6 +126,10 @@ PARAMETERS = {
 }
 
 
+def _taken_by_the_stepping_thread(data: bytes) -> None:
+    """The command subscriptions' callback, never called: no executor spins their node."""
+
+
 class ScaraSim(Node):
     """Integrates the arm and publishes its state at rate_hz."""
 
@@ -168,10 +174,22 @@ class ScaraSim(Node):
         # their layout holds, states written from templates.
         self._command_readers = {mode: LayoutReader(float64_array_layout)
                                  for mode in ('effort', 'velocity')}
-        self.create_subscription(Float64MultiArray, topics.EFFORT_COMMANDS.name,
-                                 self._on_effort, topics.EFFORT_COMMANDS.qos, raw=True)
-        self.create_subscription(Float64MultiArray, topics.VELOCITY_COMMANDS.name,
-                                 self._on_velocity, topics.VELOCITY_COMMANDS.qos, raw=True)
+        # The joint commands are taken by the stepping thread at each tick, in arrival order,
+        # not by the executor: a 1 kHz callback woke the executor's thread for each command
+        # and passed the GIL between it and the stepping thread. Their subscriptions belong
+        # to a node of their own, `<name>_commands`, that no executor spins.
+        # Its name as a local remapping: a global `-r __node:=NAME` would otherwise give it the
+        # name of this node too.
+        commands_name = f'{self.get_name()}_commands'
+        self._command_node = Node(commands_name, namespace=self.get_namespace(),
+                                  context=self.context, start_parameter_services=False,
+                                  cli_args=['--ros-args', '-r', f'__node:={commands_name}'])
+        self._command_subscriptions = tuple(
+            (mode, self._command_node.create_subscription(
+                Float64MultiArray, topic.name, _taken_by_the_stepping_thread, topic.qos,
+                raw=True))
+            for mode, topic in (('effort', topics.EFFORT_COMMANDS),
+                                ('velocity', topics.VELOCITY_COMMANDS)))
         self.create_subscription(WrenchStamped, topics.HUMAN_WRENCH.name, self._on_wrench,
                                  topics.HUMAN_WRENCH.qos)
         self._joint_template = joint_state_template(JOINT_NAMES)
@@ -243,11 +261,13 @@ class ScaraSim(Node):
 
     # Inputs -------------------------------------------------------------------------------
 
-    def _on_effort(self, data: bytes) -> None:
-        self._on_command_data('effort', data)
-
-    def _on_velocity(self, data: bytes) -> None:
-        self._on_command_data('velocity', data)
+    def _take_commands(self) -> None:
+        """Every joint command received since the last tick, in order (stepping thread)."""
+        for mode, subscription in self._command_subscriptions:
+            with subscription.handle:
+                while (taken := subscription.handle.take_message(
+                        subscription.msg_type, True)) is not None:
+                    self._on_command_data(mode, taken[0])
 
     def _on_command_data(self, mode: str, data: bytes) -> None:
         """A command as serialized CDR: its values read at fixed offsets while the layout of
@@ -333,6 +353,7 @@ class ScaraSim(Node):
 
     def destroy_node(self):
         self.stop_stepping()
+        self._command_node.destroy_node()
         return super().destroy_node()
 
     def _on_tick(self) -> None:
@@ -347,6 +368,7 @@ class ScaraSim(Node):
             self._publish_joint_state(state)
             self._publish_tip(state)
             return
+        self._take_commands()
         states = self._stepper.advance(now, self._inputs)
         for state in states:
             self._publish_joint_state(state)

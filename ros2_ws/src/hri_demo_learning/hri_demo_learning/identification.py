@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hri_core.potential import TaskShape, normalised_potential
+from hri_demo_learning.task_energy import normalised_energy
 
 DEFAULT_WORKSPACE_RADIUS = 2.0
 """m: d2 of a desired region that is open outward."""
@@ -124,13 +125,14 @@ def normalised_mismatch(distance, energy, shape):
     exact even where P exceeds the potential's cap.
     """
     e = np.asarray(energy, dtype=float)
-    norm_d = np.linalg.norm(e)
-    if not (math.isfinite(norm_d) and norm_d > 0.0):
+    if not np.all(np.isfinite(e)):
+        raise ValueError('non-finite task energy P_d')
+    if not np.any(e != 0.0):
         raise ValueError('the task energy P_d is zero on every sample')
     p = normalised_potential(distance, shape)
     if not np.any(p > 0.0):
         return math.inf
-    return float(np.linalg.norm(e / norm_d - p))
+    return float(np.linalg.norm(normalised_energy(e) - p))
 
 
 def identify_task_region(distance, energy, moving, workspace_radius=DEFAULT_WORKSPACE_RADIUS,

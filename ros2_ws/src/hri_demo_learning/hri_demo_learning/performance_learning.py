@@ -59,6 +59,7 @@ from hri_core.potential import (
     normalised_potential,
 )
 from hri_demo_learning.identification import DEFAULT_INITIAL_STEEPNESS
+from hri_demo_learning.task_energy import normalised_energy
 
 STEEPNESS_BOUNDS = (1e-3, 1e3)
 """1/m^2: lower and upper bound of a1, a2 during the fit."""
@@ -138,7 +139,7 @@ def _check_fit_input(distance, energy, tolerance, max_iterations, method, initia
     if a.shape != (2,) or not np.all(np.isfinite(a)) or np.any(a < low) or np.any(a > high):
         raise ValueError(f'initial (a1, a2) must lie in [{low}, {high}], got {initial!r}')
     # A start beyond a lowered bound starts on it.
-    return d, e / np.linalg.norm(e), np.clip(a, *bounds)
+    return d, normalised_energy(e), np.clip(a, *bounds)
 
 
 def _log_factor_sensitivity(u, a, d):
@@ -167,8 +168,7 @@ def normalised_potential_jacobian(distance, shape):
 
 def task_cost(distance, energy, shape):
     """Cost C = 0.5 ||P_d/||P_d|| - P/||P||||^2 of eq. 7, 8. distance, energy: (N,)."""
-    e = np.asarray(energy, dtype=float)
-    r = e / np.linalg.norm(e) - normalised_potential(distance, shape)
+    r = normalised_energy(energy) - normalised_potential(distance, shape)
     return 0.5 * float(np.dot(r, r))
 
 

@@ -280,3 +280,12 @@ def combine_energy_profiles(profiles: Sequence, shifts: Sequence[float]):
     speed = None if any(v is None for v in speeds) else np.concatenate(speeds)
     return EnergyProfile(np.concatenate(distances), np.concatenate(energies),
                          np.concatenate(movings), speed)
+
+
+def normalised_energy(energy) -> np.ndarray:
+    """P_d / ||P_d|| (eq. 3, 4's profile on the unit sphere): energy (N,) finite, >= 0, not all
+    zero (checked by the caller). Scaled by its largest value before the norm, which overflows
+    for energies above about 1e154 (a damaged bag's)."""
+    e = np.asarray(energy, dtype=float)
+    unit = e / np.max(np.abs(e))
+    return unit / np.linalg.norm(unit)

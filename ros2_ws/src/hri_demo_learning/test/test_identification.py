@@ -127,6 +127,18 @@ def test_normalised_mismatch_is_zero_for_the_generating_shape():
     assert normalised_mismatch(distance, energy, TaskShape(1, 2.0, 9.0, 0.0, 2.0)) == np.inf
 
 
+def test_normalised_mismatch_does_not_depend_on_the_energy_scale():
+    """Energies whose plain norm overflows (a damaged bag's) are measured like any other."""
+    distance = np.linspace(0.05, 0.5, 200)
+    shape = TaskShape(1, 5.0, 20.0, 0.0, 0.1)
+    energy = potential(distance, shape) + 0.01
+    expected = normalised_mismatch(distance, energy, shape)
+    for scale in (1e-200, 1e200, 1e300):
+        with np.errstate(all='raise'):
+            assert normalised_mismatch(distance, energy * scale, shape) == pytest.approx(
+                expected, rel=1e-12)
+
+
 def test_unusable_profiles_are_rejected_with_a_reason():
     distance, energy, moving = make_profile([0.3, 0.4, 0.5, 0.6], [0.2, 0.21, 0.22, 0.2])
     with pytest.raises(ValueError, match='no sample at rest'):

@@ -108,6 +108,22 @@ def test_positive_effort_on_joint_one_turns_it_positive(nodes, probe):
     assert list(last.effort) == [2.0, 0.0]
 
 
+def test_a_renamed_sim_takes_its_commands_as_name_commands(nodes, probe):
+    """The stepping thread takes the commands from the subscriptions of a second node, which
+    is named after the sim's own (renamed) name, not given it."""
+    sim = nodes('scara_sim', 'scara_sim', params={'command_timeout': 0.3},
+                remaps={'__node': 'arm'})
+    states = probe.collect('/joint_states', JointState, RELIABLE)
+    assert wait_for(lambda: len(states) > 0, START_TIMEOUT), sim.log()
+    assert wait_for(lambda: {'arm', 'arm_commands'} <= set(probe.node.get_node_names()),
+                    START_TIMEOUT), probe.node.get_node_names()
+    subscribers = probe.node.get_subscriptions_info_by_topic('/effort_controller/commands')
+    assert [info.node_name for info in subscribers] == ['arm_commands']
+    publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    publish_for(publisher, command([1.5, -0.5]), 0.5)
+    assert list(states[-1].effort) == [1.5, -0.5]
+
+
 def test_effort_is_clipped_at_the_effort_limit(nodes, probe):
     sim, states, _ = start_sim(nodes, probe, effort_limit=5.0)
     publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)

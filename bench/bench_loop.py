@@ -30,10 +30,12 @@ the commands and, after `--warmup` s, listens. Reported:
 Before the loop, in the same run, the transport floor: a trivial rclpy echo (bench/echo_node.py,
 the controller's executor and QoS) answers JointState pings sent at 1 kHz for `--echo-seconds`;
 its round trip (median, p99, max) and CPU are reported, and the ratio of the loop's joint state
--> command p99 to the echo's round-trip p99. `--load N` starts N busy processes (normal
-priority) before both measurements and ends them after (by PID). The probe and the echo ask
-for SCHED_FIFO (`--probe-priority`, as the nodes do) so that a starved probe does not measure
-its own delays.
+-> command p99 to the echo's round-trip p99, and of the controller's and scara_sim's CPU to
+the echo's: a shared machine's speed changes from hour to hour (the echo took 20.7 % of a
+core at 04:00 here, 28-33 % at noon the same day), which the ratios take out in part.
+`--load N` starts N busy processes (normal priority) before both measurements and ends them
+after (by PID). The probe and the echo ask for SCHED_FIFO (`--probe-priority`, as the nodes
+do) so that a starved probe does not measure its own delays.
 
 Every process started is ended (SIGINT, then SIGKILL by PID) in a `finally`.
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_loop.py`.
@@ -344,6 +346,9 @@ def run(args: argparse.Namespace) -> dict:
     loop_p99 = result['state_to_command'].get('latency', {}).get('p99_ms')
     if echo is not None and loop_p99 is not None and echo['round_trip']['p99_ms']:
         result['latency_p99_ratio'] = round(loop_p99 / echo['round_trip']['p99_ms'], 3)
+    if echo is not None and echo.get('cpu_percent'):
+        result['cpu_vs_echo'] = {name: round(cpu[name] / echo['cpu_percent'], 2)
+                                 for name in ('controller', 'scara_sim') if name in cpu}
     match = SUMMARY.search(started['scara_sim'].log())
     if match:
         steps, ticks, seconds, late, dropped = match.groups()
@@ -386,6 +391,8 @@ def print_report(result: dict) -> None:
         print(f'echo floor       round trip median {trip["median_ms"]} ms, p99 '
               f'{trip["p99_ms"]} ms, max {trip["max_ms"]} ms; echo CPU {echo["cpu_percent"]} %; '
               f'loop p99 / echo p99 = {result.get("latency_p99_ratio")}')
+        print('  CPU / echo CPU ' + ', '.join(
+            f'{name} {value}' for name, value in result.get('cpu_vs_echo', {}).items()))
     print(f'load processes   {result["load_processes"]}')
     if 'sim_summary' in result:
         summary = result['sim_summary']

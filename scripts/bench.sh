@@ -6,7 +6,8 @@
 #   loop      bench/bench_loop.py       the trivial rclpy echo floor, then scara_sim +
 #                                       event_manager + controller + hand_sim, 20 s each: joint
 #                                       state -> command latency and its ratio to the echo's
-#                                       round trip, deadline misses, CPU
+#                                       round trip, deadline misses, CPU (and its ratio to
+#                                       the echo's)
 #   loop_load the same with N busy processes (`--load N`, started and ended by the bench)
 #   recorder  bench/bench_recorder.py   60 s of JointState at 1 kHz: published vs recorded
 #   sim       bench/bench_sim.py        scara_sim alone, 10 s
@@ -221,6 +222,8 @@ for name in PIECES:
             row(name, 'echo floor round trip', spread(echo['round_trip']) +
                 f"; echo CPU {echo['cpu_percent']} %")
             row(name, 'loop p99 / echo round-trip p99', fmt(piece.get('latency_p99_ratio')))
+            row(name, 'CPU / echo CPU', ', '.join(
+                f'{k} {v}' for k, v in piece.get('cpu_vs_echo', {}).items()))
         row(name, 'window', f"{piece['duration_s']} s")
         row(name, '/joint_states rate', f"{j['achieved_rate_hz']} Hz received; sim time / "
             f"wall {fmt(j['sim_realtime_factor'])}")

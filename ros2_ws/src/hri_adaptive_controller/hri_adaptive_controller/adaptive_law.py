@@ -394,7 +394,7 @@ class AdaptiveController:
         """kp Q(distance) (J per unit of a): the task's part of V (eq. 21) that
         `step_lean(..., with_potential=False)` leaves out, for a caller that adds a kp Q once
         the cycle's command is out. Q along the controller's path of distances
-        (task_variable.PotentialAlongPath, one per task: about 0.07 ms a call, against
+        (task_variable.PotentialAlongPath, one per task: 0.05-0.1 ms a call, against
         0.25-0.4 ms for task_potential, which it agrees with to the latter's accuracy).
         distance m, finite and >= 0; 0 without a task."""
         drive = self.drive(shape, k)

@@ -36,12 +36,12 @@ from hri_adaptive_controller.signal_hold import HandHold
 from hri_adaptive_controller.task_variable import pseudo_inverse_damping, task_potentials
 from hri_core.dynamics import (
     ScaraParameters,
-    _rk4_step_scalar,
-    _scalar_constants,
     dynamic_parameters,
+    float_constants,
     forward_kinematics,
     forward_kinematics_pair,
     jacobian,
+    rk4_step_floats,
 )
 from hri_core.potential import TaskShape
 from hri_core.validation import planar_vector
@@ -204,7 +204,7 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
     # The arm's state in plain floats, stepped by hri_core's scalar RK4 (as scara_sim does).
     q = tuple(planar_vector(q0, 'q0').tolist())
     dq = tuple(planar_vector(dq0, 'dq0').tolist())
-    constants = _scalar_constants(params)
+    constants = float_constants(params)
     gains_k = dict(task_gains or {})
     fixed_rest = None if rest_position is None else planar_vector(rest_position, 'rest')
     rest, rest_task = fixed_rest, None
@@ -285,7 +285,7 @@ def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str |
         theta_hat[i] = out.theta_hat
         torque_limited[i], fault[i] = out.torque_limited, out.fault
         phase[i], active_task[i] = weight.phase, weight.active_task
-        state = _rk4_step_scalar((*q, *dq), applied.tolist(), dt, constants)
+        state = rk4_step_floats((*q, *dq), applied.tolist(), dt, constants)
         if not all(map(math.isfinite, state)):
             raise ValueError(f'the arm\'s state became non-finite at t = {t:.3f} s: {state}')
         q, dq = state[:2], state[2:]

@@ -255,8 +255,8 @@ def rk4_step(q, dq, tau, dt: float, p: ScaraParameters) -> tuple[np.ndarray, np.
         if not np.all(np.isfinite(value)):
             raise ValueError(f'{name} must be finite, got {value}')
     if q.shape == dq.shape == tau.shape == (2,):
-        state = _rk4_step_scalar((*q.tolist(), *dq.tolist()), tau.tolist(), dt,
-                                 _scalar_constants(p))
+        state = rk4_step_floats((*q.tolist(), *dq.tolist()), tau.tolist(), dt,
+                                float_constants(p))
         return np.array(state[:2]), np.array(state[2:])
     k1q, k1v = dq, forward_dynamics(q, dq, tau, p)
     k2q = dq + 0.5 * dt * k1v
@@ -270,14 +270,15 @@ def rk4_step(q, dq, tau, dt: float, p: ScaraParameters) -> tuple[np.ndarray, np.
     return q_next, dq_next
 
 
-def _scalar_constants(p: ScaraParameters) -> tuple[float, ...]:
-    """(pi1, pi2, pi3, b1, b2, gravity * mlc1, gravity * mlc2) as Python floats."""
+def float_constants(p: ScaraParameters) -> tuple[float, ...]:
+    """The constants rk4_step_floats takes, as Python floats: (pi1, pi2, pi3 in kg m^2,
+    b1, b2 in N m s/rad, gravity * mlc1, gravity * mlc2 in N m) of dynamic_parameters."""
     pi1, pi2, pi3, b1, b2, mlc1, mlc2 = dynamic_parameters(p).tolist()
     return pi1, pi2, pi3, b1, b2, p.gravity * mlc1, p.gravity * mlc2
 
 
 def _acceleration_scalar(q1, q2, v1, v2, tau, k) -> tuple[float, float]:
-    """forward_dynamics of one state in plain floats; k from _scalar_constants."""
+    """forward_dynamics of one state in plain floats; k from float_constants."""
     pi1, pi2, pi3, b1, b2, gm1, gm2 = k
     c2, s2 = math.cos(q2), math.sin(q2)
     h = pi2 * s2
@@ -289,8 +290,11 @@ def _acceleration_scalar(q1, q2, v1, v2, tau, k) -> tuple[float, float]:
     return (pi3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det
 
 
-def _rk4_step_scalar(state, tau, dt, k) -> tuple[float, float, float, float]:
-    """rk4_step of one state (q1, q2, dq1, dq2) in plain floats."""
+def rk4_step_floats(state, tau, dt, k) -> tuple[float, float, float, float]:
+    """rk4_step of one state in plain floats, for callers that step at 1 kHz and check their
+    inputs where they enter: state (q1, q2 in rad, dq1, dq2 in rad/s), tau (2,) N m held over
+    the step, dt > 0 s, k = float_constants(p). Returns the new (q1, q2, dq1, dq2); no checks
+    (a non-finite result is the caller's to catch)."""
     q1, q2, v1, v2 = state
     a1, a2 = _acceleration_scalar(q1, q2, v1, v2, tau, k)
     h = 0.5 * dt

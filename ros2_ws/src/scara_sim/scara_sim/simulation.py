@@ -35,9 +35,9 @@ import numpy as np
 
 from hri_core.dynamics import (
     ScaraParameters,
-    _rk4_step_scalar,
-    _scalar_constants,
+    float_constants,
     jacobian,
+    rk4_step_floats,
 )
 
 COMMAND_MODES = ('idle', 'effort', 'velocity')
@@ -185,7 +185,7 @@ class ScaraSimulator:
             t1, t2 = self.actuator_torque(mode, command).tolist()
         params = self.params
         if self._constants[0] is not params:  # the node may swap the parameters at run time
-            self._constants = (params, _scalar_constants(params))
+            self._constants = (params, float_constants(params))
         q1, q2 = self.q.tolist()
         v1, v2 = self.dq.tolist()
         f1, f2 = force
@@ -195,8 +195,8 @@ class ScaraSimulator:
         # tau + J^T f
         torque = (t1 + (-l1 * s1 - l2 * s12) * f1 + (l1 * c1 + l2 * c12) * f2,
                   t2 - l2 * s12 * f1 + l2 * c12 * f2)
-        q1, q2, v1, v2 = _rk4_step_scalar((q1, q2, v1, v2), torque, self.dt,
-                                          self._constants[1])
+        q1, q2, v1, v2 = rk4_step_floats((q1, q2, v1, v2), torque, self.dt,
+                                         self._constants[1])
         if not math.isfinite(q1 + q2 + v1 + v2):
             raise ValueError(f'the simulated state became non-finite (torque {torque})')
         (low1, low2), (high1, high2) = self.lower.tolist(), self.upper.tolist()

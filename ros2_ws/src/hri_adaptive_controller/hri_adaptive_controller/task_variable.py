@@ -109,7 +109,7 @@ ANCHOR_SPACING = 0.0005
 """m between the anchors of PotentialAlongPath."""
 MAX_NEW_PIECES = 8
 """Anchors a PotentialAlongPath call may add (each about 40 us: 0.3 ms at most)."""
-_MAX_CHAIN = 50_000  # anchors from one breakpoint (100 m): beyond, task_potential
+_MAX_CHAIN = 50_000  # anchors on one side of a breakpoint (25 m): beyond, task_potential
 _PIECE_RULE = tuple(zip(*(values.tolist() for values in np.polynomial.legendre.leggauss(5)),
                         strict=True))
 
@@ -481,8 +481,9 @@ class PotentialAlongPath:
         self._s = drive.shape.s
         self._d1, self._d2 = drive.region()
         self._peak = _potential_peak(drive) if self._s == -1 else None
-        # The anchors' values from each breakpoint: [0, Q' integrated over 1, 2, ... pieces].
-        self._chains: dict[float, list[float]] = {}
+        # The anchors' values on each side of each breakpoint, keyed (breakpoint, direction):
+        # [0, Q' integrated over 1, 2, ... pieces]. (d1' = d2' is possible: the side tells.)
+        self._chains: dict[tuple[float, float], list[float]] = {}
 
     def __call__(self, distance: float) -> float:
         """Q at `distance` (m, finite, >= 0; unchecked: the caller's per-cycle path), m^2/s."""
@@ -505,7 +506,7 @@ class PotentialAlongPath:
 
     def _along(self, origin: float, direction: float, r: float, budget: list[int]) -> float:
         """The integral of Q' from the breakpoint `origin` to r, on its `direction` side."""
-        chain = self._chains.setdefault(origin, [0.0])
+        chain = self._chains.setdefault((origin, direction), [0.0])
         steps = int((r - origin) * direction / ANCHOR_SPACING)
         if steps >= _MAX_CHAIN:
             raise _ChainTooShortError

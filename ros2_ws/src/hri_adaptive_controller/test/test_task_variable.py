@@ -289,6 +289,17 @@ def test_potential_along_a_path_integrates_the_radial_slope(name):
         assert numeric == pytest.approx(slope, rel=1e-5, abs=1e-7)
 
 
+def test_potential_along_a_path_on_both_sides_of_a_one_point_region():
+    """d1' = d2' (d1 = d2: a region of one radius): the two sides keep anchors of their own."""
+    task = task_drive(TaskShape(1, 5.0, 20.0, 0.12, 0.12), 0.0, V_MAX, REACH, APPROACH_SPEED,
+                      MARGIN, REST_GAIN, 0.03)
+    assert task.region() == (0.12, 0.12)
+    distances = np.concatenate([np.linspace(0.3, 0.0, 601), np.linspace(0.0, 0.3, 601)])
+    along = walked(task, distances)
+    for r in (0.02, 0.08, 0.115, 0.125, 0.2, 0.28):
+        assert along(r) == pytest.approx(fine_potential(task, r), rel=1e-9, abs=1e-12)
+
+
 def test_potential_along_a_path_far_from_its_anchors_is_task_potentials():
     """A distance its anchors do not reach yet (a task just started): task_potential's
     value; the anchors grow towards it, a few per call, until they reach it."""

@@ -57,16 +57,9 @@ class CdrLayout:
     offsets: tuple[int, ...]
 
     def __post_init__(self):
-        # The checked byte ranges of a message in one C call (1 us against 2.5 for a loop).
-        getter = operator.itemgetter(*(slice(start, end) for start, end in self.checks))
-        if len(self.checks) > 1:
-            ranges = getter
-        elif self.checks:
-            def ranges(data):
-                return (getter(data),)
-        else:
-            def ranges(data):
-                return ()
+        # The checked byte ranges of a message in one C call (0.5 us against 2 for a loop).
+        ranges = (operator.itemgetter(*(slice(start, end) for start, end in self.checks))
+                  if self.checks else (lambda data: ()))
         object.__setattr__(self, '_ranges', ranges)
         object.__setattr__(self, '_expected', ranges(self.template))
 

@@ -24,7 +24,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import GenericAlias
@@ -219,6 +219,18 @@ def load_defaults(package: str, node_name: str) -> dict:
     except (yaml.YAMLError, KeyError, TypeError) as error:
         raise StartupError(f'{path} does not hold {node_name}.ros__parameters: '
                            f'{" ".join(str(error).split())}') from None
+
+
+def take_raw(subscription) -> Iterator[tuple[bytes, dict]]:
+    """Every message a raw subscription holds, oldest first, as (serialized message, message
+    info), taken one at a time by the caller's thread: for subscriptions of a node that no
+    executor spins (the recorder's intake, scara_sim's commands)."""
+    while True:
+        with subscription.handle:
+            taken = subscription.handle.take_message(subscription.msg_type, True)
+        if taken is None:
+            return
+        yield taken
 
 
 def stamp_seconds(stamp) -> float:

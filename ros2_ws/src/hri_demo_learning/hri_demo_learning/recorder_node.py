@@ -52,6 +52,7 @@ from hri_core.node_common import (
     declare_parameters,
     load_defaults,
     run_node,
+    take_raw,
 )
 from hri_demo_learning.bag_io import COMPRESSIONS, BagError, BagWriter
 
@@ -241,14 +242,14 @@ class Recorder(Node):
         the reliable publishers count as delivered); return how many."""
         drained = 0
         for topic, subscription in self._recording.items():
+            if self.exit_code is not None:
+                break
             on_message = self._on_message[topic]
-            while self.exit_code is None:
-                with subscription.handle:
-                    taken = subscription.handle.take_message(subscription.msg_type, True)
-                if taken is None:
-                    break
+            for taken in take_raw(subscription):
                 on_message(*taken)
                 drained += 1
+                if self.exit_code is not None:
+                    break
         return drained
 
     def close_bag(self) -> None:

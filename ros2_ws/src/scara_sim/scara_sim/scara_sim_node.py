@@ -62,6 +62,7 @@ from hri_core.node_common import (
     load_defaults,
     request_realtime,
     run_node,
+    take_raw,
 )
 from scara_sim.simulation import (
     FixedStepClock,
@@ -264,10 +265,8 @@ class ScaraSim(Node):
     def _take_commands(self) -> None:
         """Every joint command received since the last tick, in order (stepping thread)."""
         for mode, subscription in self._command_subscriptions:
-            with subscription.handle:
-                while (taken := subscription.handle.take_message(
-                        subscription.msg_type, True)) is not None:
-                    self._on_command_data(mode, taken[0])
+            for data, _ in take_raw(subscription):
+                self._on_command_data(mode, data)
 
     def _on_command_data(self, mode: str, data: bytes) -> None:
         """A command as serialized CDR: its values read at fixed offsets while the layout of

@@ -338,13 +338,13 @@ class Controller(Node):
         self._cycle(now, min(max(dt, 1e-6), 10.0 * self._period), stamp)
 
     def _on_target(self, msg: PointStamped) -> None:
-        position = np.array([msg.point.x, msg.point.y])
-        if not np.all(np.isfinite(position)):
+        x, y = msg.point.x, msg.point.y
+        if not (math.isfinite(x) and math.isfinite(y)):
             self._warn('target_non_finite', 'target dropped: non-finite position')
             return
-        if np.linalg.norm(position) > self._values['max_target_distance']:
+        if math.hypot(x, y) > self._values['max_target_distance']:
             self._warn('target_far',
-                       f'target dropped: {position.round(3).tolist()} is farther than '
+                       f'target dropped: {[round(x, 3), round(y, 3)]} is farther than '
                        f'max_target_distance {self._values["max_target_distance"]:g} m')
             return
         stamp = stamp_seconds(msg.header.stamp)
@@ -356,8 +356,7 @@ class Controller(Node):
             self.get_logger().info('targets restarted behind the last one: following the new '
                                    'source')
             self._hand.reset()
-        # Plain float pairs: what the per-cycle step computes with.
-        self._target = tuple(position.tolist())
+        self._target = (x, y)  # plain floats: what the per-cycle step computes with
         self._hand.offer(self._target, stamp)
 
     def _on_task_state(self, msg: TaskState) -> None:

@@ -87,16 +87,13 @@ class TaskShape:
 # ---------------------------------------------------------------------------------------------
 # Scalar path (one point, plain floats).
 
-def _signed_log_sum(terms):
-    """(log|sum|, sign(sum)) of sum_k sign_k exp(log_k) for (log_k, sign_k) pairs."""
-    top = max(log for log, _ in terms)
+def _signed_log_sum2(log_a, sign_a, log_b, sign_b):
+    """(log|sum|, sign(sum)) of sign_a exp(log_a) + sign_b exp(log_b) (one rounded addition,
+    as fsum's). Two terms spelled out: the controller's per-cycle path."""
+    top = max(log_a, log_b)
     if top == _NEG_INF:
         return _NEG_INF, 0
-    if len(terms) == 2:  # one rounded addition, as fsum's (the per-cycle path's usual case)
-        (log_a, sign_a), (log_b, sign_b) = terms
-        total = sign_a * math.exp(log_a - top) + sign_b * math.exp(log_b - top)
-    else:
-        total = math.fsum(sign * math.exp(log - top) for log, sign in terms)
+    total = sign_a * math.exp(log_a - top) + sign_b * math.exp(log_b - top)
     if total == 0.0:
         return _NEG_INF, 0
     return top + math.log(abs(total)), (1 if total > 0.0 else -1)
@@ -122,15 +119,21 @@ def _radial_log_terms(u, shape):
     l2 = log_a2 - max(-t2, 0.0) - q2
     s1 = -1 if t1 > 0.0 else 1
     s2 = -1 if t2 > 0.0 else 1
-    l_sum, s_sum = _signed_log_sum(((l1, s1), (l2, s2)))
+    l_sum, s_sum = _signed_log_sum2(l1, s1, l2, s2)
+    # The bracket (n-1)(rho1^2 + rho2^2) + 2n rho1 rho2 - a1 rho1 - a2 rho2 from the logs of
+    # its five terms, summed exactly (fsum) after scaling by the largest.
     log_nm1 = math.log(shape.n - 1)
-    l_bracket, s_bracket = _signed_log_sum((
-        (log_nm1 + 2.0 * l1, 1),
-        (log_nm1 + 2.0 * l2, 1),
-        (math.log(2 * shape.n) + l1 + l2, s1 * s2),
-        (log_a1 + l1, -s1),
-        (log_a2 + l2, -s2),
-    ))
+    b1, b2 = log_nm1 + 2.0 * l1, log_nm1 + 2.0 * l2
+    b3 = math.log(2 * shape.n) + l1 + l2
+    b4, b5 = log_a1 + l1, log_a2 + l2
+    top = max(b1, b2, b3, b4, b5)
+    total = 0.0 if top == _NEG_INF else math.fsum((
+        math.exp(b1 - top), math.exp(b2 - top), s1 * s2 * math.exp(b3 - top),
+        -s1 * math.exp(b4 - top), -s2 * math.exp(b5 - top)))
+    if total == 0.0:
+        l_bracket, s_bracket = _NEG_INF, 0
+    else:
+        l_bracket, s_bracket = top + math.log(abs(total)), (1 if total > 0.0 else -1)
     log_n = math.log(shape.n)
     return (log_p, log_n + log_p + l_sum, s_sum, log_n + log_p + l_bracket, s_bracket)
 
@@ -193,8 +196,7 @@ def log_radial_slopes(distance: float, shape: TaskShape) -> tuple[float, int, fl
         return _NEG_INF, 0, _NEG_INF, 0
     log_r = math.log(r) if r > 0.0 else _NEG_INF
     l_slope = _LOG2 + log_r + l_d1 if s_d1 != 0 else _NEG_INF
-    l_curv, s_curv = _signed_log_sum(((_LOG2 + l_d1, s_d1),
-                                      (_LOG4 + 2.0 * log_r + l_d2, s_d2)))
+    l_curv, s_curv = _signed_log_sum2(_LOG2 + l_d1, s_d1, _LOG4 + 2.0 * log_r + l_d2, s_d2)
     return l_slope, (s_d1 if l_slope > _NEG_INF else 0), l_curv, s_curv
 
 
@@ -230,7 +232,7 @@ def _log_abs_factors(u, shape):
 
 
 def _signed_log_sum_array(logs, signs):
-    """Array version of _signed_log_sum; the terms are stacked along axis 0."""
+    """Signed log sum (_signed_log_sum2) of any number of terms, stacked along axis 0."""
     top = np.max(logs, axis=0)
     safe_top = np.where(np.isfinite(top), top, 0.0)
     with np.errstate(invalid='ignore', over='ignore'):

@@ -70,7 +70,7 @@ from scara_sim.simulation import (
     ScaraSimulator,
     StepState,
     VelocityLoop,
-    joint_command_from_values,
+    joint_command_floats,
 )
 
 PACKAGE = 'scara_sim'
@@ -283,7 +283,7 @@ class ScaraSim(Node):
 
     def _accept_command(self, mode: str, data) -> None:
         try:
-            command = joint_command_from_values(data)
+            command = joint_command_floats(data)
         except ValueError as error:
             self.get_logger().warning(f'rejected {mode} command: {error}',
                                       throttle_duration_sec=WARN_THROTTLE)
@@ -300,7 +300,7 @@ class ScaraSim(Node):
         try:
             if frame not in ('', self._frame):
                 raise ValueError(f'frame {frame!r} is not {self._frame!r}')
-            force = joint_command_from_values([msg.wrench.force.x, msg.wrench.force.y])
+            force = joint_command_floats((msg.wrench.force.x, msg.wrench.force.y))
         except ValueError as error:
             self.get_logger().warning(f'rejected /human/wrench: {error}',
                                       throttle_duration_sec=WARN_THROTTLE)

@@ -56,6 +56,17 @@ def joint_command_from_values(values, size: int = 2) -> np.ndarray:
     return array
 
 
+def joint_command_floats(values, size: int = 2) -> tuple[float, ...]:
+    """joint_command_from_values for a flat sequence, as a tuple of floats: the node's path
+    for each message (1 kHz), without numpy. Same checks and reasons (ValueError)."""
+    floats = tuple(map(float, values))
+    if len(floats) != size:
+        raise ValueError(f'expected {size} values, got {len(floats)}')
+    if not all(map(math.isfinite, floats)):
+        raise ValueError(f'non-finite value in {list(floats)}')
+    return floats
+
+
 def clip_torque(tau, effort_limit: float) -> np.ndarray:
     """Joint torque tau (..., 2) in N m clipped element-wise to [-effort_limit, effort_limit]."""
     if not (math.isfinite(effort_limit) and effort_limit > 0.0):
@@ -143,6 +154,8 @@ class ScaraSimulator:
     dt: float = 1e-3
     applied_effort: np.ndarray = field(default_factory=lambda: np.zeros(2))
     _constants: tuple = field(default=(None, ()), init=False, repr=False)
+    # (lower, upper, their four floats): the limits as floats while the arrays stay the same.
+    _limits: tuple = field(default=(None, None), init=False, repr=False)
 
     def __post_init__(self):
         self.q = joint_command_from_values(self.q)
@@ -169,12 +182,14 @@ class ScaraSimulator:
             return np.zeros(2)
         raise ValueError(f'unknown command mode {mode!r}; expected one of {COMMAND_MODES}')
 
-    def step(self, mode: str, command, force) -> None:
+    def step(self, mode: str, command, force) -> tuple[tuple[float, float], ...]:
         """Advance one step of dt with the drive in `mode` and the human force (2,) in N.
 
         The same equations as human_joint_torque, hri_core.dynamics.rk4_step and
-        clamp_to_joint_limits, in plain floats. Raises ValueError if the state becomes
-        non-finite (a command or force is checked where it arrives).
+        clamp_to_joint_limits, in plain floats. Returns the new q (rad), dq (rad/s) and
+        applied_effort (N m) as pairs of floats, the values of the arrays it sets. Raises
+        ValueError if the state becomes non-finite (a command or force is checked where it
+        arrives).
         """
         if mode == 'effort':
             limit = self.effort_limit
@@ -199,7 +214,9 @@ class ScaraSimulator:
                                          self._constants[1])
         if not math.isfinite(q1 + q2 + v1 + v2):
             raise ValueError(f'the simulated state became non-finite (torque {torque})')
-        (low1, low2), (high1, high2) = self.lower.tolist(), self.upper.tolist()
+        if self._limits[0] is not self.lower or self._limits[1] is not self.upper:
+            self._limits = (self.lower, self.upper, *self.lower.tolist(), *self.upper.tolist())
+        _, _, low1, low2, high1, high2 = self._limits
         # An inelastic stop: a joint at a limit keeps only velocity that leaves it.
         if q1 <= low1:
             q1, v1 = low1, max(v1, 0.0)
@@ -211,6 +228,7 @@ class ScaraSimulator:
             q2, v2 = high2, min(v2, 0.0)
         self.q, self.dq = np.array((q1, q2)), np.array((v1, v2))
         self.applied_effort = np.array((t1, t2))
+        return (q1, q2), (v1, v2), (t1, t2)
 
 
 class StepState(NamedTuple):
@@ -302,8 +320,6 @@ class RealTimeStepper:
         first = self.clock.accounted - steps + 1  # index of the first integrated step
         states = []
         for k in range(steps):
-            sim.step(*inputs(start + (first + k) * dt))
-            states.append(StepState((first + k) * dt, tuple(sim.q.tolist()),
-                                    tuple(sim.dq.tolist()),
-                                    tuple(sim.applied_effort.tolist())))
+            states.append(StepState((first + k) * dt,
+                                    *sim.step(*inputs(start + (first + k) * dt))))
         return states

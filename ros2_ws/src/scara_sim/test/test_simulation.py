@@ -18,6 +18,7 @@ from scara_sim.simulation import (
     clamp_to_joint_limits,
     clip_torque,
     human_joint_torque,
+    joint_command_floats,
     joint_command_from_values,
 )
 
@@ -38,9 +39,16 @@ def make_simulator(q=(0.0, 1.2), **kwargs) -> ScaraSimulator:
     ([1.0, float('nan')], 'non-finite value'),
     ([float('-inf'), 0.0], 'non-finite value'),
 ])
-def test_malformed_joint_commands_are_rejected(values, message):
+@pytest.mark.parametrize('read', [joint_command_from_values, joint_command_floats])
+def test_malformed_joint_commands_are_rejected(values, message, read):
     with pytest.raises(ValueError, match=message):
-        joint_command_from_values(values)
+        read(values)
+
+
+def test_joint_command_floats_equal_the_array_reader():
+    values = (0.25, -3.5e-7)
+    assert joint_command_floats(values) == tuple(joint_command_from_values(values).tolist())
+    assert joint_command_floats(np.array(values)) == values
 
 
 def test_clip_torque_is_symmetric_and_validates_the_limit():
@@ -104,6 +112,17 @@ def test_joint_limit_holds_against_a_constant_torque():
         sim.step('effort', [10.0, 0.0], [0.0, 0.0])
     assert sim.q[0] == pytest.approx(2.3)
     assert sim.dq[0] == 0.0
+
+
+def test_step_returns_the_state_it_sets_and_follows_new_limits():
+    sim = make_simulator(q=(2.2, 1.2))
+    for mode, command in (('effort', (3.0, -1.0)), ('velocity', (0.2, 0.1)), ('idle', None)):
+        q, dq, effort = sim.step(mode, command, (1.0, -2.0))
+        assert (q, dq, effort) == (tuple(sim.q.tolist()), tuple(sim.dq.tolist()),
+                                   tuple(sim.applied_effort.tolist()))
+    sim.upper = np.array([2.0, 2.5])  # as the node swaps the limits on a parameter change
+    q, _, _ = sim.step('effort', (10.0, 0.0), (0.0, 0.0))
+    assert q[0] == 2.0
 
 
 def test_velocity_loop_tracks_the_command_and_resists_the_human():

@@ -7,7 +7,9 @@ burst never overflows the queue. Subscriptions are raw (CDR bytes, no deserialis
 on a second node, `recorder_intake`, that no executor spins: every 5 ms a timer takes what
 they hold straight from the middleware, each message stamped in the bag with its receive time
 from the middleware (the header stamp stays inside the message), without an executor's
-per-message work (a single-threaded executor hands over only about 2 kHz here). Every
+per-message work (a single-threaded executor hands over only about 2 kHz here). The
+middleware's UDP sockets get the largest receive buffer the OS allows an unprivileged process
+(net.core.rmem_max; hri_core.receive_buffers says why). Every
 `flush_period` seconds the open MCAP chunk is closed (zstd-compressed with
 `compression:=zstd`) and handed to the OS, so a SIGKILL loses at most that much (and the
 intake's 5 ms). SIGINT or SIGTERM first write every message still held by the subscriptions
@@ -54,6 +56,7 @@ from hri_core.node_common import (
     run_node,
     take_raw,
 )
+from hri_core.receive_buffers import enlarge_udp_receive_buffers, rmem_max
 from hri_demo_learning.bag_io import COMPRESSIONS, BagError, BagWriter
 
 PACKAGE = 'hri_demo_learning'
@@ -150,6 +153,11 @@ class Recorder(Node):
         # without the executor's per-message work.
         self._intake = Node(f'{NODE_NAME}_intake', context=self.context,
                             use_global_arguments=False, start_parameter_services=False)
+        # The middleware's sockets hold 0.2 MB by default: a recorder that falls behind on a
+        # loaded machine lost runs of 1 kHz messages in the kernel (hri_core.receive_buffers).
+        sockets, size = enlarge_udp_receive_buffers(rmem_max())
+        self.get_logger().info(f'UDP receive buffers: {size} B on {sockets} sockets '
+                               f'(net.core.rmem_max {rmem_max()} B)')
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._flush_timer = self.create_timer(values['flush_period'], self._flush)

@@ -46,8 +46,13 @@ def enlarge_udp_receive_buffers(size: int, fd_dir: Path = Path('/proc/self/fd')
             if not stat.S_ISSOCK(os.fstat(fd).st_mode):
                 continue
             # A duplicate of the descriptor: closing it leaves the middleware's socket open.
-            sock = socket.socket(fileno=os.dup(fd))
+            duplicate = os.dup(fd)
         except OSError:
+            continue
+        try:
+            sock = socket.socket(fileno=duplicate)
+        except OSError:  # a family Python does not know
+            os.close(duplicate)
             continue
         with sock:
             if sock.type != socket.SOCK_DGRAM or sock.family not in (socket.AF_INET,

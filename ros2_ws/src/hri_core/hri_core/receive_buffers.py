@@ -3,10 +3,10 @@
 Under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, rmw_fastrtps replaces Fast DDS's built-in
 transports with a UDPv4 transport of its own, whose sockets get the OS default receive buffer
 (net.core.rmem_default, 212,992 B here); the XML profile's socket buffer sizes apply to the
-built-in transports only, and no ROS or rmw setting reaches these sockets. A 1 kHz recording
-of two topics fills that buffer in about a tenth of a second whenever the process's
-middleware thread falls behind on a loaded machine, and the kernel then drops the datagrams:
-a publisher keeping 10 samples cannot resend them, so a run of messages never reaches the bag
+built-in transports only, and no ROS or rmw setting reaches these sockets. When the
+process's middleware thread falls behind on a loaded machine, a 1 kHz recording of two topics
+can fill that buffer, and the kernel then drops the datagrams: a publisher keeping 10 samples
+cannot resend them, so a run of messages never reaches the bag
 (measured: /proc/net/snmp's Udp RcvbufErrors rose by 196 in a round of tests that lost 96
 joint states and as many positions, while a second subscriber in another process got every
 message). `enlarge_udp_receive_buffers` asks the kernel for more on every UDP socket the
@@ -33,9 +33,9 @@ def rmem_max(default: int = 4 * 1024 * 1024) -> int:
 def enlarge_udp_receive_buffers(size: int, fd_dir: Path = Path('/proc/self/fd')
                                 ) -> tuple[int, int]:
     """Ask for a `size`-byte receive buffer (SO_RCVBUF) on every UDP socket this process has
-    open; never shrink one. Returns (sockets found, smallest buffer after, bytes as the
-    kernel reports it: twice what was granted, capped by net.core.rmem_max); (0, 0) where
-    the process's descriptors cannot be listed."""
+    open; never shrink one. Returns (sockets found, smallest buffer after them, in bytes as
+    the kernel reports it: it doubles the size it grants, at most net.core.rmem_max, for its
+    own bookkeeping); (0, 0) where the process's descriptors cannot be listed."""
     try:
         descriptors = [int(name) for name in os.listdir(fd_dir)]
     except OSError:

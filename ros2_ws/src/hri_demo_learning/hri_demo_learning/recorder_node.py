@@ -155,9 +155,10 @@ class Recorder(Node):
                             use_global_arguments=False, start_parameter_services=False)
         # The middleware's sockets hold 0.2 MB by default: a recorder that falls behind on a
         # loaded machine lost runs of 1 kHz messages in the kernel (hri_core.receive_buffers).
-        sockets, size = enlarge_udp_receive_buffers(rmem_max())
+        most = rmem_max()
+        sockets, size = enlarge_udp_receive_buffers(most)
         self.get_logger().info(f'UDP receive buffers: {size} B on {sockets} sockets '
-                               f'(net.core.rmem_max {rmem_max()} B)')
+                               f'(net.core.rmem_max {most} B)')
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._flush_timer = self.create_timer(values['flush_period'], self._flush)

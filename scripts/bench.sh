@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Benchmarks (measurements, not tests): sets the project up if needed, then runs, one after
 # another so that they do not disturb each other,
+#   step      bench/bench_step.py       one control step in-process: step_lean and the numpy
+#                                       reference step on seeded random states, per task
 #   learning  bench/bench_learning.py   fits on the fixtures (Gauss-Newton vs trf), fit time vs
 #                                       samples, learning from a replayed 1M-message bag
 #   loop      bench/bench_loop.py       the trivial rclpy echo floor, then scara_sim +
@@ -50,10 +52,10 @@ source "$root/scripts/env.sh"
 domain=${BENCH_DOMAIN_BASE:-90}
 if [ "$quick" = 1 ]; then
   learning_args=(--repeats 1 --sizes 10000 100000 --replay-seconds 20)
-  loop_seconds=5; recorder_seconds=5; sim_seconds=3
+  loop_seconds=5; recorder_seconds=5; sim_seconds=3; step_calls=2000
 else
   learning_args=(--repeats 3)
-  loop_seconds=20; recorder_seconds=60; sim_seconds=10
+  loop_seconds=20; recorder_seconds=60; sim_seconds=10; step_calls=20000
 fi
 
 work=$(mktemp -d -t hri-bench-XXXXXX)
@@ -77,6 +79,7 @@ run_piece() {
   fi
 }
 
+run_piece step 600 python bench/bench_step.py --json --calls "$step_calls"
 run_piece learning 1800 python bench/bench_learning.py --json "${learning_args[@]}"
 run_piece loop $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
   --duration "$loop_seconds" --domain-id "$domain"
@@ -104,7 +107,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 work, output, quick = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3] == '1'
-PIECES = ('learning', 'loop', 'loop_load', 'recorder', 'sim')
+PIECES = ('step', 'learning', 'loop', 'loop_load', 'recorder', 'sim')
 
 
 def package_version(name):
@@ -185,7 +188,14 @@ for name in PIECES:
     row(name, 'load average before', load)
     if piece['exit_code'] != 0:
         row(name, 'exit code', str(piece['exit_code']))
-    if name == 'learning':
+    if name == 'step':
+        for task, r in piece['tasks'].items():
+            lean, ref = r['lean'], r['reference']
+            row(name, f'{task}: step_lean', f"median {lean['median_us']} / p99 "
+                f"{lean['p99_us']} / max {lean['max_us']} us ({piece['calls']:,} calls)")
+            row(name, f'{task}: reference step', f"median {ref['median_us']} us "
+                f"({r['reference_over_lean']} x the lean step's)")
+    elif name == 'learning':
         row(name, 'rounds', f"{piece['repeats']} (times min / median)")
         for task, by_method in piece['fixtures'].items():
             for method, r in by_method.items():

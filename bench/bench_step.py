@@ -1,0 +1,126 @@
+#!/usr/bin/env python3
+"""Benchmark of one control step in-process (a measurement, not a test).
+
+Times `AdaptiveController.step_lean` (the controller's per-cycle path, plain floats) and the
+numpy reference `AdaptiveController.step` on the same seeded random states, for each task
+installed with hri_adaptive_controller (tasks/*.yaml): q uniform in the arm's usual range,
+dq normal (0.5 rad/s), the hand from on the tip to 0.3 m away, a uniform in [0, 1]; the
+controller's own call (with_potential=False: V's task term is added only with each
+ControllerState), monitor=True on every 10th call as at 100 Hz ControllerState. Each call is
+timed alone with time.perf_counter_ns; reported per task: median, p99 and max in µs for both,
+and the reference's median over the lean step's.
+
+Run it in the project's environment: `source scripts/env.sh; python bench/bench_step.py`.
+`--json` prints the figures as one JSON object only.
+"""
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from ament_index_python.packages import get_package_share_directory
+
+from hri_adaptive_controller.adaptive_law import AdaptiveController
+from hri_core.dynamics import ScaraParameters, dynamic_parameters
+from hri_core.potential import TaskShape
+from hri_core.task_file import load_task_file
+
+STATE_PERIOD = 10  # calls between two with monitor=True (ControllerState at 100 Hz)
+
+
+def parse_arguments(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--calls', type=int, default=20000,
+                        help='lean steps timed per task (the reference: a tenth)')
+    parser.add_argument('--seed', type=int, default=0, help='seed of the random states')
+    parser.add_argument('--json', action='store_true', help='print JSON only')
+    return parser.parse_args(argv)
+
+
+def installed_tasks() -> dict[str, tuple[TaskShape, float]]:
+    """{name: (shape, K)} of the tasks installed with hri_adaptive_controller."""
+    folder = Path(get_package_share_directory('hri_adaptive_controller')) / 'tasks'
+    tasks = {}
+    for path in sorted(folder.glob('*.yaml')):
+        record = load_task_file(path)
+        tasks[path.stem] = (TaskShape(record.s, record.a1, record.a2, record.d1, record.d2,
+                                      record.n), record.k)
+    return tasks
+
+
+def random_states(count: int, rng: np.random.Generator, params: ScaraParameters) -> list:
+    """`count` argument tuples (q, dq, x_d, xdot_d, xddot_d, a, da) as float tuples."""
+    states = []
+    for _ in range(count):
+        q = (float(rng.uniform(-1.0, 1.0)), float(rng.uniform(0.7, 2.2)))
+        tip = (params.l1 * math.cos(q[0]) + params.l2 * math.cos(q[0] + q[1]),
+               params.l1 * math.sin(q[0]) + params.l2 * math.sin(q[0] + q[1]))
+        offset = rng.uniform(0.0, 0.3) * rng.normal(size=2) / math.sqrt(2.0)
+        states.append((q, tuple(rng.normal(0.0, 0.5, 2).tolist()),
+                       (tip[0] - float(offset[0]), tip[1] - float(offset[1])),
+                       tuple(rng.normal(0.0, 0.1, 2).tolist()), (0.0, 0.0),
+                       float(rng.uniform(0.0, 1.0)), 0.0))
+    return states
+
+
+def spread_us(times_ns: list[int]) -> dict:
+    values = np.array(times_ns) / 1e3
+    return {'median_us': round(float(np.median(values)), 2),
+            'p99_us': round(float(np.percentile(values, 99)), 2),
+            'max_us': round(float(values.max()), 2)}
+
+
+def time_task(shape: TaskShape, k: float, states: list, params: ScaraParameters) -> dict:
+    theta0 = dynamic_parameters(params)
+    lean = AdaptiveController(theta_hat0=theta0, l1=params.l1, l2=params.l2)
+    reference = AdaptiveController(theta_hat0=theta0, l1=params.l1, l2=params.l2)
+    lean_ns, reference_ns = [], []
+    clock = time.perf_counter_ns
+    for i, state in enumerate(states):
+        monitor = i % STATE_PERIOD == 0
+        start = clock()
+        lean.step_lean(*state, shape, 1e-3, monitor=monitor, k=k, with_potential=False)
+        lean_ns.append(clock() - start)
+    arrays = [tuple(np.array(v) for v in state[:5]) + state[5:] for state in states]
+    for i, state in enumerate(arrays[:max(1, len(arrays) // 10)]):
+        start = clock()
+        reference.step(*state, shape, 1e-3, monitor=i % STATE_PERIOD == 0, k=k)
+        reference_ns.append(clock() - start)
+    result = {'lean': spread_us(lean_ns), 'reference': spread_us(reference_ns)}
+    result['reference_over_lean'] = round(result['reference']['median_us']
+                                          / result['lean']['median_us'], 2)
+    return result
+
+
+def run(args: argparse.Namespace) -> dict:
+    params = ScaraParameters()
+    rng = np.random.default_rng(args.seed)
+    states = random_states(args.calls, rng, params)
+    tasks = {name: time_task(shape, k, states, params)
+             for name, (shape, k) in installed_tasks().items()}
+    return {'calls': args.calls, 'tasks': tasks}
+
+
+def main(argv=None) -> int:
+    args = parse_arguments(argv)
+    if args.calls < 10:
+        print('bench_step: --calls must be at least 10', file=sys.stderr)
+        return 2
+    result = run(args)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    for name, r in result['tasks'].items():
+        lean, ref = r['lean'], r['reference']
+        print(f"{name}: step_lean median {lean['median_us']} / p99 {lean['p99_us']} / max "
+              f"{lean['max_us']} us; reference step median {ref['median_us']} us "
+              f"({r['reference_over_lean']} x)")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

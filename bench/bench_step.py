@@ -85,8 +85,8 @@ def time_task(shape: TaskShape, k: float, states: list, params: ScaraParameters)
         start = clock()
         lean.step_lean(*state, shape, 1e-3, monitor=monitor, k=k, with_potential=False)
         lean_ns.append(clock() - start)
-    arrays = [tuple(np.array(v) for v in state[:5]) + state[5:] for state in states]
-    for i, state in enumerate(arrays[:max(1, len(arrays) // 10)]):
+    for i, state in enumerate(states[:max(1, len(states) // 10)]):
+        state = tuple(np.array(v) for v in state[:5]) + state[5:]
         start = clock()
         reference.step(*state, shape, 1e-3, monitor=i % STATE_PERIOD == 0, k=k)
         reference_ns.append(clock() - start)

@@ -43,28 +43,23 @@ from hri_core.dynamics import (
 COMMAND_MODES = ('idle', 'effort', 'velocity')
 
 
-def joint_command_from_values(values, size: int = 2) -> np.ndarray:
-    """A joint command (N m or rad/s) as a float array of shape (size,).
+def joint_command_floats(values, size: int = 2) -> tuple[float, ...]:
+    """A joint command (N m or rad/s) from a flat sequence, as a tuple of `size` floats: the
+    node's path for each message (1 kHz), without numpy.
 
     Raises ValueError with the reason when the length is not `size` or a value is NaN/inf.
     """
-    array = np.asarray(values, dtype=float).reshape(-1)
-    if array.size != size:
-        raise ValueError(f'expected {size} values, got {array.size}')
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f'non-finite value in {array.tolist()}')
-    return array
-
-
-def joint_command_floats(values, size: int = 2) -> tuple[float, ...]:
-    """joint_command_from_values for a flat sequence, as a tuple of floats: the node's path
-    for each message (1 kHz), without numpy. Same checks and reasons (ValueError)."""
     floats = tuple(map(float, values))
     if len(floats) != size:
         raise ValueError(f'expected {size} values, got {len(floats)}')
     if not all(map(math.isfinite, floats)):
         raise ValueError(f'non-finite value in {list(floats)}')
     return floats
+
+
+def joint_command_from_values(values, size: int = 2) -> np.ndarray:
+    """joint_command_floats of `values` flattened (any nesting), as a float array (size,)."""
+    return np.array(joint_command_floats(np.ravel(values), size))
 
 
 def clip_torque(tau, effort_limit: float) -> np.ndarray:

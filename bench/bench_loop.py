@@ -35,7 +35,10 @@ the echo's: a shared machine's speed changes from hour to hour (the echo took 20
 core at 04:00 here, 28-33 % at noon the same day), which the ratios take out in part.
 `--load N` starts N busy processes (normal priority) before both measurements and ends them
 after (by PID). The probe and the echo ask for SCHED_FIFO (`--probe-priority`, as the nodes
-do) so that a starved probe does not measure its own delays.
+do) so that a starved probe does not measure its own delays. The nodes run as on a machine
+that runs the loop alone: SCHED_FIFO (`--realtime-priority`) and idle CPUs kept polling
+(`--cpu-wakeup-latency`, held by the echo node too); both at 0 and -1 measure the config
+defaults.
 
 Every process started is ended (SIGINT, then SIGKILL by PID) in a `finally`.
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_loop.py`.
@@ -95,6 +98,10 @@ def parse_arguments(argv=None) -> argparse.Namespace:
                         help="scara_sim's and the controller's realtime_priority (0: off, "
                         'their config default; the bench measures the loop as a machine that '
                         'runs it alone would, with SCHED_FIFO)')
+    parser.add_argument('--cpu-wakeup-latency', type=int, default=0,
+                        help="scara_sim's and the controller's cpu_wakeup_latency (us; -1: "
+                        'off, their config default; 0: idle CPUs poll), which the echo node '
+                        'holds too: the loop as a machine that runs it alone would run it')
     parser.add_argument('--probe-priority', type=int, default=50,
                         help='SCHED_FIFO priority of this probe and of the echo node (0: off), '
                         'so that a starved probe does not measure itself')
@@ -150,11 +157,13 @@ def end_processes(processes) -> None:
             process.wait()
 
 
-def measure_echo(domain_id: int, seconds: float, priority: int) -> dict:
-    """Round trip of JointState pings at 1 kHz through bench/echo_node.py (the floor)."""
+def measure_echo(domain_id: int, seconds: float, priority: int, wakeup_latency: int) -> dict:
+    """Round trip of JointState pings at 1 kHz through bench/echo_node.py (the floor), which
+    asks for SCHED_FIFO at `priority` and holds `wakeup_latency` as the loop's nodes do."""
     env = {**os.environ, 'ROS_DOMAIN_ID': str(domain_id),
            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
-    echo = subprocess.Popen([sys.executable, str(ECHO), str(priority)], env=env,
+    echo = subprocess.Popen([sys.executable, str(ECHO), str(priority), str(wakeup_latency)],
+                            env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     probe = None
     round_trips: list[int] = []
@@ -262,7 +271,8 @@ def run(args: argparse.Namespace) -> dict:
     load = start_load(args.load)
     echo_seconds = args.duration if args.echo_seconds is None else args.echo_seconds
     try:
-        echo = (measure_echo(args.domain_id, echo_seconds, args.probe_priority)
+        echo = (measure_echo(args.domain_id, echo_seconds, args.probe_priority,
+                             args.cpu_wakeup_latency)
                 if echo_seconds > 0 else None)
         # The EventsExecutor and raw subscriptions: a probe that takes little CPU from the
         # loop it measures (with a SingleThreadedExecutor and messages, 81 % of a core).
@@ -270,9 +280,9 @@ def run(args: argparse.Namespace) -> dict:
         scheduling = request_sched_fifo(args.probe_priority)
         states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
         overrides = {'hand_sim': HAND}
-        if args.realtime_priority is not None:
-            for name in ('scara_sim', 'controller'):
-                overrides[name] = {'realtime_priority': args.realtime_priority}
+        for name in ('scara_sim', 'controller'):
+            overrides[name] = {'realtime_priority': args.realtime_priority,
+                               'cpu_wakeup_latency': args.cpu_wakeup_latency}
         started = start_live_loop(args.domain_id, overrides, log_dir=log_dir)
         if not wait_for(lambda: bool(states) and states[-1].status == 'ok',
                         args.startup_timeout):
@@ -338,6 +348,8 @@ def run(args: argparse.Namespace) -> dict:
         'cpu_percent_probed': cpu_probed,
         'load_processes': args.load,
         'probe_scheduling': scheduling.description,
+        'realtime_priority': args.realtime_priority,
+        'cpu_wakeup_latency': args.cpu_wakeup_latency,
         'state_to_command': command_latency(received, np.array(command_times.received)),
         'echo': echo,
         'pids': {name: p.pid for name, p in processes.items()},

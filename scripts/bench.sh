@@ -222,6 +222,8 @@ for name in PIECES:
     elif name in ('loop', 'loop_load'):
         j, c = piece['joint_states'], piece['controller']
         row(name, 'busy processes', str(piece['load_processes']))
+        row(name, 'nodes run with', f"realtime_priority {piece.get('realtime_priority')}, "
+            f"cpu_wakeup_latency {piece.get('cpu_wakeup_latency')} us")
         link = piece['state_to_command']
         if 'latency' in link:
             row(name, 'joint state -> command (probe)', spread(link['latency']))

@@ -18,7 +18,8 @@ the task's term kp a Q of it (0.3-0.4 ms) once the cycle's command is out.
 A watchdog timer (every joint_state_timeout / 4) notices missing or stale joint states; while
 they are, a timer at `rate_hz` publishes zero torque (and ControllerState) in place of the
 cycles that do not come. With `realtime_priority` > 0 the process asks for SCHED_FIFO at that
-priority (hri_core.realtime) and logs once whether it got it.
+priority (hri_core.realtime) and logs once whether it got it; with `cpu_wakeup_latency` >= 0 it
+holds a PM QoS request that idle CPUs wake within that many microseconds (0: they poll).
 
 Safety (the choices are argued in docs/design-notes.md):
 - zero torque while joint states are missing or older than `joint_state_timeout` (one
@@ -88,10 +89,12 @@ from hri_core.cdr import (
 )
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
+    CPU_WAKEUP_LATENCY,
     REALTIME_PRIORITY,
     ParameterSpec,
     StartupError,
     declare_parameters,
+    hold_wakeup_latency,
     load_defaults,
     request_realtime,
     run_node,
@@ -119,6 +122,7 @@ PARAMETERS = {
                              'deadlines and the zero-torque rate (Hz)', low=10.0, high=2000.0,
                              read_only=True),
     'realtime_priority': REALTIME_PRIORITY,
+    'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
     'state_rate_hz': ParameterSpec(float, 'ControllerState rate (Hz)', low=1.0, high=1000.0,
                                    read_only=True),
     'mode': ParameterSpec(str, 'effort: torques (eq. 16); velocity: qdot_r (eq. 14)',
@@ -263,6 +267,7 @@ class Controller(Node):
             f'{values["rate_hz"]:g} Hz) on {topic}; ks={values["ks"]} kp={values["kp"]:g} '
             f'effort_limit={values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
         request_realtime(self, values['realtime_priority'])
+        self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])
 
     # -- inputs ----------------------------------------------------------------------------
     def _warn(self, kind: str, text: str) -> None:

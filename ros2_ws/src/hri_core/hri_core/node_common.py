@@ -47,7 +47,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from hri_core.realtime import MAX_PRIORITY, request_sched_fifo
+from hri_core.realtime import (
+    MAX_PRIORITY,
+    MAX_WAKEUP_LATENCY,
+    WakeupLatencyRequest,
+    hold_cpu_wakeup_latency,
+    request_sched_fifo,
+)
 
 
 class StartupError(Exception):
@@ -116,6 +122,11 @@ class ParameterSpec:
 REALTIME_PRIORITY = ParameterSpec(int, 'SCHED_FIFO priority to ask for (0: off)',
                                   low=0, high=MAX_PRIORITY, read_only=True)
 """The `realtime_priority` parameter of the nodes of the 1 kHz loop (see request_realtime)."""
+CPU_WAKEUP_LATENCY = ParameterSpec(int, 'while the node runs, ask that idle CPUs wake within '
+                                   'this many us (/dev/cpu_dma_latency; 0: they poll, -1: '
+                                   'off)', low=-1, high=MAX_WAKEUP_LATENCY, read_only=True)
+"""The `cpu_wakeup_latency` parameter of the nodes of the 1 kHz loop (see
+hold_wakeup_latency)."""
 
 
 def request_realtime(node: Node, priority: int) -> bool:
@@ -127,6 +138,18 @@ def request_realtime(node: Node, priority: int) -> bool:
     else:
         node.get_logger().warning(scheduling.description)
     return scheduling.granted
+
+
+def hold_wakeup_latency(node: Node, microseconds: int) -> WakeupLatencyRequest:
+    """Ask that idle CPUs wake within `microseconds` (hri_core.realtime; 0: they poll, -1:
+    off) and log the outcome once, as request_realtime does. The node keeps the returned
+    request for as long as it runs: the request ends with it (or with the process)."""
+    request = hold_cpu_wakeup_latency(microseconds)
+    if request.granted or microseconds < 0:
+        node.get_logger().info(request.description)
+    else:
+        node.get_logger().warning(request.description)
+    return request
 
 
 def declare_parameters(node: Node, specs: dict[str, ParameterSpec],

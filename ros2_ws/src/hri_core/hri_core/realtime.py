@@ -11,9 +11,21 @@ Whether it is granted depends on the OS: root or CAP_SYS_NICE, or an RLIMIT_RTPR
 at least the priority. Where it is refused, nothing changes and the caller logs the reason;
 the kernel's real-time throttling (kernel.sched_rt_runtime_us, 95 % by default) keeps a
 runaway SCHED_FIFO thread from starving the rest of the machine.
+
+`hold_cpu_wakeup_latency` is the other half of a real-time set-up, as cyclictest and rtla do
+it and as Red Hat's real-time guide tells an application to: a request through the kernel's
+PM QoS interface (/dev/cpu_dma_latency) that an idle CPU wake within so many microseconds,
+held while the file stays open. With 0 an idle CPU polls instead of halting. The loop hands
+each message from one thread to another, and a thread woken on a CPU that halted, above all
+on a virtual machine whose host must resume the vCPU, then runs its code much slower (the
+README's benchmark section has the figures). The kernel drops the request when the process
+ends, however it ends; the price is power (and, on a virtual machine, host CPU) while it is
+held.
 """
 
 import os
+import struct
+import weakref
 from dataclasses import dataclass
 
 #: Highest SCHED_FIFO priority on Linux (sched_get_priority_max(SCHED_FIFO)).
@@ -68,3 +80,60 @@ def request_sched_fifo(priority: int) -> SchedulingResult:
                 f'{len(threads)} threads ({error.strerror} for the others)')
     return SchedulingResult(True, priority,
                             f'SCHED_FIFO priority {priority} granted ({done} threads)')
+
+
+#: The kernel's PM QoS interface for the CPU wake-up latency (Linux's pm_qos_interface).
+CPU_DMA_LATENCY = '/dev/cpu_dma_latency'
+#: Longest wake-up latency one may ask for here (1 s, in µs); -1 turns the request off.
+MAX_WAKEUP_LATENCY = 1_000_000
+
+
+class WakeupLatencyRequest:
+    """A held PM QoS request (`hold_cpu_wakeup_latency`): granted (bool), microseconds asked
+    for, a one-line description. `release()` (or the object's collection, or the process's end)
+    drops it."""
+
+    def __init__(self, granted: bool, microseconds: int, description: str,
+                 fd: int | None = None):
+        self.granted = granted
+        self.microseconds = microseconds
+        self.description = description
+        self._release = weakref.finalize(self, os.close, fd) if fd is not None else None
+
+    def release(self) -> None:
+        """Drop the request (idempotent)."""
+        if self._release is not None:
+            self._release()
+
+
+def hold_cpu_wakeup_latency(microseconds: int,
+                            path: str = CPU_DMA_LATENCY) -> WakeupLatencyRequest:
+    """Ask that idle CPUs wake within `microseconds` (0: they poll) while the returned request
+    is held; -1: off.
+
+    Never raises for a refusal (no such file, no permission: it needs root, or write access
+    to `path`); the description then says why and nothing changes. Raises ValueError for a
+    value outside -1..MAX_WAKEUP_LATENCY.
+    """
+    if isinstance(microseconds, bool) or not isinstance(microseconds, int) or not (
+            -1 <= microseconds <= MAX_WAKEUP_LATENCY):
+        raise ValueError(f'CPU wake-up latency must be an integer in -1..{MAX_WAKEUP_LATENCY} '
+                         f'us, got {microseconds!r}')
+    if microseconds < 0:
+        return WakeupLatencyRequest(False, microseconds, 'CPU wake-up latency request off (-1)')
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CLOEXEC)
+    except OSError as error:
+        return WakeupLatencyRequest(
+            False, microseconds, f'CPU wake-up latency {microseconds} us refused ({path}: '
+            f'{error.strerror}; needs root or write access); idle CPUs sleep as configured')
+    try:
+        os.write(fd, struct.pack('=i', microseconds))
+    except OSError as error:
+        os.close(fd)
+        return WakeupLatencyRequest(
+            False, microseconds, f'CPU wake-up latency {microseconds} us refused ({path}: '
+            f'{error.strerror}); idle CPUs sleep as configured')
+    how = 'idle CPUs poll' if microseconds == 0 else f'idle CPUs wake within {microseconds} us'
+    return WakeupLatencyRequest(True, microseconds,
+                                f'CPU wake-up latency {microseconds} us held ({how})', fd)

@@ -1,8 +1,11 @@
 """Unit tests of hri_core.realtime: the SCHED_FIFO request (the OS call itself is mocked, so
-that the test process keeps its normal scheduling on a shared machine)."""
+that the test process keeps its normal scheduling on a shared machine) and the CPU wake-up
+latency request (written to a file of the test's own in place of /dev/cpu_dma_latency)."""
 
 import errno
+import gc
 import os
+import struct
 
 import pytest
 
@@ -45,3 +48,51 @@ def test_a_refusal_is_reported_and_changes_nothing(monkeypatch):
     assert not result.granted
     assert 'refused (Operation not permitted' in result.description
     assert 'default scheduler' in result.description
+
+
+def open_descriptors() -> int:
+    return len(os.listdir('/proc/self/fd'))
+
+
+def test_a_wakeup_latency_is_written_as_the_kernel_reads_it_and_held(tmp_path):
+    device = tmp_path / 'cpu_dma_latency'
+    device.write_bytes(b'')
+    before = open_descriptors()
+    request = realtime.hold_cpu_wakeup_latency(0, str(device))
+    assert request.granted and request.microseconds == 0
+    assert 'idle CPUs poll' in request.description
+    assert struct.unpack('=i', device.read_bytes()) == (0,)  # a native 32-bit integer
+    assert open_descriptors() == before + 1  # the kernel holds the request while it is open
+    request.release()
+    request.release()
+    assert open_descriptors() == before
+
+
+def test_a_wakeup_latency_request_ends_with_its_object(tmp_path):
+    device = tmp_path / 'cpu_dma_latency'
+    device.write_bytes(b'')
+    before = open_descriptors()
+    request = realtime.hold_cpu_wakeup_latency(20, str(device))
+    assert 'within 20 us' in request.description
+    del request
+    gc.collect()
+    assert open_descriptors() == before
+
+
+def test_minus_one_turns_the_wakeup_latency_off_without_opening_anything(tmp_path):
+    request = realtime.hold_cpu_wakeup_latency(-1, str(tmp_path / 'absent'))
+    assert not request.granted and 'off' in request.description
+
+
+def test_a_wakeup_latency_refusal_is_reported_and_changes_nothing(tmp_path):
+    before = open_descriptors()
+    request = realtime.hold_cpu_wakeup_latency(0, str(tmp_path / 'absent'))
+    assert not request.granted
+    assert 'refused' in request.description and 'No such file' in request.description
+    assert open_descriptors() == before
+
+
+@pytest.mark.parametrize('microseconds', [-2, realtime.MAX_WAKEUP_LATENCY + 1, 0.5, True, '0'])
+def test_bad_wakeup_latencies_are_rejected(microseconds):
+    with pytest.raises(ValueError, match=r'wake-up latency must be an integer in -1\.\.'):
+        realtime.hold_cpu_wakeup_latency(microseconds)

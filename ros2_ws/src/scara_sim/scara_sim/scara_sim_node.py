@@ -16,7 +16,9 @@ state) ends the process with exit code 1 and one error line:
   the newest state only (once per tick: a late tick's caught-up steps are not repeated here).
 The header stamp is the time the state stands for: the ROS time of the first tick plus the
 simulated time of that step, which follows real time. With `realtime_priority` > 0 the process
-asks for SCHED_FIFO at that priority (hri_core.realtime) and logs once whether it got it.
+asks for SCHED_FIFO at that priority (hri_core.realtime) and logs once whether it got it; with
+`cpu_wakeup_latency` >= 0 it holds a PM QoS request that idle CPUs wake within that many
+microseconds (0: they poll).
 
 Inputs (reliable, depth 10); the most recent valid joint command chooses the drive mode:
 * /effort_controller/commands (std_msgs/Float64MultiArray [tau1, tau2], N m): clipped at
@@ -54,11 +56,13 @@ from hri_core.cdr import (
 )
 from hri_core.dynamics import ScaraParameters, forward_kinematics_pair
 from hri_core.node_common import (
+    CPU_WAKEUP_LATENCY,
     REALTIME_PRIORITY,
     ParameterSpec,
     StartupError,
     declare_parameters,
     float_array_problem,
+    hold_wakeup_latency,
     load_defaults,
     request_realtime,
     run_node,
@@ -111,6 +115,7 @@ PARAMETERS = {
         int, 'most steps one timer tick may run to catch up with real time; the rest are '
         'dropped and counted', 1, 10000, read_only=True),
     'realtime_priority': REALTIME_PRIORITY,
+    'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
     **ARM_PARAMETERS,
     **ARRAY_PARAMETERS,
     'initial_q': ParameterSpec(list, 'joint positions at start (rad)', size=2,
@@ -206,6 +211,7 @@ class ScaraSim(Node):
             f'{np.round(self._sim.q, 4).tolist()} rad; effort limit {self._effort_limit:g} '
             f'N m, command timeout {self._command_timeout:g} s')
         request_realtime(self, values['realtime_priority'])
+        self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])
         # The first tick once the executor runs, as with the timer before: the process's own
         # set-up after this (the executor, its entities) could keep a running stepping thread
         # from its ticks, and a stall of over max_catch_up_steps drops steps, after which the

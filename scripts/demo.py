@@ -102,9 +102,8 @@ QUICK_DEMONSTRATION = {'start_delay': 0.5, 'hold_time': 1.5}
 # The closed loop's sim and controller ask for SCHED_FIFO at this priority, as on a robot's
 # computer; where the OS refuses, each logs so once and runs as before. At normal priority,
 # beside the recorder and this script, the controller's rate was 388-782 Hz (median of each
-# run's second half) in one --quick run on this 2-core machine. They also keep idle CPUs
-# polling while they run (cpu_wakeup_latency 0), as on a robot's computer.
-LOOP_REALTIME = {'realtime_priority': 50, 'cpu_wakeup_latency': 0}
+# run's second half) in one --quick run on this 2-core machine.
+LOOP_PRIORITY = 50
 MAX_DOMAIN_ID = 232  # the highest ROS_DOMAIN_ID whose Fast DDS ports fit below 65536
 SEQUENCE_HAND = {'profile': 'hold', 'start': [0.45, 0.10]}
 SEQUENCE_EVENTS = (('hand_too_close', 'avoid'), ('keep_company', 'follow_safe'))
@@ -351,8 +350,8 @@ class Demo:
                                   'ramp_time': 1.0},
                 'recorder': {'topics': RUN_TOPICS},
                 'hand_sim': hand,
-                'scara_sim': LOOP_REALTIME,
-                'controller': LOOP_REALTIME,
+                'scara_sim': {'realtime_priority': LOOP_PRIORITY},
+                'controller': {'realtime_priority': LOOP_PRIORITY},
             }, log_dir=self.logs, record=bag, ready_timeout=30.0)
         except NodesNotReadyError as error:
             raise StageError(f'{error}; logs in {self.logs}') from None

@@ -21,6 +21,9 @@ the commands and, after `--warmup` s, listens. Reported:
   /joint_states -> controller -> /effort_controller/commands latency) median, p99, max in ms;
 * CPU of each node process and of this probe (user + system time over wall time, psutil, % of
   one core) in the first window, and again with the probe attached (`cpu_percent_probed`);
+* the share of the CPUs' time the host took in each window (/proc/stat's steal): a vCPU the
+  host stops for a millisecond delays the sim's tick or the controller's answer, which no
+  scheduling inside the machine can prevent;
 * the sim's own count of late ticks and dropped steps over its whole run (its exit line);
 * joint state -> command as this probe sees it: for each /joint_states message, the time from
   its arrival to the arrival of the next /effort_controller/commands, median, p99, max;
@@ -248,6 +251,20 @@ def cpu_seconds(process: psutil.Process) -> float:
     return times.user + times.system
 
 
+def machine_times() -> tuple[int, int]:
+    """(time stolen by the host, all time) of every CPU so far, in clock ticks
+    (/proc/stat: user, nice, system, idle, iowait, irq, softirq, steal)."""
+    with open('/proc/stat') as stat:
+        fields = [int(v) for v in stat.readline().split()[1:9]]
+    return fields[7], sum(fields)
+
+
+def steal_percent(before: tuple[int, int], after: tuple[int, int]) -> float | None:
+    """The share of the CPUs' time the host took between two machine_times (%)."""
+    total = after[1] - before[1]
+    return round(100.0 * (after[0] - before[0]) / total, 2) if total > 0 else None
+
+
 def cpu_percent(processes: dict, seconds: float) -> tuple[dict, float]:
     """({name: % of one core over the next `seconds`}, wall seconds measured)."""
     before = {name: cpu_seconds(p) for name, p in processes.items()}
@@ -297,7 +314,9 @@ def run(args: argparse.Namespace) -> dict:
         # costs its writer a send per message (a reliable one over UDP: about 13 % of a core
         # at 1 kHz here), which would be charged to the loop.
         first_state = len(states)
+        machine = machine_times()
         cpu, wall = cpu_percent(processes, args.duration)
+        steal = steal_percent(machine, machine_times())
         window = states[first_state:]
         probe.node.create_subscription(JointState, '/joint_states', joint_times,
                                        JOINT_STATE_PROBE_QOS, raw=True)
@@ -305,7 +324,9 @@ def run(args: argparse.Namespace) -> dict:
                                        command_times, COMMAND_QOS, raw=True)
         time.sleep(args.warmup)
         joint_times.recording.set()
+        machine = machine_times()
         cpu_probed, probed_wall = cpu_percent(processes, args.duration)
+        steal_probed = steal_percent(machine, machine_times())
         joint_times.recording.clear()
         dead = [name for name, node in started.items() if not node.alive()]
         if dead:
@@ -346,6 +367,8 @@ def run(args: argparse.Namespace) -> dict:
         },
         'cpu_percent': cpu,
         'cpu_percent_probed': cpu_probed,
+        'host_steal_percent': steal,
+        'host_steal_percent_probed': steal_probed,
         'load_processes': args.load,
         'probe_scheduling': scheduling.description,
         'realtime_priority': args.realtime_priority,
@@ -391,6 +414,8 @@ def print_report(result: dict) -> None:
           + f' (% of one core; {result["cpu_count"]} cores)')
     print('  probe attached ' + ', '.join(f'{name} {value} %' for name, value
                                           in result['cpu_percent_probed'].items()))
+    print(f'host steal       {result["host_steal_percent"]} % of the CPUs\' time, '
+          f'{result["host_steal_percent_probed"]} % with the probe attached')
     link = result['state_to_command']
     if 'latency' in link:
         lat = link['latency']

@@ -251,6 +251,8 @@ for name in PIECES:
                                                  piece['cpu_percent'].items()))
         row(name, 'CPU, probe attached', ', '.join(f'{k} {v}' for k, v in
                                                    piece['cpu_percent_probed'].items()))
+        row(name, 'host steal', f"{fmt(piece.get('host_steal_percent'))} % of the CPUs' "
+            f"time; {fmt(piece.get('host_steal_percent_probed'))} % with the probe attached")
         if 'sim_summary' in piece:
             s = piece['sim_summary']
             row(name, 'sim timing (whole run)', f"{s['late_ticks']} late ticks, "

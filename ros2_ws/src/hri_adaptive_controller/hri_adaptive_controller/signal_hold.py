@@ -91,6 +91,8 @@ class BlendedHold:
                  ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
         """(value, rate) held at time t (s), or None before the first sample. blend_rate=False:
         the rate without the blends' own (the extrapolation's rate alone)."""
+        if self._pending is None and not self._blends:  # the common case: one call per cycle
+            return None if self._sample is None else self._extrapolation(t)
         if self._pending is not None:
             stamp, value, rate, blend_time = self._pending
             self._pending = None
@@ -132,9 +134,13 @@ class BlendedHold:
         stamp, value, rate = self._sample
         # Backwards too: a sample stamped after t (its source's clock runs ahead of the joint
         # states' by their latency) is taken back to t, so old and new compare at one time.
-        held = min(max(t - stamp, -self._max_hold), self._max_hold)
-        out = tuple(v + r * held for v, r in zip(value, rate, strict=True))
-        return out, rate if abs(held) < self._max_hold else tuple(0.0 for _ in rate)
+        max_hold = self._max_hold
+        held = t - stamp
+        if -max_hold < held < max_hold:
+            return tuple([v + r * held for v, r in zip(value, rate, strict=True)]), rate
+        held = max_hold if held > 0.0 else -max_hold
+        return (tuple([v + r * held for v, r in zip(value, rate, strict=True)]),
+                tuple([0.0] * len(rate)))
 
 
 class HandHold:

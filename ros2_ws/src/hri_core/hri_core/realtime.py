@@ -17,8 +17,8 @@ it and as Red Hat's real-time guide tells an application to: a request through t
 PM QoS interface (/dev/cpu_dma_latency) that an idle CPU wake within so many microseconds,
 held while the file stays open. With 0 an idle CPU polls instead of halting. The loop hands
 each message from one thread to another, and a thread woken on a CPU that halted, above all
-on a virtual machine whose host must resume the vCPU, then runs its code much slower (the
-README's benchmark section has the figures). The kernel drops the request when the process
+on a virtual machine whose host must resume the vCPU, then runs its code much slower
+(docs/design-notes.md, "CPU wake-up latency", has the figures). The kernel drops the request when the process
 ends, however it ends; the price is power (and, on a virtual machine, host CPU) while it is
 held.
 """

@@ -1,4 +1,5 @@
-"""Real-time scheduling of a node's process where the OS allows it (SCHED_FIFO). No ROS import.
+"""Real-time set-up of a node's process where the OS allows it: SCHED_FIFO and the CPU wake-up
+latency. No ROS import.
 
 A 1 kHz loop that shares its cores with other work keeps its deadlines only if the scheduler
 runs it first as soon as its input arrives. Like ros2_control's realtime_tools

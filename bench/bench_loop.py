@@ -265,15 +265,17 @@ def steal_percent(before: tuple[int, int], after: tuple[int, int]) -> float | No
     return round(100.0 * (after[0] - before[0]) / total, 2) if total > 0 else None
 
 
-def cpu_percent(processes: dict, seconds: float) -> tuple[dict, float]:
-    """({name: % of one core over the next `seconds`}, wall seconds measured)."""
+def cpu_percent(processes: dict, seconds: float) -> tuple[dict, float, float | None]:
+    """({name: % of one core over the next `seconds`}, wall seconds measured, % of the CPUs'
+    time the host stole meanwhile)."""
+    machine = machine_times()
     before = {name: cpu_seconds(p) for name, p in processes.items()}
     start = time.monotonic()
     time.sleep(seconds)
     after = {name: cpu_seconds(p) for name, p in processes.items()}
     wall = time.monotonic() - start
-    return {name: round(100.0 * (after[name] - before[name]) / wall, 1)
-            for name in processes}, wall
+    return ({name: round(100.0 * (after[name] - before[name]) / wall, 1)
+             for name in processes}, wall, steal_percent(machine, machine_times()))
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -314,9 +316,7 @@ def run(args: argparse.Namespace) -> dict:
         # costs its writer a send per message (a reliable one over UDP: about 13 % of a core
         # at 1 kHz here), which would be charged to the loop.
         first_state = len(states)
-        machine = machine_times()
-        cpu, wall = cpu_percent(processes, args.duration)
-        steal = steal_percent(machine, machine_times())
+        cpu, wall, steal = cpu_percent(processes, args.duration)
         window = states[first_state:]
         probe.node.create_subscription(JointState, '/joint_states', joint_times,
                                        JOINT_STATE_PROBE_QOS, raw=True)
@@ -324,9 +324,7 @@ def run(args: argparse.Namespace) -> dict:
                                        command_times, COMMAND_QOS, raw=True)
         time.sleep(args.warmup)
         joint_times.recording.set()
-        machine = machine_times()
-        cpu_probed, probed_wall = cpu_percent(processes, args.duration)
-        steal_probed = steal_percent(machine, machine_times())
+        cpu_probed, probed_wall, steal_probed = cpu_percent(processes, args.duration)
         joint_times.recording.clear()
         dead = [name for name, node in started.items() if not node.alive()]
         if dead:

@@ -133,11 +133,16 @@ def request_realtime(node: Node, priority: int) -> bool:
     """Ask for SCHED_FIFO at `priority` (hri_core.realtime; 0: off) for the node's process and
     log the outcome once: info when granted or off, a warning when refused. True if granted."""
     scheduling = request_sched_fifo(priority)
-    if scheduling.granted or not scheduling.priority:
-        node.get_logger().info(scheduling.description)
-    else:
-        node.get_logger().warning(scheduling.description)
+    _log_request(node, scheduling.granted or not scheduling.priority, scheduling.description)
     return scheduling.granted
+
+
+def _log_request(node: Node, as_asked: bool, description: str) -> None:
+    """A real-time request's outcome, once: info when granted or off, else a warning."""
+    if as_asked:
+        node.get_logger().info(description)
+    else:
+        node.get_logger().warning(description)
 
 
 def hold_wakeup_latency(node: Node, microseconds: int) -> WakeupLatencyRequest:
@@ -145,10 +150,7 @@ def hold_wakeup_latency(node: Node, microseconds: int) -> WakeupLatencyRequest:
     off) and log the outcome once, as request_realtime does. The node keeps the returned
     request for as long as it runs: the request ends with it (or with the process)."""
     request = hold_cpu_wakeup_latency(microseconds)
-    if request.granted or microseconds < 0:
-        node.get_logger().info(request.description)
-    else:
-        node.get_logger().warning(request.description)
+    _log_request(node, request.granted or microseconds < 0, request.description)
     return request
 
 

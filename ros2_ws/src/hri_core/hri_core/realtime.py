@@ -122,19 +122,16 @@ def hold_cpu_wakeup_latency(microseconds: int,
                          f'us, got {microseconds!r}')
     if microseconds < 0:
         return WakeupLatencyRequest(False, microseconds, 'CPU wake-up latency request off (-1)')
+    fd = None
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CLOEXEC)
+        os.write(fd, struct.pack('=i', microseconds))
     except OSError as error:
+        if fd is not None:
+            os.close(fd)
         return WakeupLatencyRequest(
             False, microseconds, f'CPU wake-up latency {microseconds} us refused ({path}: '
             f'{error.strerror}; needs root or write access); idle CPUs sleep as configured')
-    try:
-        os.write(fd, struct.pack('=i', microseconds))
-    except OSError as error:
-        os.close(fd)
-        return WakeupLatencyRequest(
-            False, microseconds, f'CPU wake-up latency {microseconds} us refused ({path}: '
-            f'{error.strerror}); idle CPUs sleep as configured')
     how = 'idle CPUs poll' if microseconds == 0 else f'idle CPUs wake within {microseconds} us'
     return WakeupLatencyRequest(True, microseconds,
                                 f'CPU wake-up latency {microseconds} us held ({how})', fd)

@@ -96,3 +96,10 @@ def test_a_wakeup_latency_refusal_is_reported_and_changes_nothing(tmp_path):
 def test_bad_wakeup_latencies_are_rejected(microseconds):
     with pytest.raises(ValueError, match=r'wake-up latency must be an integer in -1\.\.'):
         realtime.hold_cpu_wakeup_latency(microseconds)
+
+
+def test_a_failed_write_is_refused_and_closes_what_it_opened():
+    before = open_descriptors()
+    request = realtime.hold_cpu_wakeup_latency(0, '/dev/full')  # opens, then ENOSPC on write
+    assert not request.granted and 'refused' in request.description
+    assert open_descriptors() == before

@@ -1,6 +1,9 @@
 """Topic-level tests of the scara_sim node: state out, commands and the human's force in."""
 
 import math
+import os
+import random
+import re
 import signal
 import time
 
@@ -16,6 +19,7 @@ from std_msgs.msg import Float64MultiArray
 from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import stamp_seconds
+from tests.fault_tools import RawListener, sim_joint_efforts
 
 pytestmark = pytest.mark.integration
 
@@ -206,6 +210,37 @@ def test_the_human_force_moves_the_end_effector(nodes, probe):
     x_before = tips[-1].point.x
     publish_for(publisher, push, 0.5)
     assert tips[-1].point.x > x_before + 0.01
+
+
+def test_a_held_back_sim_publishes_every_step_and_none_before_its_time(nodes, probe):
+    # Held back 40 times for 0.3-3 ms at random phases of its 1 ms ticks, the sim owes one
+    # or more steps at its next tick. It publishes every step (stamps 1 ms of sim time
+    # apart, none missing but those it reports dropped after a stall beyond
+    # max_catch_up_steps) and none before real time has reached the end of that step: a
+    # step is stamped with the time it stands for, which is never after it was sent.
+    listener = RawListener(probe, '/joint_states', JointState)
+    sim = nodes('scara_sim', 'scara_sim')
+    assert wait_for(lambda: len(listener) >= 300, START_TIMEOUT), sim.log()
+    rng = random.Random(4)
+    for _ in range(40):
+        os.kill(sim.pid, signal.SIGSTOP)
+        try:
+            time.sleep(rng.uniform(0.3e-3, 3e-3))
+        finally:
+            os.kill(sim.pid, signal.SIGCONT)
+        time.sleep(rng.uniform(2e-3, 6e-3))
+    count = len(listener)
+    assert wait_for(lambda: len(listener) >= count + 100, 10.0), sim.log()
+    sent, stamps, _ = sim_joint_efforts(listener)
+    ahead = stamps - sent
+    assert ahead.max() < 1e-4, f'{np.sum(ahead >= 1e-4)} states stamped ahead, by up to ' \
+        f'{ahead.max() * 1e3:.2f} ms'
+    steps = np.round(np.diff(stamps) / 1e-3)
+    np.testing.assert_allclose(np.diff(stamps), steps * 1e-3, atol=2e-5)
+    assert steps.min() == 1
+    assert sim.stop() == 0
+    dropped = re.search(r'(\d+) steps dropped', sim.log())
+    assert dropped and steps.sum() - steps.size <= int(dropped.group(1)), sim.log()
 
 
 def test_out_of_range_parameter_exits_with_one_line(nodes):

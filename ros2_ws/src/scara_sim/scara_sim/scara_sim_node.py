@@ -1,9 +1,9 @@
 """The `scara_sim` node: a simulated horizontal 2-link SCARA driven by joint commands.
 
 Integrates the arm of `dynamics.py` with RK4 in fixed steps of 1/rate_hz s (default 1 ms).
-A stepping thread ticks at rate_hz (it sleeps to each tick's absolute time) and runs as many
-steps as real time has advanced since the last tick (at most `max_catch_up_steps` per tick,
-the rest are dropped and counted), and publishes the state after every step it integrated,
+A stepping thread ticks at rate_hz (it sleeps to the end of each step) and runs the steps
+that real time has reached since the last tick (at most `max_catch_up_steps` per tick, the
+older ones are dropped and counted), and publishes the state after every step it integrated,
 those caught up after a late tick included (simulation.RealTimeStepper). The stepping thread
 takes the joint commands received since the last tick itself, at each tick (from the
 subscriptions of a second node, `<name>_commands`, that no executor spins); the executor runs
@@ -334,8 +334,6 @@ class ScaraSim(Node):
     def _step_in_real_time(self) -> None:
         """The stepping thread: a tick every dt s until stop_stepping; a tick that fails
         ends the stepping with its reason in `failure` (the process then exits non-zero)."""
-        period = self._sim.dt
-        next_tick = time.monotonic()
         while not self._stopping.is_set():
             try:
                 self._on_tick()
@@ -343,12 +341,9 @@ class ScaraSim(Node):
                 self.failure = f'simulation stopped: {error}'
                 self.get_logger().error(self.failure)
                 return
-            next_tick += period
-            delay = next_tick - time.monotonic()
+            delay = self._stepper.clock.next_step_end - time.monotonic()
             if delay > 0.0:
                 time.sleep(delay)
-            elif delay < -period:
-                next_tick = time.monotonic()  # fell behind: the next tick catches the steps up
 
     def stop_stepping(self) -> None:
         """End the stepping thread (before the node's publishers go)."""

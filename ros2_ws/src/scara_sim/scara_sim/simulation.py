@@ -12,12 +12,13 @@ step the actuator torque is held constant (zero-order hold, like a drive's curre
 The human's force f (N, base frame) on the end-effector enters as J(q)^T f. After each step
 a joint outside its limits is clamped to the limit and its velocity into the limit is zeroed.
 
-`FixedStepClock` maps real elapsed time onto those steps: a periodic timer's late ticks are
-dropped, not made up, so each tick runs as many steps as real time has advanced, at most
-`max_catch_up` (the rest are dropped and counted: the simulation then lags real time by that
-much instead of running ever further behind). `RealTimeStepper` puts the two together and
-returns the state after every step it integrated, each with the simulated time it stands for,
-so that the node publishes every step, those caught up after a late tick included.
+`FixedStepClock` maps real elapsed time onto those steps: a tick runs the steps whose end
+real time has reached, at most `max_catch_up` (the rest are dropped and counted: the
+simulation then lags real time by that much instead of running ever further behind), and
+says when the next step ends, the time of the next tick. `RealTimeStepper` puts the two
+together and returns the state after every step it integrated, each with the simulated time
+it stands for, so that the node publishes every step, those caught up after a late tick
+included.
 
 `ScaraSimulator.step` runs at 1 kHz: it computes in plain floats (the scalar RK4 of
 hri_core.dynamics) rather than through the array functions below, which are the reference
@@ -237,14 +238,22 @@ class StepState(NamedTuple):
     effort: tuple[float, float]
 
 
+EARLY_TOLERANCE = 0.05  # of a step: a tick this much before a step's end still runs it
+
+
 @dataclass
 class FixedStepClock:
-    """How many fixed steps of `dt` s each timer tick must run to keep up with real time.
+    """How many fixed steps of `dt` s each tick must run to keep up with real time.
 
-    Sim time 0 is the first tick at `start` (s, any monotonic clock). A tick at time `now`
-    owes the steps of round((now - start) / dt) not yet accounted for, which keeps a tick
-    that is a little early or late from running 0 or 2 steps. At most `max_catch_up` steps
-    run; the rest are dropped (counted) and real time moves on without them.
+    Sim time 0 is the first tick at `start` (s, any monotonic clock); step k ends at
+    start + k dt. A tick at time `now` owes the steps that have ended by then (up to
+    EARLY_TOLERANCE of a step early) and were not accounted for, and `next_step_end` is when
+    the next one ends: ticks at those times run one step each, a tick up to a step late runs
+    its one step late, and a tick later than that runs the steps it owes at once, a burst
+    (a late tick). No step runs before its time: with the nearest step instead (rounding), a
+    tick 0.5-1 ms late ran two steps, the second stamped up to 0.5 ms ahead of real time, and
+    the next tick none. At most `max_catch_up` steps run; the older ones are dropped (counted)
+    and real time moves on without them.
     """
 
     dt: float
@@ -267,7 +276,7 @@ class FixedStepClock:
     def steps_due(self, now: float) -> int:
         """Steps to integrate at a tick at time `now` (s); updates the counters."""
         self.ticks += 1
-        owed = int(math.floor((now - self.start) / self.dt + 0.5)) - self.accounted
+        owed = int(math.floor((now - self.start) / self.dt + EARLY_TOLERANCE)) - self.accounted
         if owed <= 0:
             self.idle_ticks += 1
             return 0
@@ -279,6 +288,12 @@ class FixedStepClock:
         self.accounted += owed
         self.integrated += steps
         return steps
+
+    @property
+    def next_step_end(self) -> float:
+        """When the step after the last one accounted for ends (s, the time base of
+        `start`): the time of the next tick."""
+        return self.start + (self.accounted + 1) * self.dt
 
     def start_window(self) -> None:
         """Start a new window of `longest_catch_up` (a report period)."""

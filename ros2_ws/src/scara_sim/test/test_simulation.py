@@ -11,6 +11,7 @@ from hri_core.dynamics import (
     rk4_step,
 )
 from scara_sim.simulation import (
+    EARLY_TOLERANCE,
     FixedStepClock,
     RealTimeStepper,
     ScaraSimulator,
@@ -155,21 +156,38 @@ def test_simulator_rejects_an_initial_state_outside_the_limits():
 def test_fixed_step_clock_counts_late_ticks_and_bounds_catch_up():
     clock = FixedStepClock(dt=1e-3, max_catch_up=5, start=10.0)
     assert clock.steps_due(10.0) == 0
-    assert clock.steps_due(10.0011) == 1          # slightly late: still one step
-    assert clock.steps_due(10.0019) == 1          # slightly early: one step
-    assert clock.steps_due(10.0040) == 2          # one tick dropped by the timer
+    assert clock.next_step_end == pytest.approx(10.001)
+    assert clock.steps_due(10.0011) == 1          # slightly late: one step
+    assert clock.steps_due(10.0019) == 0          # a tenth of a step early: not yet
+    assert clock.steps_due(10.00196) == 1         # within the tolerance: its step
+    assert clock.steps_due(10.0040) == 2          # a step late: a burst of two
     assert clock.late_ticks == 1
     assert clock.longest_catch_up == 2
+    assert clock.steps_due(10.0058) == 1          # 0.8 ms late: one step, not two
+    assert clock.late_ticks == 1
+    assert clock.next_step_end == pytest.approx(10.006)
     clock.start_window()
-    assert clock.steps_due(10.0140) == 5          # ten owed, five run, five dropped
+    assert clock.steps_due(10.0155) == 5          # ten owed, five run, five dropped
     assert clock.dropped == 5
     assert clock.longest_catch_up == 10
-    assert clock.integrated == 9
-    assert clock.sim_time == pytest.approx(0.014)
-    assert clock.steps_due(10.0141) == 0
-    assert clock.idle_ticks == 2
+    assert clock.integrated == 10
+    assert clock.sim_time == pytest.approx(0.015)
+    assert clock.steps_due(10.0156) == 0
+    assert clock.idle_ticks == 3
     with pytest.raises(ValueError, match='max_catch_up must be >= 1'):
         FixedStepClock(dt=1e-3, max_catch_up=0, start=0.0)
+
+
+def test_no_step_runs_before_its_time_and_ticks_late_by_less_than_a_step_run_one():
+    # Ticks at the times the clock asks for, each late by a random amount below a step:
+    # every tick runs exactly one step, and no step is run before it has ended.
+    rng = np.random.default_rng(3)
+    clock = FixedStepClock(dt=1e-3, max_catch_up=50, start=0.0)
+    for _ in range(2000):
+        now = clock.next_step_end + rng.uniform(0.0, 0.94e-3)
+        assert clock.steps_due(now) == 1
+        assert clock.sim_time <= now + EARLY_TOLERANCE * clock.dt
+    assert clock.late_ticks == 0 and clock.idle_ticks == 0
 
 
 def test_float_step_equals_the_array_functions():

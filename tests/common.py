@@ -8,7 +8,10 @@ import itertools
 import os
 from pathlib import Path
 
-from hri_bringup.processes import paper_tasks_dir
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+
+from hri_bringup.processes import paper_tasks_dir, wait_for
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 # Table I's task files, where the live loop's event_manager loads them from.
@@ -30,3 +33,18 @@ def next_domain_id() -> int:
     slots = DOMAIN_ID_COUNT // workers
     slot = (_session_offset + next(_domain_counter)) % slots
     return DOMAIN_ID_FIRST + slot * workers + worker
+
+
+def call_service(client, request, timeout: float = 5.0):
+    """The response of `client` (a probe's service client) to `request`; fails the test if
+    none comes within `timeout` s."""
+    future = client.call_async(request)
+    assert wait_for(future.done, timeout), client.srv_name
+    return future.result()
+
+
+def set_parameter(client, name: str, value):
+    """Set one parameter through a node's `set_parameters` service `client`; its
+    SetParametersResult."""
+    request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+    return call_service(client, request).results[0]

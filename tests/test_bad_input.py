@@ -26,7 +26,6 @@ from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState, TaskEvent, TaskParameters, TaskState
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.duration import Duration
-from rclpy.parameter import Parameter
 from rclpy.time import Time as RosTime
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -35,7 +34,7 @@ from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import LEARNED_TASKS_QOS, MONITOR_QOS, TASK_STATE_QOS
-from tests.common import PAPER_TASKS, REPO_ROOT
+from tests.common import PAPER_TASKS, REPO_ROOT, call_service, set_parameter
 from tests.fault_tools import REALTIME_PRIORITY, RELIABLE, RawListener, assert_all_finite
 
 pytestmark = pytest.mark.integration
@@ -520,17 +519,6 @@ def test_out_of_range_parameters_are_refused_at_start_with_one_line(nodes, tmp_p
     assert not list(tmp_path.glob('bag*')) and not (tmp_path / 'tasks').exists()
 
 
-def call_service(probe, client, request, timeout: float = 5.0):
-    future = client.call_async(request)
-    assert wait_for(future.done, timeout), client.srv_name
-    return future.result()
-
-
-def set_parameter(probe, client, name, value):
-    request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
-    return call_service(probe, client, request).results[0]
-
-
 def test_out_of_range_parameters_are_refused_at_run_time(nodes, probe):
     controller = nodes('hri_adaptive_controller', 'controller')
     manager = nodes('hri_adaptive_controller', 'event_manager',
@@ -548,20 +536,20 @@ def test_out_of_range_parameters_are_refused_at_run_time(nodes, probe):
     }
     for node, changes in refused.items():
         for name, value in changes:
-            result = set_parameter(probe, clients[node], name, value)
+            result = set_parameter(clients[node], name, value)
             assert not result.successful, (node, name, value)
             assert result.reason, (node, name, value)
             print(f'{node} {name}={value!r} refused: {result.reason}')
     getter = probe.node.create_client(GetParameters, '/controller/get_parameters')
     assert getter.wait_for_service(timeout_sec=10.0)
-    values = call_service(probe, getter, GetParameters.Request(
+    values = call_service(getter, GetParameters.Request(
         names=['kp', 'effort_limit', 'ks'])).values
     assert [values[0].double_value, values[1].double_value, list(values[2].double_array_value)] \
         == [10.0, 20.0, [20.0, 4.0]]
     # Valid values still go through.
-    assert set_parameter(probe, clients['controller'], 'kp', 5.0).successful
-    assert set_parameter(probe, clients['controller'], 'effort_limit', 10.0).successful
-    assert set_parameter(probe, clients['event_manager'], 'ramp_time', 2.0).successful
+    assert set_parameter(clients['controller'], 'kp', 5.0).successful
+    assert set_parameter(clients['controller'], 'effort_limit', 10.0).successful
+    assert set_parameter(clients['event_manager'], 'ramp_time', 2.0).successful
     for process in (controller, manager):
         assert process.alive()
         assert 'Traceback' not in process.log()

@@ -5,9 +5,11 @@ import time
 
 import pytest
 from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
+from rcl_interfaces.srv import SetParameters
 
 from hri_bringup.processes import wait_for
 from hri_core.topics import LEARNED_TASKS_QOS, TASK_STATE_QOS
+from tests.common import set_parameter
 
 RAMP_TIME = 0.5
 
@@ -55,6 +57,36 @@ def test_event_switches_task_through_a_smooth_ramp(manager):
     assert len(ramp) >= 100 * 2 * RAMP_TIME * 0.8
     assert ramp[-1].event == 'hand_close'
     assert math.isclose(ramp[-1].task.d1, 0.183)
+
+
+def heartbeats(states: list, seconds: float) -> list[float]:
+    """The stamps (s) of the TaskStates that arrive over the next `seconds` s."""
+    start = len(states)
+    time.sleep(seconds)
+    return [s.header.stamp.sec + 1e-9 * s.header.stamp.nanosec for s in states[start:]]
+
+
+def test_heartbeat_follows_heartbeat_period_between_ramps(manager, probe):
+    # With nothing to ramp the node's timer runs at heartbeat_period, not publish_rate_hz:
+    # a heartbeat_period set at run time takes over at once, and an event still ramps at
+    # publish_rate_hz.
+    process, states, events = manager
+    client = probe.node.create_client(SetParameters, '/event_manager/set_parameters')
+    assert client.wait_for_service(timeout_sec=10.0)
+    assert set_parameter(client, 'heartbeat_period', 5.0).successful
+    assert len(heartbeats(states, 1.0)) <= 1
+    assert set_parameter(client, 'heartbeat_period', 0.1).successful
+    stamps = heartbeats(states, 1.0)  # not after the 5 s period's next tick
+    assert 5 <= len(stamps) <= 12, stamps  # 10 due; a loaded machine delays some
+    assert set_parameter(client, 'heartbeat_period', 1.0).successful
+    time.sleep(0.2)
+    stamps = heartbeats(states, 3.0)
+    assert 1 <= len(stamps) <= 4, stamps
+    start = len(states)
+    events.publish(TaskEvent(name='hand_close', task='avoid'))
+    assert wait_for(lambda: states[-1].task.name == 'avoid'
+                    and states[-1].phase == 'active', 10.0), process.log()
+    assert len(states) - start >= 100 * 2 * RAMP_TIME * 0.8
 
 
 def test_unknown_task_event_is_ignored(manager):

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from rcl_interfaces.srv import SetParameters
-from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -18,6 +17,7 @@ from std_msgs.msg import Float64MultiArray
 from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import stamp_seconds
+from tests.common import set_parameter
 from tests.fault_tools import RawListener, sim_joint_efforts
 
 pytestmark = pytest.mark.integration
@@ -81,19 +81,11 @@ def test_parameters_change_at_run_time_only_when_valid(nodes, probe):
     sim, states, _ = start_sim(nodes, probe)
     client = probe.node.create_client(SetParameters, '/scara_sim/set_parameters')
     assert client.wait_for_service(timeout_sec=5.0)
-
-    def set_parameter(name, value):
-        message = Parameter(name, value=value).to_parameter_msg()
-        request = SetParameters.Request(parameters=[message])
-        future = client.call_async(request)
-        assert wait_for(future.done, 5.0)
-        return future.result().results[0]
-
-    assert set_parameter('effort_limit', 3.0).successful
-    assert not set_parameter('effort_limit', -1.0).successful
-    rejected = set_parameter('joint_lower_limits', [0.0, 3.0])
+    assert set_parameter(client, 'effort_limit', 3.0).successful
+    assert not set_parameter(client, 'effort_limit', -1.0).successful
+    rejected = set_parameter(client, 'joint_lower_limits', [0.0, 3.0])
     assert not rejected.successful and 'must be below' in rejected.reason
-    assert not set_parameter('rate_hz', 2000.0).successful
+    assert not set_parameter(client, 'rate_hz', 2000.0).successful
     publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
     publish_for(publisher, command([10.0, 0.0]), 0.3)
     assert list(states[-1].effort) == [3.0, 0.0]

@@ -8,7 +8,10 @@ task without K gets `default_task_gain`), is refused the same way, with a one-li
 naming it, and the current task is kept: such a task would leave the arm still. An event
 on /hri/events names the task to switch to; `EventWeightSchedule` (eq. 13) fades the weight
 out, swaps the task while a = 0, and fades it in again. The node publishes TaskState on every
-change, at `publish_rate_hz` (>= 100 Hz) during a ramp, and every `heartbeat_period` otherwise.
+change, at `publish_rate_hz` (>= 100 Hz) during a ramp, and every `heartbeat_period` otherwise;
+its timer runs at `publish_rate_hz` only during a ramp (and until `initial_task` starts), at
+`heartbeat_period` otherwise, so a node with nothing to ramp wakes twice a second, not 200
+times, beside the 1 kHz loop.
 
 Choices (docs/design-notes.md says why):
 - `initial_task` fades in from a = 0 (a ramp of `ramp_time`), like any other switch, so a
@@ -120,7 +123,9 @@ class EventManager(Node):
         self.create_subscription(TaskEvent, topics.EVENTS.name, self._on_event,
                                  topics.EVENTS.qos)
         self.add_on_set_parameters_callback(self._validate_parameters)
-        self.create_timer(1.0 / values['publish_rate_hz'], self._publish)
+        self._ramp_period = 1.0 / values['publish_rate_hz']
+        self._timer_period = self._ramp_period
+        self._timer = self.create_timer(self._timer_period, self._publish)
         self.get_logger().info(
             f'{len(self._tasks)} task(s) loaded ({", ".join(sorted(self._tasks)) or "none"}); '
             f'initial task {initial or "none (idle)"}; ramp_time {values["ramp_time"]:g} s')
@@ -192,7 +197,17 @@ class EventManager(Node):
                 self._schedule = EventWeightSchedule(parameter.value, state.active_task)
             elif parameter.name == 'heartbeat_period':
                 self._heartbeat_period = parameter.value
+                if self._timer_period != self._ramp_period:
+                    self._pace(ramping=False)
         return SetParametersResult(successful=True)
+
+    def _pace(self, ramping: bool) -> None:
+        """Run the timer at publish_rate_hz while `ramping`, else at heartbeat_period."""
+        period = self._ramp_period if ramping else self._heartbeat_period
+        if period != self._timer_period:
+            self._timer.timer_period_ns = round(period * 1e9)
+            self._timer.reset()  # the next tick one new period from now
+            self._timer_period = period
 
     def _publish(self) -> None:
         # The stamp is the time a is evaluated at (the controller holds a from the stamps): read
@@ -204,9 +219,12 @@ class EventManager(Node):
             self._initial_task = ''
         state = self._schedule.evaluate(now)
         ramping = state.phase in (PHASE_FADING_IN, PHASE_FADING_OUT)
+        self._pace(ramping or bool(self._initial_task))
         summary = (state.phase, state.active_task, state.pending_task)
+        # A heartbeat is due a ramp period early at most: the slow timer's ticks come one
+        # heartbeat_period after the last, give or take the timer's jitter.
         if not ramping and summary == self._last_published \
-                and now - self._last_publish_time < self._heartbeat_period:
+                and now - self._last_publish_time < self._heartbeat_period - self._ramp_period:
             return
         msg = TaskState(weight=state.weight, weight_rate=state.rate, phase=state.phase,
                         event=self._event_name, pending_task=_name(state.pending_task))
@@ -225,7 +243,7 @@ def _name(key) -> str:
 
 
 def main(args=None):
-    # The EventsExecutor: the 200 Hz publish timer alone kept a SingleThreadedExecutor at
+    # The EventsExecutor: a 200 Hz publish timer alone kept a SingleThreadedExecutor at
     # about 20 % of a core with nothing to publish.
     return run_node(EventManager, NODE_NAME, EventsExecutor, args)
 

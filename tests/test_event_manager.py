@@ -8,6 +8,7 @@ from hri_interfaces.msg import TaskEvent, TaskParameters, TaskState
 from rcl_interfaces.srv import SetParameters
 
 from hri_bringup.processes import wait_for
+from hri_core.node_common import stamp_seconds
 from hri_core.topics import LEARNED_TASKS_QOS, TASK_STATE_QOS
 from tests.common import set_parameter
 
@@ -63,7 +64,7 @@ def heartbeats(states: list, seconds: float) -> list[float]:
     """The stamps (s) of the TaskStates that arrive over the next `seconds` s."""
     start = len(states)
     time.sleep(seconds)
-    return [s.header.stamp.sec + 1e-9 * s.header.stamp.nanosec for s in states[start:]]
+    return [stamp_seconds(s.header.stamp) for s in states[start:]]
 
 
 def test_heartbeat_follows_heartbeat_period_between_ramps(manager, probe):

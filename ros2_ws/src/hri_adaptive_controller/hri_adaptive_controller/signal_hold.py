@@ -137,10 +137,11 @@ class BlendedHold:
         max_hold = self._max_hold
         held = t - stamp
         if -max_hold < held < max_hold:
-            return tuple([v + r * held for v, r in zip(value, rate, strict=True)]), rate
-        held = max_hold if held > 0.0 else -max_hold
-        return (tuple([v + r * held for v, r in zip(value, rate, strict=True)]),
-                tuple([0.0] * len(rate)))
+            rate_out = rate
+        else:  # held no further than max_hold, and no longer moving
+            held = max_hold if held > 0.0 else -max_hold
+            rate_out = tuple([0.0] * len(rate))
+        return tuple([v + r * held for v, r in zip(value, rate, strict=True)]), rate_out
 
 
 class HandHold:

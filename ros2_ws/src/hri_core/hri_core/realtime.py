@@ -6,7 +6,9 @@ runs it first as soon as its input arrives. Like ros2_control's realtime_tools
 (`configure_sched_fifo`), `request_sched_fifo` asks Linux for the SCHED_FIFO policy at a given
 priority; unlike it, it applies the policy to every thread of the process, because the
 middleware's receive threads, created before the node's code runs, carry the messages the loop
-waits for. Threads created afterwards inherit the policy.
+waits for. Threads and processes created afterwards inherit the policy, unless the request
+sets SCHED_RESET_ON_FORK (`reset_on_fork`): a process that starts others, such as a benchmark
+that starts the nodes it measures, should not hand its priority to them.
 
 Whether it is granted depends on the OS: root or CAP_SYS_NICE, or an RLIMIT_RTPRIO (`ulimit -r`)
 at least the priority. Where it is refused, nothing changes and the caller logs the reason;
@@ -42,8 +44,12 @@ class SchedulingResult:
     description: str
 
 
-def request_sched_fifo(priority: int) -> SchedulingResult:
+def request_sched_fifo(priority: int, reset_on_fork: bool = False) -> SchedulingResult:
     """Ask for SCHED_FIFO at `priority` (1..99) for every thread of this process; 0: off.
+
+    reset_on_fork: the processes (and threads) these threads start afterwards begin at the
+    default policy instead of inheriting SCHED_FIFO (Linux's SCHED_RESET_ON_FORK), for a
+    process that starts others, such as a benchmark's probe that starts the nodes it measures.
 
     Returns a SchedulingResult; never raises for a refusal (the process then runs unchanged
     with its threads' previous policy). Raises ValueError for a priority outside 0..99.
@@ -62,10 +68,11 @@ def request_sched_fifo(priority: int) -> SchedulingResult:
     except OSError:
         threads = [0]  # no /proc: the calling thread only
     param = os.sched_param(priority)
+    policy = os.SCHED_FIFO | (os.SCHED_RESET_ON_FORK if reset_on_fork else 0)
     done = 0
     for tid in threads:
         try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+            os.sched_setscheduler(tid, policy, param)
             done += 1
         except ProcessLookupError:
             continue  # the thread ended meanwhile

@@ -1,11 +1,14 @@
-"""Unit tests of hri_core.realtime: the SCHED_FIFO request (the OS call itself is mocked, so
-that the test process keeps its normal scheduling on a shared machine) and the CPU wake-up
-latency request (written to a file of the test's own in place of /dev/cpu_dma_latency)."""
+"""Unit tests of hri_core.realtime: the SCHED_FIFO request (the OS call itself is mocked, or
+made in a child process, so that the test process keeps its normal scheduling on a shared
+machine) and the CPU wake-up latency request (written to a file of the test's own in place of
+/dev/cpu_dma_latency)."""
 
 import errno
 import gc
 import os
 import struct
+import subprocess
+import sys
 
 import pytest
 
@@ -37,6 +40,39 @@ def test_every_thread_gets_the_policy(monkeypatch):
     assert result.granted and result.priority == 50 and 'granted' in result.description
     assert {tid for tid, _, _ in calls} >= threads
     assert {(policy, priority) for _, policy, priority in calls} == {(os.SCHED_FIFO, 50)}
+
+
+def test_reset_on_fork_is_asked_for_with_the_policy(monkeypatch):
+    calls = []
+    monkeypatch.setattr(os, 'sched_setscheduler',
+                        lambda tid, policy, param: calls.append(policy))
+    assert realtime.request_sched_fifo(50, reset_on_fork=True).granted
+    assert set(calls) == {os.SCHED_FIFO | os.SCHED_RESET_ON_FORK}
+
+
+CHILD_POLICY = """
+import os, subprocess, sys
+from hri_core import realtime
+result = realtime.request_sched_fifo(10, reset_on_fork=sys.argv[1] == 'reset')
+if not result.granted:
+    print('refused')
+    sys.exit(0)
+child = subprocess.run([sys.executable, '-c', 'import os; print(os.sched_getscheduler(0))'],
+                       capture_output=True, text=True, check=True)
+print(os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK, child.stdout.strip())
+"""
+
+
+@pytest.mark.parametrize('mode', ['reset', 'inherit'])
+def test_processes_started_after_a_reset_on_fork_request_run_at_the_default_policy(mode):
+    # In a child process of its own, so that this test process keeps its normal scheduling.
+    result = subprocess.run([sys.executable, '-c', CHILD_POLICY, mode], capture_output=True,
+                            text=True, timeout=30, check=True)
+    if result.stdout.strip() == 'refused':
+        pytest.skip('SCHED_FIFO is not granted here (needs CAP_SYS_NICE or ulimit -r)')
+    own, started = (int(value) for value in result.stdout.split())
+    assert own == os.SCHED_FIFO
+    assert started == (os.SCHED_OTHER if mode == 'reset' else os.SCHED_FIFO)
 
 
 def test_a_refusal_is_reported_and_changes_nothing(monkeypatch):

@@ -26,6 +26,7 @@ from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState, TaskEvent, TaskParameters, TaskState
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.duration import Duration
+from rclpy.serialization import serialize_message
 from rclpy.time import Time as RosTime
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -289,6 +290,9 @@ def test_controller_drops_bad_targets_and_task_states(nodes, probe, arm):
                        point(probe, [1.5, 0.0]),  # beyond max_target_distance
                        point(probe, [-0.2, 0.1])]  # stamped 5 s back
         publish_each(probe, arm.targets, bad_targets, stamp_back=5.0)
+        # Bytes no PointStamped reader can take, as a raw publisher may send them.
+        for data in (serialize_message(point(probe, [0.3, 0.1]))[:20], b'\x00\x01\x00\x00'):
+            arm.targets.publish(data)
 
         def task(**fields) -> TaskParameters:
             values = {'name': 'follow', 's': 1, 'a1': 1.291, 'a2': 13.66, 'd1': 0.0,
@@ -326,6 +330,7 @@ def test_controller_drops_bad_targets_and_task_states(nodes, probe, arm):
     assert controller.alive()
     log = controller.log()
     for reason in ('target dropped: non-finite', 'farther than max_target_distance',
+                   'target dropped: unreadable',
                    'target dropped: stamp did not advance', 'task state dropped: weight',
                    "task state dropped: task 'broken'"):
         assert reason in log, (reason, log)

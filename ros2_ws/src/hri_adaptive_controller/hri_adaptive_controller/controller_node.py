@@ -85,6 +85,7 @@ from hri_core.cdr import (
     LayoutReader,
     float64_array_template,
     joint_state_layout,
+    point_stamped_layout,
     read_stamp,
 )
 from hri_core.dynamics import forward_kinematics
@@ -244,6 +245,7 @@ class Controller(Node):
         self._joint_reader = LayoutReader(lambda data: joint_state_layout(
             data, JOINT_NAMES, (POSITION, VELOCITY), one_value_per_name=True))
         self._command_template = float64_array_template(len(JOINT_NAMES))
+        self._target_reader = LayoutReader(point_stamped_layout)
 
         command = topics.VELOCITY_COMMANDS if self._velocity_mode else topics.EFFORT_COMMANDS
         self._command_pub = self.create_publisher(command.type, command.name, command.qos)
@@ -253,8 +255,10 @@ class Controller(Node):
         # Only the newest joint state and hand position matter: each joint state starts a cycle.
         self.create_subscription(JointState, topics.JOINT_STATES.name, self._on_joint_state_data,
                                  topics.LATEST_SAMPLE_QOS, raw=True)
-        self.create_subscription(PointStamped, topics.TARGET.name, self._on_target,
-                                 topics.LATEST_SAMPLE_QOS)
+        # /target raw too: a hand position that lands just before a joint state delays that
+        # cycle by its callback, which a Python message made 3 times longer.
+        self.create_subscription(PointStamped, topics.TARGET.name, self._on_target_data,
+                                 topics.LATEST_SAMPLE_QOS, raw=True)
         self.create_subscription(TaskState, topics.TASK_STATE.name, self._on_task_state,
                                  topics.TASK_STATE.qos)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -342,8 +346,23 @@ class Controller(Node):
             self._zero_timer.cancel()
         self._cycle(now, min(max(dt, 1e-6), 10.0 * self._period), stamp)
 
-    def _on_target(self, msg: PointStamped) -> None:
-        x, y = msg.point.x, msg.point.y
+    def _on_target_data(self, data: bytes) -> None:
+        """A hand position as serialized CDR: x, y read at fixed offsets (hri_core.cdr), else
+        through rclpy's deserialiser."""
+        values = self._target_reader.read(data)
+        if values is None:
+            try:
+                msg = deserialize_message(data, PointStamped)
+            except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
+                self._warn('target_cdr', f'target dropped: unreadable ({error})')
+                return
+            self._accept_target(msg.point.x, msg.point.y, stamp_seconds(msg.header.stamp))
+            return
+        sec, nanosec = read_stamp(data)
+        self._accept_target(values[0], values[1], sec + 1e-9 * nanosec)
+
+    def _accept_target(self, x: float, y: float, stamp: float) -> None:
+        """A hand position x, y (m) stamped `stamp` (s), checked before it is used."""
         if not (math.isfinite(x) and math.isfinite(y)):
             self._warn('target_non_finite', 'target dropped: non-finite position')
             return
@@ -352,7 +371,6 @@ class Controller(Node):
                        f'target dropped: {[round(x, 3), round(y, 3)]} is farther than '
                        f'max_target_distance {self._values["max_target_distance"]:g} m')
             return
-        stamp = stamp_seconds(msg.header.stamp)
         verdict = self._target_gate.offer(stamp)
         if verdict == DROPPED:
             self._warn('target_stamp', 'target dropped: stamp did not advance')

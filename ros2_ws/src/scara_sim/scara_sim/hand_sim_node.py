@@ -17,6 +17,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
 from hri_core import topics
+from hri_core.cdr import point_stamped_template
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -70,8 +71,9 @@ class HandSim(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publisher = self.create_publisher(PointStamped, topics.TARGET.name,
                                                 topics.TARGET.qos)
-        self._msg = PointStamped()
-        self._msg.header.frame_id = self._frame
+        # Published as serialized CDR from a template: the node's 100 Hz tick runs beside the
+        # 1 kHz loop on the same cores, so the less it holds a CPU the better.
+        self._template = point_stamped_template(self._frame)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on '
                                f'{self._publisher.topic_name}')
@@ -120,9 +122,8 @@ class HandSim(Node):
 
     def _publish(self) -> None:
         x, y = hand_position(self._profile, time.monotonic() - self._started)
-        self._msg.header.stamp = self.get_clock().now().to_msg()
-        self._msg.point.x, self._msg.point.y = float(x), float(y)
-        self._publisher.publish(self._msg)
+        stamp = self.get_clock().now().seconds_nanoseconds()
+        self._publisher.publish(self._template.encode((float(x), float(y), 0.0), stamp=stamp))
 
 
 def main(args=None):

@@ -172,13 +172,16 @@ def test_bad_joint_states_give_zero_torque_without_crash(nodes, probe):
         short = JointState(name=['joint1'], position=[0.1], velocity=[0.0])
         joints.publish(short)
         time.sleep(0.025)
+        joints.publish(serialize_message(bad)[:30])  # bytes no JointState reader can take
+        time.sleep(0.025)
     assert wait_for(lambda: len(states) > 20, 10.0)
     assert controller.alive()
     assert all(s.status in ('no_joint_states', 'stale_joint_states', 'no_target')
                for s in states[-10:])
     assert commands and all(list(c.data) == [0.0, 0.0] for c in commands[-100:])
     log = controller.log()
-    assert 'non-finite' in log and 'Traceback' not in log
+    assert 'non-finite' in log and 'joint state dropped: unreadable' in log
+    assert 'Traceback' not in log
     # Valid but then stale joint states: zero torque again after joint_state_timeout.
     good = JointState(name=['joint2', 'joint1'], position=[1.5, 0.0], velocity=[0.0, 0.0])
     good.header.stamp = probe.now()

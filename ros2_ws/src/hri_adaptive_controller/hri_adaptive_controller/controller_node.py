@@ -281,18 +281,25 @@ class Controller(Node):
             self._warned[kind] = now
             self.get_logger().warning(text)
 
+    def _deserialize(self, data: bytes, msg_type, what: str):
+        """`data` as a `msg_type` message through rclpy's deserialiser, or None with a
+        throttled warning that the `what` was dropped (any bytes may come from a raw
+        publisher)."""
+        try:
+            return deserialize_message(data, msg_type)
+        except Exception as error:  # noqa: BLE001 whatever the deserialiser raises
+            self._warn(f'{what}_cdr', f'{what} dropped: unreadable ({error})')
+            return None
+
     def _on_joint_state_data(self, data: bytes) -> None:
         """A joint state as serialized CDR: read at fixed offsets while the layout of the
         messages holds (names, lengths, frame_id), else through rclpy's deserialiser and
         _on_joint_state's checks."""
         values = self._joint_reader.read(data)
         if values is None:
-            try:
-                msg = deserialize_message(data, JointState)
-            except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
-                self._warn('joint_state_cdr', f'joint state dropped: unreadable ({error})')
-                return
-            self._on_joint_state(msg)
+            msg = self._deserialize(data, JointState, 'joint state')
+            if msg is not None:
+                self._on_joint_state(msg)
             return
         sec, nanosec = read_stamp(data)
         self._accept_joint_state(values[0:2], values[2:4], sec + 1e-9 * nanosec)
@@ -351,12 +358,9 @@ class Controller(Node):
         through rclpy's deserialiser."""
         values = self._target_reader.read(data)
         if values is None:
-            try:
-                msg = deserialize_message(data, PointStamped)
-            except Exception as error:  # noqa: BLE001 any bytes may come from a raw publisher
-                self._warn('target_cdr', f'target dropped: unreadable ({error})')
-                return
-            self._accept_target(msg.point.x, msg.point.y, stamp_seconds(msg.header.stamp))
+            msg = self._deserialize(data, PointStamped, 'target')
+            if msg is not None:
+                self._accept_target(msg.point.x, msg.point.y, stamp_seconds(msg.header.stamp))
             return
         sec, nanosec = read_stamp(data)
         self._accept_target(values[0], values[1], sec + 1e-9 * nanosec)

@@ -8,9 +8,9 @@ circle: centre (0.45, 0.1) m, radius 0.05 m, period 8 s). Once the controller re
 'ok' and `--warmup` s more have passed, two windows of `--duration` s each: first the CPU of
 every process with nothing of the probe's on the 1 kHz topics (each reader costs its writer a
 send per message), with the controller's own figures (its ControllerStates kept as serialized
-CDR and read after the run); then a probe (hri_bringup.processes.
-RosProbe on the EventsExecutor, raw subscriptions, SCHED_FIFO) subscribes to /joint_states and
-the commands and, after `--warmup` s, listens. Reported:
+CDR and read after the run); then a probe (hri_bringup.processes.RosProbe on the
+EventsExecutor, raw subscriptions, SCHED_FIFO) subscribes to /joint_states and the commands
+and, after `--warmup` s, listens. Reported:
 
 * /joint_states: achieved rate, and the period between messages from their header stamps
   (the simulated time each state stands for) and from their arrival times in the probe's
@@ -42,10 +42,9 @@ after (by PID). The probe and the echo ask for SCHED_FIFO (`--probe-priority`, a
 do) so that a starved probe does not measure its own delays; the probe asks with
 SCHED_RESET_ON_FORK, so the nodes it starts do not inherit its priority (before, hand_sim and
 the event_manager ran at SCHED_FIFO 50 too, where the loop's threads could not preempt their
-100 Hz work). The nodes run as on a machine
-that runs the loop alone: SCHED_FIFO (`--realtime-priority`) and idle CPUs kept polling
-(`--cpu-wakeup-latency`, held by the echo node too); both at 0 and -1 measure the config
-defaults.
+100 Hz work). The nodes run as on a machine that runs the loop alone: SCHED_FIFO
+(`--realtime-priority`) and idle CPUs kept polling (`--cpu-wakeup-latency`, held by the echo
+node too); both at 0 and -1 measure the config defaults.
 
 Every process started is ended (SIGINT, then SIGKILL by PID) in a `finally`.
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_loop.py`.

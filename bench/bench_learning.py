@@ -21,6 +21,9 @@ Three parts, all through the functions the `learner` node uses:
   l2 0.30 m). Then `bag_io.read_demonstration` alone (read time) and `learn_from_bags` with
   the default method (total: read + energy + identification + fit; the fit's own time is
   reported by the fit). The read is measured in a call of its own, before the learning.
+  First of all, the `learner` node itself on that bag (`ros2 run hri_demo_learning learner
+  ... once:=true`, its own ROS domain, nothing subscribed): wall time from process start to
+  exit, figure included (`learner_process_s`).
 
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_learning.py`.
 `--json` prints the figures as one JSON object only.
@@ -28,8 +31,10 @@ Run it in the project's environment: `source scripts/env.sh; python bench/bench_
 
 import argparse
 import json
+import os
 import statistics
 import struct
+import subprocess
 import sys
 import tempfile
 import time
@@ -75,6 +80,7 @@ REPLAY_PUSH_SECONDS = 4.0  # s, duration of the minimum-jerk push
 REPLAY_RATE_HZ = 1000.0
 REFERENCE_RATE_HZ = 10.0
 EPOCH_NS = 1_700_000_000 * 10**9  # ns, bag time of the first sample
+LEARNER_DOMAIN_ID = int(os.environ.get('BENCH_LEARNER_DOMAIN_ID', '94'))  # the node's domain
 
 
 def parse_arguments(argv=None) -> argparse.Namespace:
@@ -280,13 +286,37 @@ def write_replay_bag(path: Path, seconds: float) -> dict:
             'write_s': round(time.perf_counter() - started, 2)}
 
 
+def time_learner_process(bag: Path, output_dir: Path) -> float:
+    """Wall time (s) of `ros2 run hri_demo_learning learner` on `bag` with once:=true, from
+    process start to exit; its own ROS domain (LEARNER_DOMAIN_ID), ended by PID on overrun."""
+    command = ['ros2', 'run', 'hri_demo_learning', 'learner', '--ros-args',
+               '-p', f'bags:=[{bag}]', '-p', 'once:=true', '-p', 'task_name:=follow',
+               '-p', f'output_dir:={output_dir}']
+    environment = {**os.environ, 'ROS_DOMAIN_ID': str(LEARNER_DOMAIN_ID)}
+    started = time.perf_counter()
+    process = subprocess.Popen(command, env=environment, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        _, errors = process.communicate(timeout=300)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    elapsed = time.perf_counter() - started
+    if process.returncode != 0:
+        raise RuntimeError(f'learner exited {process.returncode}: {errors.strip()[-300:]}')
+    return round(elapsed, 2)
+
+
 def bench_replay(seconds: float) -> dict:
     with tempfile.TemporaryDirectory(prefix='bench-learning-') as workdir:
         bag = Path(workdir) / 'replay_follow'
         log(f'replay: writing {int(seconds * REPLAY_RATE_HZ)} joint states into {bag}')
         result = {'seconds': seconds, 'rate_hz': REPLAY_RATE_HZ, 'method': 'trf',
                   **write_replay_bag(bag, seconds)}
-        log(f'replay: written in {result["write_s"]} s; reading')
+        log(f'replay: written in {result["write_s"]} s; the learner node on it')
+        result['learner_process_s'] = time_learner_process(bag, Path(workdir) / 'tasks')
+        log(f'replay: learner node {result["learner_process_s"]} s; reading')
         started = time.perf_counter()
         demo = read_demonstration(bag, l1=L1, l2=L2)
         result['read_s'] = round(time.perf_counter() - started, 2)
@@ -342,7 +372,8 @@ def print_table(result: dict) -> None:
     if 'replay' in result:
         r = result['replay']
         print(f'replay of {r["joint_states"]} joint states ({r["bag_mb"]} MB, written in '
-              f'{r["write_s"]} s): read {r["read_s"]} s, learn_from_bags {r["learn_total_s"]} s '
+              f'{r["write_s"]} s): learner node {r["learner_process_s"]} s start to exit, '
+              f'read {r["read_s"]} s, learn_from_bags {r["learn_total_s"]} s '
               f'(fit {r["fit_s"]} s, {r["iterations"]} it), d2 {r["d2"]} m')
 
 

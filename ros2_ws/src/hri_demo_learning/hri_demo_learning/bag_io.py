@@ -25,9 +25,9 @@ registered from the bag's own message definitions. `read_demonstration` takes a 
 the two types a demonstration is made of, JointState and PointStamped: `read_bag` keeps their
 raw CDR bytes, and `_joint_positions` / `_point_array` read the numbers straight into numpy
 arrays (hri_core.cdr's `joint_state_layout`, `point_stamped_layout` and `read_float64s`). The
-first message of a topic gives the byte layout (a small CDR walk); every message with the same length and the same bytes where the layout could differ
-(encoding, frame_id, joint names, sequence lengths) has that layout and is read by one fancy-
-indexed view; any other message is deserialised with rosbags, which stays the reference (the
+first message of a topic gives the byte layout (a small CDR walk); every message with the
+same length and the same bytes where the layout could differ (encoding, frame_id, joint
+names, sequence lengths) has that layout and is read by one fancy-indexed view; any other message is deserialised with rosbags, which stays the reference (the
 unit tests hold the two equal on the fixture bags and on a crash-recovered bag).
 """
 

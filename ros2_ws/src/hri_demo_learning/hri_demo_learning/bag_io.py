@@ -27,8 +27,9 @@ raw CDR bytes, and `_joint_positions` / `_point_array` read the numbers straight
 arrays (hri_core.cdr's `joint_state_layout`, `point_stamped_layout` and `read_float64s`). The
 first message of a topic gives the byte layout (a small CDR walk); every message with the
 same length and the same bytes where the layout could differ (encoding, frame_id, joint
-names, sequence lengths) has that layout and is read by one fancy-indexed view; any other message is deserialised with rosbags, which stays the reference (the
-unit tests hold the two equal on the fixture bags and on a crash-recovered bag).
+names, sequence lengths) has that layout and is read by one fancy-indexed view; any other
+message is deserialised with rosbags, which stays the reference (the unit tests hold the two
+equal on the fixture bags and on a crash-recovered bag).
 """
 
 import os

@@ -157,7 +157,8 @@ DEFAULT_GAINS = ControllerGains(
     # The gravity moments (zero columns for the horizontal arm) keep a small rate.
     adaptation=(5.0, 2.0, 1.0, 20.0, 10.0, 0.1, 0.1),
     # K: each task's own (the learner's k; Table I's rows, which have none, get
-    # hri_core.potential.default_task_gain): a1, a2 and K set the speed.
+    # hri_core.potential.default_task_gain): a1, a2 and K set the speed where K |dP/dz|
+    # exceeds approach_speed; nearer the region the approach floor below sets it.
     task_gain=None,
     # Approach floor: where the learned pull K |dP/dz| is below 0.1 m/s, the arm still moves
     # towards the region at about 0.1 m/s and enters it (P rises from its region like

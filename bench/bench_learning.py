@@ -38,6 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +53,7 @@ from hri_demo_learning.bag_io import (
     read_demonstration,
 )
 from hri_demo_learning.identification import identify_task_region
-from hri_demo_learning.learning import LearningError, learn_from_bags
+from hri_demo_learning.learning import LearningError, LearningSettings, learn_from_bags
 from hri_demo_learning.performance_learning import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_TOLERANCE,
@@ -64,9 +65,10 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = REPO_ROOT / 'bags' / 'fixtures'
 METHODS = ('gauss_newton', 'trf')
 L1, L2 = 0.35, 0.30  # m, the sim's arm
-LEARNER_SETTINGS = dict(n=3, stationary_speed=DEFAULT_STATIONARY_SPEED, workspace_radius=2.0,
-                        tolerance=DEFAULT_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
-                        l1=L1, l2=L2)
+LEARNER_SETTINGS = LearningSettings(n=3, stationary_speed=DEFAULT_STATIONARY_SPEED,
+                                    workspace_radius=2.0, method='trf',
+                                    tolerance=DEFAULT_TOLERANCE,
+                                    max_iterations=DEFAULT_MAX_ITERATIONS, l1=L1, l2=L2)
 TASKS = {
     'follow': ([FIXTURES / 'follow'], [0.0]),
     'avoid': ([FIXTURES / 'avoid'], [0.0]),
@@ -108,14 +110,14 @@ def bench_fixtures(repeats: int) -> dict:
     """Both methods on each task, side by side, `repeats` rounds (after one warm-up call)."""
     runs = {task: {method: [] for method in METHODS} for task in TASKS}
     bags, shifts = TASKS['follow']  # warm-up (imports, typestore, caches): not measured
-    learn_from_bags([str(b) for b in bags], shifts, 'follow', method='trf', **LEARNER_SETTINGS)
+    learn_from_bags([str(b) for b in bags], shifts, 'follow', LEARNER_SETTINGS)
     for round_index in range(repeats):
         order = METHODS if round_index % 2 == 0 else METHODS[::-1]
         for task, (bags, shifts) in TASKS.items():
             for method in order:
                 try:
                     learned = learn_from_bags([str(b) for b in bags], shifts, task,
-                                              method=method, **LEARNER_SETTINGS)
+                                              replace(LEARNER_SETTINGS, method=method))
                 except LearningError as error:  # e.g. Gauss-Newton not converged in time
                     learned = str(error)
                 runs[task][method].append(learned)
@@ -156,12 +158,11 @@ def resampled_profile(distance: np.ndarray, energy: np.ndarray, moving: np.ndarr
 
 def bench_scaling(sizes: list[int], repeats: int) -> dict:
     bags, shifts = TASKS['follow']
-    learned = learn_from_bags([str(b) for b in bags], shifts, 'follow', method='trf',
-                              **LEARNER_SETTINGS)
+    learned = learn_from_bags([str(b) for b in bags], shifts, 'follow', LEARNER_SETTINGS)
     profile = learned.profile
     region = identify_task_region(profile.distance, profile.energy, profile.moving,
-                                  workspace_radius=LEARNER_SETTINGS['workspace_radius'],
-                                  n=LEARNER_SETTINGS['n'])
+                                  workspace_radius=LEARNER_SETTINGS.workspace_radius,
+                                  n=LEARNER_SETTINGS.n)
     result = {'profile': 'follow fixture, resampled', 'source_samples': int(profile.distance.size),
               's': region.s, 'd1': round(region.d1, 4), 'd2': round(region.d2, 4), 'sizes': {}}
     for size in sizes:
@@ -171,10 +172,10 @@ def bench_scaling(sizes: list[int], repeats: int) -> dict:
         for round_index in range(repeats):
             order = METHODS if round_index % 2 == 0 else METHODS[::-1]
             for method in order:
+                options = replace(LEARNER_SETTINGS, method=method).fit_options
                 fits[method].append(fit_task_parameters(
-                    distance, energy, region.s, region.d1, region.d2, n=LEARNER_SETTINGS['n'],
-                    method=method, tolerance=LEARNER_SETTINGS['tolerance'],
-                    max_iterations=LEARNER_SETTINGS['max_iterations']))
+                    distance, energy, region.s, region.d1, region.d2, n=LEARNER_SETTINGS.n,
+                    options=options))
         result['sizes'][str(size)] = {
             method: {'fit_s': min_median([f.seconds for f in runs]),
                      'iterations': runs[-1].iterations,
@@ -323,7 +324,7 @@ def bench_replay(seconds: float) -> dict:
         result['position_source'] = demo.position_source
         del demo
         log(f'replay: read in {result["read_s"]} s; learning')
-        learned = learn_from_bags([str(bag)], [0.0], 'follow', method='trf', **LEARNER_SETTINGS)
+        learned = learn_from_bags([str(bag)], [0.0], 'follow', LEARNER_SETTINGS)
     record = learned.record
     result.update({
         'learn_total_s': round(learned.total_seconds, 2),

@@ -61,6 +61,7 @@ __all__ = [
     'ROBOT_NAMES',
     'RobotModel',
     'ScaraModel',
+    'generic_model',
     'panda_urdf_path',
     'robot_model',
     'scara_urdf',
@@ -68,6 +69,8 @@ __all__ = [
 
 ROBOT_NAMES = ('scara', 'panda')
 PANDA_TOOL_FRAME = 'panda_hand_tcp'
+# Franka's 'ready' pose (rad): elbow bent, hand down in front of the base.
+PANDA_HOME = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
 PANDA_URDF = 'cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/panda.urdf'
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)  # m/s^2 in the base frame, z up
 # theta's box (PinocchioModel): a link's mass at least this fraction of its URDF mass.
@@ -119,6 +122,8 @@ class RobotModel(ABC):
     reach: float
     shoulder: np.ndarray
     urdf: str
+    tool_frame: str
+    home: np.ndarray
 
     @property
     def dof(self) -> int:
@@ -201,6 +206,8 @@ class ScaraModel(RobotModel):
         self.reach = params.l1 + params.l2
         self.shoulder = np.zeros(3)
         self.urdf = scara_urdf(params, limits)
+        self.tool_frame = 'tip'
+        self.home = np.clip([0.0, math.pi / 2], limits.lower, limits.upper)
 
     def tool_position(self, q) -> np.ndarray:
         x, y = dynamics.forward_kinematics(self.joint_vector(q, 'q'), self.params.l1,
@@ -371,6 +378,10 @@ class PinocchioModel(RobotModel):
             [inertia.toDynamicParameters() for inertia in model.inertias[1:]] + [self.damping])
         self.theta_lower, self.theta_upper = self._parameter_box()
         self.shoulder, self.reach = self._reach()
+        self.home = _neutral_within_limits(pin, model)
+        middle = 0.5 * (self.limits.lower + self.limits.upper)
+        bounded = np.isfinite(middle)
+        self.home[bounded] = middle[bounded]
         self._world_aligned = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
         self._zero = np.zeros(model.nv)
 
@@ -499,6 +510,16 @@ class PinocchioModel(RobotModel):
         return copy
 
 
+def generic_model(model: RobotModel) -> 'PinocchioModel':
+    """`model` itself if it is a PinocchioModel, else the PinocchioModel of its URDF and tool
+    frame (the SCARA's, horizontal: gravity along -z), with its home pose."""
+    if isinstance(model, PinocchioModel):
+        return model
+    generic = PinocchioModel(model.urdf, model.tool_frame, name=model.name)
+    generic.home = np.array(model.home)
+    return generic
+
+
 def _neutral_within_limits(pin, model) -> np.ndarray:
     """pinocchio's neutral configuration clipped into the joint limits (a gripper's fingers
     at their closed stop)."""
@@ -532,8 +553,10 @@ def robot_model(robot: str = '', urdf_file: str = '', tool_frame: str = '') -> R
             raise ValueError(f"the SCARA's tool frame is 'tip', not {tool_frame!r}")
         return ScaraModel()
     if robot == 'panda':
-        text = panda_urdf_path().read_text()
-        return PinocchioModel(text, tool_frame or PANDA_TOOL_FRAME, name='panda')
+        model = PinocchioModel(panda_urdf_path().read_text(), tool_frame or PANDA_TOOL_FRAME,
+                               name='panda')
+        model.home = np.array(PANDA_HOME)
+        return model
     if robot:
         raise ValueError(f'unknown robot {robot!r}; expected one of {", ".join(ROBOT_NAMES)} '
                          'or a urdf_file')

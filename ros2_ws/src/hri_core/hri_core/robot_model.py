@@ -468,6 +468,11 @@ class PinocchioModel(RobotModel):
         """ddq (n,) = M^-1 (tau - C dq - F dq - g) by pinocchio's ABA; inputs unchecked."""
         return self._pin.aba(self.model, self.data, q, dq, tau - self.damping * dq)
 
+    def inverse_mass_matrix(self, q) -> np.ndarray:
+        """M(q)^-1 (n, n) by pinocchio's computeMinverse; q unchecked."""
+        upper = np.triu(self._pin.computeMinverse(self.model, self.data, q))
+        return upper + np.triu(upper, 1).T
+
     def potential_energy(self, q) -> float:
         """Gravitational potential energy (J) whose gradient is g(q)."""
         return float(self._pin.computePotentialEnergy(self.model, self.data,

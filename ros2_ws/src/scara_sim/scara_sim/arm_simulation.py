@@ -10,9 +10,15 @@ at the tool point; J6 taken at the start of the step) held over the step (a driv
 loop). The drive torque is the commanded effort clipped at each joint's effort limit (the
 URDF's: 87 N m for the Panda's joints 1-4, 12 N m for 5-7), or zero when idle.
 
-Joint position limits are inelastic stops, as in scara_sim: after each step a joint beyond a
-limit is clamped to it and its velocity into the limit is zeroed (clamping, not a stiff
-spring: no stiffness to tune and no 1 kHz oscillation against the stop).
+Joint position limits are rigid, inelastic stops (not stiff springs: no stiffness to tune
+and no 1 kHz oscillation against the stop). After each step a joint beyond a limit is clamped
+to it and loses its velocity into the limit in a plastic impact (the impulse of the stop,
+dq -= M^-1 E (E^T M^-1 E)^-1 E^T dq, also changes the other joints' velocities; scara_sim
+zeroes the one joint's velocity only). A joint resting on a stop
+and pushed into it is locked for the next step: its acceleration is held at zero by the
+stop's constraint torque, lambda = (E^T M^-1 E)^-1 E^T ddq_free, so that the stop, not the
+rest of the arm, takes the push (ddq = ddq_free - M^-1 E lambda; E selects the locked joints;
+a stop only pushes, so a joint whose lambda would pull is released).
 
 The simulated arm is not the URDF's: `true_arm` scales each link's mass and rotational
 inertia (centre of mass kept) by its own factor drawn uniformly from [1 - p, 1 + p] and sets
@@ -93,10 +99,33 @@ class ArmSimulator:
             return np.zeros(self.arm.dof)
         raise ValueError(f'unknown command mode {mode!r}; expected one of {COMMAND_MODES}')
 
-    def acceleration(self, q, dq, torque) -> np.ndarray:
+    def acceleration(self, q, dq, torque, locked=None) -> np.ndarray:
         """ddq (n,) rad/s^2 of the true arm under the joint torque (n,) N m (friction and
-        gravity included); inputs unchecked (the 1 kHz path)."""
-        return self.arm.forward_dynamics(q, dq, torque)
+        gravity included), the joints of the index array `locked` held by their stops;
+        inputs unchecked (the 1 kHz path)."""
+        free = self.arm.forward_dynamics(q, dq, torque)
+        if locked is None or not locked.size:
+            return free
+        inverse = self.arm.inverse_mass_matrix(q)
+        constraint = np.linalg.solve(inverse[np.ix_(locked, locked)], free[locked])
+        return free - inverse[:, locked] @ constraint
+
+    def _locked_joints(self, torque) -> np.ndarray | None:
+        """The joints on a stop that the torque pushes into it (the stop holds them this
+        step), or None."""
+        lower, upper = self.arm.limits.lower, self.arm.limits.upper
+        resting = ((self.q <= lower) & (self.dq <= 0.0)) | ((self.q >= upper) & (self.dq >= 0.0))
+        if not resting.any():
+            return None
+        free = self.acceleration(self.q, self.dq, torque)
+        inward = np.where(self.q <= lower, -1.0, 1.0)
+        locked = np.flatnonzero(resting & (free * inward > 0.0))
+        if locked.size > 1:
+            # The constraint torques must push away from each stop; release those that pull.
+            inverse = self.arm.inverse_mass_matrix(self.q)
+            constraint = np.linalg.solve(inverse[np.ix_(locked, locked)], free[locked])
+            locked = locked[constraint * inward[locked] > 0.0]
+        return locked
 
     def step(self, mode: str, command, wrench) -> tuple[tuple[float, ...], ...]:
         """Advance one step of dt with the drive in `mode` and the human's wrench (6,) at the
@@ -110,23 +139,31 @@ class ArmSimulator:
             full = np.zeros(6)
             full[:len(wrench)] = wrench
             torque = tau + self.arm.tool_wrench_jacobian(self.q).T @ full
+        locked = self._locked_joints(torque)
         q, dq, dt = self.q, self.dq, self.dt
-        k1v = self.acceleration(q, dq, torque)
+        k1v = self.acceleration(q, dq, torque, locked)
         k2q = dq + 0.5 * dt * k1v
-        k2v = self.acceleration(q + 0.5 * dt * dq, k2q, torque)
+        k2v = self.acceleration(q + 0.5 * dt * dq, k2q, torque, locked)
         k3q = dq + 0.5 * dt * k2v
-        k3v = self.acceleration(q + 0.5 * dt * k2q, k3q, torque)
+        k3v = self.acceleration(q + 0.5 * dt * k2q, k3q, torque, locked)
         k4q = dq + dt * k3v
-        k4v = self.acceleration(q + dt * k3q, k4q, torque)
+        k4v = self.acceleration(q + dt * k3q, k4q, torque, locked)
         q_next = q + dt / 6.0 * (dq + 2.0 * k2q + 2.0 * k3q + k4q)
         dq_next = dq + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
         if not (np.all(np.isfinite(q_next)) and np.all(np.isfinite(dq_next))):
             raise ValueError(f'the simulated state became non-finite (torque {torque.tolist()})')
-        # An inelastic stop: a joint at a limit keeps only velocity that leaves it.
+        # A plastic impact on each stop reached: the joint keeps no velocity into its stop,
+        # and the rest of the arm the velocity that the impulse of the stop leaves it.
         lower, upper = self.arm.limits.lower, self.arm.limits.upper
-        at_lower, at_upper = q_next <= lower, q_next >= upper
-        dq_next[(at_lower & (dq_next < 0.0)) | (at_upper & (dq_next > 0.0))] = 0.0
-        self.q = np.clip(q_next, lower, upper)
+        q_next = np.clip(q_next, lower, upper)
+        hit = np.flatnonzero(((q_next <= lower) & (dq_next < 0.0))
+                             | ((q_next >= upper) & (dq_next > 0.0)))
+        if hit.size:
+            inverse = self.arm.inverse_mass_matrix(q_next)
+            dq_next -= inverse[:, hit] @ np.linalg.solve(inverse[np.ix_(hit, hit)],
+                                                         dq_next[hit])
+            dq_next[hit] = 0.0  # exactly, not to rounding
+        self.q = q_next
         self.dq = dq_next
         self.applied_effort = tau
         return tuple(self.q.tolist()), tuple(self.dq.tolist()), tuple(tau.tolist())

@@ -23,6 +23,9 @@ START_TIMEOUT = 15.0  # s for `ros2 run` to bring the node up and discovery to m
 PANDA_JOINTS = [f'panda_joint{i}' for i in range(1, 8)]
 HOLD_RATE = 10.0  # 1/s: the holding command's damping, -HOLD_RATE M(q) dq (each joint's
 # velocity decays at this rate whatever its inertia: the Panda's wrist is 100 times lighter)
+# Every joint at least 1.5 rad from its stops: the fall before the first command ends on none.
+HOLD_POSE = (0.0, 0.0, 0.0, -1.5, 0.0, 1.5, 0.785)
+STOP_MARGIN = 0.05  # rad: a joint this close to a stop might be held by it
 COMMAND_PERIOD = 0.005  # s between two commands of the test's own loop
 
 
@@ -90,7 +93,8 @@ def test_a_zero_command_lets_the_arm_sag(nodes, probe):
 def test_a_gravity_compensating_command_holds_the_arm_still(nodes, probe):
     """Commands tau = g(q) - HOLD_RATE M(q) dq from the URDF model (the sim's arm
     unperturbed), sent from before the sim starts: after 1 s the arm moves by less than
-    5 mrad in the next second."""
+    5 mrad in the next second, held by the drives, on no stop. The arm starts in HOLD_POSE and
+    falls freely until the first command arrives (discovery: 0-0.3 s seen)."""
     model = robot_model('panda')
     publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
     states = probe.collect('/joint_states', JointState, RELIABLE)
@@ -98,7 +102,7 @@ def test_a_gravity_compensating_command_holds_the_arm_still(nodes, probe):
 
     def hold():
         while not stop.is_set():
-            q, dq = model.home, np.zeros(7)
+            q, dq = np.array(HOLD_POSE), np.zeros(7)
             if states:
                 q, dq = np.array(states[-1].position), np.array(states[-1].velocity)
             tau = model.gravity_torque(q) - HOLD_RATE * model.mass_matrix(q) @ dq
@@ -108,14 +112,16 @@ def test_a_gravity_compensating_command_holds_the_arm_still(nodes, probe):
     holder = threading.Thread(target=hold, daemon=True)
     holder.start()
     try:
-        sim = nodes('scara_sim', 'arm_sim', params={'robot': 'panda', 'perturbation': 0.0})
+        sim = nodes('scara_sim', 'arm_sim', params={'robot': 'panda', 'perturbation': 0.0,
+                                                    'initial_q': list(HOLD_POSE)})
         assert wait_for(lambda: len(states) > 0, START_TIMEOUT), sim.log()
         time.sleep(1.0)
         settled = joint_positions(states)
         time.sleep(1.0)
         drift = np.max(np.abs(joint_positions(states) - settled))
         assert drift < 5e-3, drift
-        assert np.max(np.abs(settled - model.home)) < 0.1
+        margin = np.minimum(settled - model.limits.lower, model.limits.upper - settled)
+        assert np.all(margin > STOP_MARGIN), margin
         assert np.max(np.abs(states[-1].effort)) > 1.0  # it is held, not resting
     finally:
         stop.set()

@@ -86,6 +86,7 @@ class ArmSim(SteppedSimNode):
     """Integrates the arm of its URDF and publishes its state at rate_hz."""
 
     command_topics = {'effort': topics.EFFORT_COMMANDS}
+    stepping_thread_name = 'arm_sim_steps'
 
     def __init__(self):
         super().__init__(NODE_NAME)

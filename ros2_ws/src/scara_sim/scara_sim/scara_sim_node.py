@@ -116,6 +116,7 @@ class ScaraSim(SteppedSimNode):
 
     joint_names = tuple(JOINT_NAMES)
     command_topics = {'effort': topics.EFFORT_COMMANDS, 'velocity': topics.VELOCITY_COMMANDS}
+    stepping_thread_name = 'scara_sim_steps'
 
     def __init__(self):
         super().__init__(NODE_NAME)

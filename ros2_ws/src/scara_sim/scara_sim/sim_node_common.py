@@ -16,9 +16,9 @@ line. No joint command for `command_timeout` s: zero torque (logged once, and on
 commands resume). A malformed command or wrench (wrong length, NaN/inf, wrong frame) is
 rejected with a throttled warning; the last good one stays in force.
 
-The subclass gives: JOINT_NAMES' length through `joint_names`, `command_topics` (mode ->
-Topic), `wrench_values(msg)` (the wrench components its simulator takes), `tool_point(q)`
-(x, y, z) in m, and optionally `on_new_mode(mode)`.
+The subclass gives: `joint_names`, `command_topics` (mode -> Topic),
+`stepping_thread_name`, `wrench_values(msg)` (the wrench components its simulator takes),
+`tool_point(q)` (x, y, z) in m, and optionally `on_new_mode(mode)`.
 """
 
 import math
@@ -65,6 +65,7 @@ class SteppedSimNode(Node):
 
     joint_names: tuple[str, ...] = ()
     command_topics: dict = {}
+    stepping_thread_name = 'sim_steps'
 
     def read_stepping_settings(self, values: dict) -> None:
         """The settings every simulator node declares, from its declared `values`."""
@@ -134,7 +135,7 @@ class SteppedSimNode(Node):
         # 1 kHz alone and came late behind the command callbacks; this thread, 5 %.
         self._stopping = threading.Event()
         self._stepping = threading.Thread(target=self._step_in_real_time,
-                                          name=f'{self.get_name()}_steps', daemon=True)
+                                          name=self.stepping_thread_name, daemon=True)
         self.get_logger().info(startup_line)
         request_realtime(self, values['realtime_priority'])
         self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])

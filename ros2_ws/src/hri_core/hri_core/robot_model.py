@@ -468,6 +468,12 @@ class PinocchioModel(RobotModel):
         """ddq (n,) = M^-1 (tau - C dq - F dq - g) by pinocchio's ABA; inputs unchecked."""
         return self._pin.aba(self.model, self.data, q, dq, tau - self.damping * dq)
 
+    def tool_position_unchecked(self, q) -> np.ndarray:
+        """tool_position() for a q the caller has checked ((n,) finite floats)."""
+        self._pin.forwardKinematics(self.model, self.data, q)
+        return self._pin.updateFramePlacement(self.model, self.data,
+                                              self.tool_frame_id).translation.copy()
+
     def inverse_mass_matrix(self, q) -> np.ndarray:
         """M(q)^-1 (n, n) by pinocchio's computeMinverse; q unchecked."""
         upper = np.triu(self._pin.computeMinverse(self.model, self.data, q))

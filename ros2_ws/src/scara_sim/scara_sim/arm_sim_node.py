@@ -131,7 +131,7 @@ class ArmSim(SteppedSimNode):
                                     6)
 
     def tool_point(self, q) -> tuple[float, float, float]:
-        return tuple(self._sim.arm.tool_position(q).tolist())
+        return tuple(self._sim.arm.tool_position_unchecked(np.array(q)).tolist())
 
     def _apply_parameters(self, parameters) -> None:
         """The timeouts and the report period (the rest is read-only; ROS checks ranges)."""

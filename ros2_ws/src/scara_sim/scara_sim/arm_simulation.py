@@ -87,14 +87,15 @@ class ArmSimulator:
         if not (math.isfinite(self.dt) and self.dt > 0.0):
             raise ValueError(f'dt must be finite and > 0 s, got {self.dt}')
         self.applied_effort = np.zeros(arm.dof)
-        self._no_wrench = (0.0,) * 6
+        self._lower, self._upper = limits.lower, limits.upper
+        self._effort, self._least_effort = limits.effort, -limits.effort
 
     def actuator_torque(self, mode: str, command) -> np.ndarray:
         """Drive torque (n,) N m for `mode` in COMMAND_MODES: the command clipped at the
         effort limits, or zero."""
-        if mode == 'effort':
-            effort = self.arm.limits.effort
-            return np.clip(np.asarray(command, dtype=float), -effort, effort)
+        if mode == 'effort':  # np.minimum/maximum: a third of np.clip's time on 7 values
+            return np.minimum(np.maximum(np.array(command, dtype=float), self._least_effort),
+                              self._effort)
         if mode == 'idle':
             return np.zeros(self.arm.dof)
         raise ValueError(f'unknown command mode {mode!r}; expected one of {COMMAND_MODES}')
@@ -113,16 +114,17 @@ class ArmSimulator:
     def _locked_joints(self, torque) -> np.ndarray | None:
         """The joints on a stop that the torque pushes into it (the stop holds them this
         step), or None."""
-        lower, upper = self.arm.limits.lower, self.arm.limits.upper
-        resting = ((self.q <= lower) & (self.dq <= 0.0)) | ((self.q >= upper) & (self.dq >= 0.0))
-        if not resting.any():
+        q, dq, lower, upper = self.q, self.dq, self._lower, self._upper
+        on_lower, on_upper = q <= lower, q >= upper
+        if not (on_lower.any() or on_upper.any()):
             return None
-        free = self.acceleration(self.q, self.dq, torque)
-        inward = np.where(self.q <= lower, -1.0, 1.0)
+        resting = (on_lower & (dq <= 0.0)) | (on_upper & (dq >= 0.0))
+        free = self.acceleration(q, dq, torque)
+        inward = np.where(on_lower, -1.0, 1.0)
         locked = np.flatnonzero(resting & (free * inward > 0.0))
         if locked.size > 1:
             # The constraint torques must push away from each stop; release those that pull.
-            inverse = self.arm.inverse_mass_matrix(self.q)
+            inverse = self.arm.inverse_mass_matrix(q)
             constraint = np.linalg.solve(inverse[np.ix_(locked, locked)], free[locked])
             locked = locked[constraint * inward[locked] > 0.0]
         return locked
@@ -141,32 +143,36 @@ class ArmSimulator:
             torque = tau + self.arm.tool_wrench_jacobian(self.q).T @ full
         locked = self._locked_joints(torque)
         q, dq, dt = self.q, self.dq, self.dt
+        half = 0.5 * dt
         k1v = self.acceleration(q, dq, torque, locked)
-        k2q = dq + 0.5 * dt * k1v
-        k2v = self.acceleration(q + 0.5 * dt * dq, k2q, torque, locked)
-        k3q = dq + 0.5 * dt * k2v
-        k3v = self.acceleration(q + 0.5 * dt * k2q, k3q, torque, locked)
+        k2q = dq + half * k1v
+        k2v = self.acceleration(q + half * dq, k2q, torque, locked)
+        k3q = dq + half * k2v
+        k3v = self.acceleration(q + half * k2q, k3q, torque, locked)
         k4q = dq + dt * k3v
         k4v = self.acceleration(q + dt * k3q, k4q, torque, locked)
-        q_next = q + dt / 6.0 * (dq + 2.0 * k2q + 2.0 * k3q + k4q)
-        dq_next = dq + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-        if not (np.all(np.isfinite(q_next)) and np.all(np.isfinite(dq_next))):
+        sixth = dt / 6.0
+        q_next = q + sixth * (dq + 2.0 * (k2q + k3q) + k4q)
+        dq_next = dq + sixth * (k1v + 2.0 * (k2v + k3v) + k4v)
+        # One sum: NaN or inf anywhere in the state makes it non-finite.
+        if not math.isfinite(float(q_next.sum() + dq_next.sum())):
             raise ValueError(f'the simulated state became non-finite (torque {torque.tolist()})')
-        # A plastic impact on each stop reached: the joint keeps no velocity into its stop,
-        # and the rest of the arm the velocity that the impulse of the stop leaves it.
-        lower, upper = self.arm.limits.lower, self.arm.limits.upper
-        q_next = np.clip(q_next, lower, upper)
-        hit = np.flatnonzero(((q_next <= lower) & (dq_next < 0.0))
-                             | ((q_next >= upper) & (dq_next > 0.0)))
-        if hit.size:
-            inverse = self.arm.inverse_mass_matrix(q_next)
-            dq_next -= inverse[:, hit] @ np.linalg.solve(inverse[np.ix_(hit, hit)],
-                                                         dq_next[hit])
-            dq_next[hit] = 0.0  # exactly, not to rounding
+        lower, upper = self._lower, self._upper
+        below, above = q_next <= lower, q_next >= upper
+        if below.any() or above.any():
+            # A plastic impact on each stop reached: the joint keeps no velocity into its
+            # stop, the rest of the arm the velocity that the stop's impulse leaves it.
+            q_next = np.minimum(np.maximum(q_next, lower), upper)
+            hit = np.flatnonzero((below & (dq_next < 0.0)) | (above & (dq_next > 0.0)))
+            if hit.size:
+                inverse = self.arm.inverse_mass_matrix(q_next)
+                dq_next -= inverse[:, hit] @ np.linalg.solve(inverse[np.ix_(hit, hit)],
+                                                             dq_next[hit])
+                dq_next[hit] = 0.0  # exactly, not to rounding
         self.q = q_next
         self.dq = dq_next
         self.applied_effort = tau
-        return tuple(self.q.tolist()), tuple(self.dq.tolist()), tuple(tau.tolist())
+        return tuple(q_next.tolist()), tuple(dq_next.tolist()), tuple(tau.tolist())
 
     def energy(self) -> float:
         """Kinetic plus gravitational potential energy of the true arm (J)."""

@@ -41,6 +41,9 @@ from hri_core.cdr import (
     point_stamped_template,
 )
 from hri_core.node_common import (
+    CPU_WAKEUP_LATENCY,
+    REALTIME_PRIORITY,
+    ParameterSpec,
     hold_wakeup_latency,
     request_realtime,
     run_node,
@@ -54,6 +57,27 @@ from scara_sim.simulation import (
 )
 
 WARN_THROTTLE = 2.0  # s between two warnings about malformed input
+
+# The parameters every simulator node declares: stepping first, the inputs' timing last.
+STEPPING_PARAMETERS = {
+    'rate_hz': ParameterSpec(float, 'integration step and publish rate (Hz); step = '
+                             '1/rate_hz', 1000.0, 10000.0, read_only=True),
+    'max_catch_up_steps': ParameterSpec(
+        int, 'most steps one timer tick may run to catch up with real time; the rest are '
+        'dropped and counted', 1, 10000, read_only=True),
+    'realtime_priority': REALTIME_PRIORITY,
+    'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
+}
+TIMING_PARAMETERS = {
+    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque',
+                                     0.005, 60.0),
+    'wrench_timeout': ParameterSpec(float, 'no /human/wrench for this long (s): zero force',
+                                    0.005, 60.0),
+    'base_frame': ParameterSpec(str, 'frame of /ee_position and of /human/wrench',
+                                read_only=True),
+    'report_period': ParameterSpec(float, 'how often (s) late or dropped steps are reported',
+                                   0.1, 3600.0),
+}
 
 
 def _taken_by_the_stepping_thread(data: bytes) -> None:
@@ -74,6 +98,15 @@ class SteppedSimNode(Node):
         self._wrench_timeout = values['wrench_timeout']
         self._frame = values['base_frame']
         self._report_period = values['report_period']
+
+    def apply_timing_parameters(self, parameters) -> None:
+        """After a parameter change: the timeouts and report period of TIMING_PARAMETERS
+        from their current values, and one line naming what changed."""
+        self._command_timeout = self.get_parameter('command_timeout').value
+        self._wrench_timeout = self.get_parameter('wrench_timeout').value
+        self._report_period = self.get_parameter('report_period').value
+        self.get_logger().info('parameters changed: ' + ', '.join(
+            f'{p.name}={p.value}' for p in parameters))
 
     def wrench_values(self, msg: WrenchStamped) -> tuple:
         """The components of the wrench the simulator takes (checked: finite)."""

@@ -371,8 +371,9 @@ class PinocchioModel(RobotModel):
                                   velocity=model.velocityLimit.copy(),
                                   effort=model.effortLimit.copy())
         self.damping = model.damping.copy()
+        # '<joint>.<parameter>': the inertial parameters of the link that joint moves.
         self.parameter_names = tuple(
-            [f'{link}.{parameter}' for link in model.names[1:] for parameter in INERTIA_NAMES]
+            [f'{joint}.{parameter}' for joint in model.names[1:] for parameter in INERTIA_NAMES]
             + [f'{joint}.damping' for joint in self.joint_names])
         self.theta = np.concatenate(
             [inertia.toDynamicParameters() for inertia in model.inertias[1:]] + [self.damping])

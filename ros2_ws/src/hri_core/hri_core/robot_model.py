@@ -504,6 +504,7 @@ class PinocchioModel(RobotModel):
         pin = self._pin
         copy = object.__new__(PinocchioModel)
         copy.__dict__.update(self.__dict__)
+        copy.home = self.home.copy()
         copy.model = pin.Model(self.model)
         for joint, scale in enumerate(scales, start=1):
             inertia = copy.model.inertias[joint]

@@ -40,6 +40,7 @@ def start_panda(nodes, probe, **params):
     return sim, states
 
 
+@pytest.mark.exclusive  # the receive rate is a timing check
 def test_panda_publishes_every_step_with_its_joint_names(nodes, probe):
     sim, states = start_panda(nodes, probe)
     tips = probe.collect('/ee_position', PointStamped, RELIABLE)

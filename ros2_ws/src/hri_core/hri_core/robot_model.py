@@ -542,16 +542,27 @@ def _neutral_within_limits(pin, model) -> np.ndarray:
 # Names ------------------------------------------------------------------------------------
 
 def panda_urdf_path() -> Path:
-    """The Panda's URDF inside the installed example-robot-data package (a data-only package:
-    its files sit under the environment's cmeel.prefix/share). ValueError if missing."""
+    """The Panda's URDF of the example-robot-data package: in the Python environment (the
+    PyPI wheel, a data-only package: its files sit under the environment's cmeel.prefix/share)
+    or else in the ament index (the ROS package of an apt install). ValueError if neither."""
+    candidates = []
     try:
-        path = Path(metadata.distribution('example-robot-data').locate_file(PANDA_URDF))
+        candidates.append(Path(metadata.distribution('example-robot-data')
+                               .locate_file(PANDA_URDF)))
     except metadata.PackageNotFoundError:
-        raise ValueError('robot panda needs the example-robot-data package (requirements.lock)'
-                         ) from None
-    if not path.is_file():
-        raise ValueError(f'the Panda URDF is not at {path}')
-    return path
+        pass
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.append(Path(get_package_share_directory('example-robot-data'))
+                          / PANDA_URDF.split('example-robot-data/', 1)[1])
+    except (ImportError, LookupError):
+        pass
+    for path in candidates:
+        if path.is_file():
+            return path
+    raise ValueError('robot panda needs the example-robot-data package (requirements.lock); '
+                     f'no Panda URDF at {", ".join(map(str, candidates)) or "any known place"}')
 
 
 def robot_model(robot: str = '', urdf_file: str = '', tool_frame: str = '') -> RobotModel:

@@ -252,3 +252,17 @@ def test_panda_theta_box_is_the_documented_one(panda):
         else:
             assert low == -np.inf, name
     assert names[0] == 'panda_joint1.m' and names[-1] == 'panda_joint7.damping'
+
+
+def test_without_example_robot_data_the_panda_is_one_line(monkeypatch):
+    from importlib import metadata
+
+    from hri_core import robot_model as module
+
+    def missing(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(module.metadata, 'distribution', missing)
+    monkeypatch.setenv('AMENT_PREFIX_PATH', '/nonexistent')
+    with pytest.raises(ValueError, match='robot panda needs the example-robot-data package'):
+        robot_model('panda')

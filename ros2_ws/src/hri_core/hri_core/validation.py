@@ -28,3 +28,14 @@ def positive(value: float, name: str, unit: str = '') -> float:
         raise ValueError(f'{name} must be finite and > 0{" " + unit if unit else ""}, '
                          f'got {value}')
     return value
+
+
+def point_vector(value, name: str, unit: str = '') -> np.ndarray:
+    """`value` as a finite float array of shape (2,) ([x, y], a point of a planar arm) or
+    (3,) ([x, y, z]); ValueError otherwise. A row or column of 2 or 3 is flattened."""
+    array = np.asarray(value, dtype=float).reshape(-1)
+    if array.shape not in ((2,), (3,)) or not np.all(np.isfinite(array)):
+        where = f' in {unit}' if unit else ''
+        raise ValueError(f'{name} must be 2 or 3 finite values [x, y(, z)]{where}, got '
+                         f'{np.ravel(value)}')
+    return array

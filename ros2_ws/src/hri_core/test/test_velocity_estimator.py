@@ -28,3 +28,15 @@ def test_velocity_estimator_rejects_bad_input():
         VelocityEstimator(0.0)
     with pytest.raises(ValueError, match=r'position must be 2 finite values \[x, y\] in m'):
         VelocityEstimator(0.01).update([float('nan'), 0.0], 0.0)
+
+
+def test_velocity_estimator_in_3d():
+    estimator = VelocityEstimator(1e-9, dimension=3)
+    np.testing.assert_array_equal(estimator.velocity, np.zeros(3))
+    estimator.update([0.1, 0.2, 0.3], 1.0)
+    velocity = estimator.update([0.1, 0.25, 0.2], 1.5)
+    np.testing.assert_allclose(velocity, [0.0, 0.1, -0.2], atol=1e-9)
+    with pytest.raises(ValueError, match=r'position must be 3 values \[x, y, z\], got 2'):
+        estimator.update([0.1, 0.2], 2.0)
+    with pytest.raises(ValueError, match='dimension must be 2 or 3, got 4'):
+        VelocityEstimator(0.01, dimension=4)

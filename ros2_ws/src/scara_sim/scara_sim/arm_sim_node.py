@@ -21,6 +21,12 @@ Inputs (reliable, depth 10):
 * /human/wrench (geometry_msgs/WrenchStamped, frame `base_frame` or empty): force (N) and
   torque (N m) held at the tool point, base-frame axes, applied as J6^T w; ignored after
   `wrench_timeout` s without a new one.
+
+Teaching by hand (`-p teach_mode:=true`): the arm is gravity compensated and its joints damped
+by `teach_damping`, as a Franka Panda in its guiding mode, so that with no controller running
+a person (or the demonstrator node, pushing /human/wrench) moves the tool and the arm stays
+where it is let go (arm_simulation has the law and why it is the robot's own). The /joint_states
+effort is then the whole drive torque, gravity included.
 Bad parameters (an unknown robot, an unreadable URDF, an unknown tool frame, an initial_q of
 the wrong length or outside the limits): one error line, exit code 1.
 """
@@ -37,12 +43,14 @@ from hri_core.node_common import (
     declare_parameters,
     load_defaults,
 )
-from hri_core.robot_model import generic_model, robot_model
+from hri_core.robot_model import generic_model
 from scara_sim.arm_simulation import ArmSimulator, true_arm
 from scara_sim.sim_node_common import (
+    ROBOT_PARAMETERS,
     STEPPING_PARAMETERS,
     TIMING_PARAMETERS,
     SteppedSimNode,
+    robot_from_parameters,
     run_sim_node,
 )
 from scara_sim.simulation import joint_command_floats
@@ -51,12 +59,7 @@ PACKAGE = 'scara_sim'
 NODE_NAME = 'arm_sim'
 
 PARAMETERS = {
-    'robot': ParameterSpec(str, 'the arm: scara or panda (ignored when urdf_file is given)',
-                           read_only=True),
-    'urdf_file': ParameterSpec(str, 'URDF of the arm to simulate ("": the robot parameter)',
-                               read_only=True),
-    'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the '
-                                "robot's own; required with urdf_file)", read_only=True),
+    **ROBOT_PARAMETERS,
     **STEPPING_PARAMETERS,
     'initial_q': ParameterSpec(list, "joint positions at start (rad; unset: the robot's home "
                                'pose)', read_only=True, optional=True),
@@ -68,6 +71,10 @@ PARAMETERS = {
     'damping': ParameterSpec(list, "viscous friction of each joint before the perturbation "
                              "(N m s/rad; unset: the URDF's <dynamics damping>)",
                              read_only=True, optional=True),
+    'teach_mode': ParameterSpec(bool, 'teach by hand: the drive compensates gravity and damps '
+                                'the joints (a Panda in its guiding mode)', read_only=True),
+    'teach_damping': ParameterSpec(float, 'teach mode: damping of each joint (N m s/rad)',
+                                   0.0, 50.0, read_only=True),
     **TIMING_PARAMETERS,
 }
 
@@ -99,20 +106,20 @@ class ArmSim(SteppedSimNode):
             f'{np.round(sim.q, 4).tolist()} rad; masses perturbed within '
             f'+-{100 * values["perturbation"]:g} % (seed {values["perturbation_seed"]}); '
             f'effort limits {sim.arm.limits.effort.tolist()} N m, command timeout '
-            f'{self._command_timeout:g} s'))
+            f'{self._command_timeout:g} s'
+            + (f'; teach mode: gravity compensated, joints damped by '
+               f'{values["teach_damping"]:g} N m s/rad' if values['teach_mode'] else '')))
 
     @staticmethod
     def _simulator(values: dict) -> ArmSimulator:
         """The simulator of the parameters `values`; ValueError with the reason."""
-        if values['urdf_file']:
-            model = robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
-        else:
-            model = robot_model(values['robot'], tool_frame=values['tool_frame'])
-        nominal = generic_model(model)
+        nominal = generic_model(robot_from_parameters(values))
         initial_q = nominal.home if values['initial_q'] is None else values['initial_q']
         arm = true_arm(nominal, values['perturbation'], values['perturbation_seed'],
                        values['damping'])
-        return ArmSimulator(arm, initial_q, np.zeros(arm.dof), dt=1.0 / values['rate_hz'])
+        return ArmSimulator(arm, initial_q, np.zeros(arm.dof), dt=1.0 / values['rate_hz'],
+                            teach_mode=values['teach_mode'],
+                            teach_damping=values['teach_damping'])
 
     def wrench_values(self, msg: WrenchStamped) -> tuple[float, ...]:
         """Force (N) and torque (N m) at the tool point, base-frame axes."""

@@ -1,17 +1,25 @@
 """The `demonstrator` node: plays the person who demonstrates a behaviour to the robot.
 
+The arm (`robot`, or `urdf_file` and `tool_frame`, as arm_sim's; hri_core.robot_model) sets
+the demonstration's dimension: the planar SCARA (`robot:=scara`, the default) is pushed in its
+plane, x_r and forces [x, y]; any other arm (`robot:=panda`) in space, x_r [x, y, z] and a 3-D
+force at the tool, along a path that rises or falls as x_r lies above or below the tool.
+x_r (`reference`) unset: the robot's default (DEFAULT_REFERENCES; a URDF arm needs one given).
+x_r and the goal must lie within the arm's reach of its shoulder. A Panda is taught with
+arm_sim in teach mode (`teach_mode:=true`: gravity compensated, as in its guiding mode).
+
 1. Waits for /ee_position (geometry_msgs/PointStamped) from the arm; none within
    `wait_timeout` s: one error line, exit code 1.
 2. Publishes the reference x_r (`reference`, m, base frame) on /demo/reference
-   (PointStamped) at `rate_hz` from then until it exits.
+   (PointStamped; z = 0 for the planar arm) at `rate_hz` from then until it exits.
 3. After `start_delay` s, pushes the end-effector through /human/wrench
-   (geometry_msgs/WrenchStamped, force x, y in N, base frame) with the hand model of
+   (geometry_msgs/WrenchStamped, force x, y (, z) in N, base frame) with the hand model of
    `profiles.Demonstration`: a spring-damper (`stiffness`, `damping`, capped at `max_force`)
    toward a set-point moving on a minimum-jerk path at `peak_speed`, plus seeded tremor
    (`tremor_amplitude` N RMS in `tremor_band` Hz, `seed`). `mode: follow` brings the
    end-effector from where it is toward x_r and stops `stop_distance` m from it;
    `mode: avoid` moves it from near x_r straight away to `safe_distance` m (when it starts
-   within 5 mm of x_r, along `avoid_direction`).
+   within 5 mm of x_r, along `avoid_direction`; unset: -y).
 4. Lets go (zero force) once the end-effector has stayed within `settle_tolerance` of the
    goal for `settle_time` s at a mean speed below `settle_speed` (or `settle_timeout` s after
    the path ends), keeps publishing a zero wrench for `hold_time` s, and exits 0. An
@@ -48,8 +56,11 @@ from scara_sim.profiles import (
     Demonstration,
     PushSettings,
     Tremor,
+    check_reach,
     demonstration_goal,
+    demonstration_points,
 )
+from scara_sim.sim_node_common import ROBOT_PARAMETERS, robot_from_parameters
 
 PACKAGE = 'scara_sim'
 NODE_NAME = 'demonstrator'
@@ -74,17 +85,24 @@ PUSH_SETTINGS = {  # PushSettings fields
     'hold_time': ParameterSpec(float, 'zero force for this long before exiting (s)', 0.0,
                                600.0, read_only=True),
 }
+# x_r when `reference` is unset, per robot: for the SCARA 0.269 m from where its
+# end-effector starts (scara_sim's initial_q); for the Panda 0.282 m from its tool at home
+# (0.307, 0, 0.487) m, forward, left and 0.19 m lower.
+DEFAULT_REFERENCES = {'scara': (0.45, 0.05), 'panda': (0.45, 0.15, 0.30)}
 PARAMETERS = {
+    **ROBOT_PARAMETERS,
     'mode': ParameterSpec(str, 'follow: toward x_r; avoid: away from x_r',
                           choices=DEMONSTRATION_MODES, read_only=True),
-    'reference': ParameterSpec(list, 'x_r, the demonstration reference [x, y] (m)',
-                               size=2, read_only=True),
+    'reference': ParameterSpec(list, "x_r, the demonstration reference (m): [x, y] for the "
+                               "SCARA, [x, y, z] for another arm (unset: the robot's default)",
+                               read_only=True, optional=True),
     'stop_distance': ParameterSpec(float, 'follow: stop this far from x_r (m)', 0.001, 2.0,
                                    read_only=True),
     'safe_distance': ParameterSpec(float, 'avoid: move out to this distance from x_r (m)',
                                    0.001, 2.0, read_only=True),
     'avoid_direction': ParameterSpec(list, 'avoid: direction to move when starting '
-                                     'within 5 mm of x_r', size=2, read_only=True),
+                                     'within 5 mm of x_r, as many values as x_r (unset: -y)',
+                                     read_only=True, optional=True),
     **PUSH_SETTINGS,
     'tremor_amplitude': ParameterSpec(float, 'hand tremor force, RMS per axis (N)', 0.0, 10.0,
                                       read_only=True),
@@ -111,11 +129,17 @@ class Demonstrator(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
         values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
+        try:
+            self._arm = robot_from_parameters(values)
+            self._reference, self._avoid_direction = demonstration_points(
+                self._arm, values['reference'], values['avoid_direction'],
+                DEFAULT_REFERENCES.get('' if values['urdf_file'] else values['robot']))
+        except ValueError as error:
+            raise StartupError(f'bad parameters: {error}') from None
+        self._dimension = self._reference.size
         self._mode = values['mode']
-        self._reference = np.array(values['reference'])
         self._stop_distance = values['stop_distance']
         self._safe_distance = values['safe_distance']
-        self._avoid_direction = values['avoid_direction']
         self._start_delay = values['start_delay']
         self._wait_timeout = values['wait_timeout']
         self._frame = values['base_frame']
@@ -125,8 +149,10 @@ class Demonstrator(Node):
             self._settings = PushSettings(**settings)
             amplitude = values['tremor_amplitude']
             self._tremor = (Tremor(amplitude, tuple(values['tremor_band']), rate_hz,
-                                   values['seed']) if amplitude > 0.0 else None)
-            self._velocity = VelocityEstimator(values['velocity_filter_time'])
+                                   values['seed'], axes=self._dimension)
+                            if amplitude > 0.0 else None)
+            self._velocity = VelocityEstimator(values['velocity_filter_time'],
+                                               dimension=self._dimension)
         except ValueError as error:
             raise StartupError(f'bad parameters: {error}') from None
 
@@ -149,14 +175,16 @@ class Demonstrator(Node):
         self._wrench.header.frame_id = self._frame
         self._reference_msg = PointStamped()
         self._reference_msg.header.frame_id = self._frame
-        self._reference_msg.point.x, self._reference_msg.point.y = self._reference.tolist()
+        point = self._reference_msg.point
+        point.x, point.y, point.z = (*self._reference.tolist(), 0.0)[:3]
         self.create_timer(1.0 / rate_hz, self._on_tick)
         self.get_logger().info(
-            f'{self._mode} demonstration around x_r = {self._reference.tolist()} m: waiting '
-            f'for /ee_position (up to {self._wait_timeout:g} s)')
+            f'{self._mode} demonstration of {self._arm.name} ({self._dimension}-D) around x_r '
+            f'= {self._reference.tolist()} m: waiting for /ee_position (up to '
+            f'{self._wait_timeout:g} s)')
 
     def _on_position(self, msg: PointStamped) -> None:
-        position = np.array([msg.point.x, msg.point.y])
+        position = np.array((msg.point.x, msg.point.y, msg.point.z)[:self._dimension])
         if not np.all(np.isfinite(position)):
             self.get_logger().warning('ignored a non-finite /ee_position',
                                       throttle_duration_sec=2.0)
@@ -180,7 +208,7 @@ class Demonstrator(Node):
             self._heard_at = now
             self.get_logger().info(f'end-effector at {np.round(self._position, 4).tolist()} '
                                    f'm; pushing in {self._start_delay:g} s')
-        force = np.zeros(2)
+        force = np.zeros(self._dimension)
         if self._demonstration is None and now - self._heard_at >= self._start_delay:
             if not self._begin(now):
                 return
@@ -194,6 +222,7 @@ class Demonstrator(Node):
             goal = demonstration_goal(self._mode, self._position, self._reference,
                                       self._stop_distance, self._safe_distance,
                                       self._avoid_direction)
+            check_reach(self._arm, goal, 'the goal')
         except ValueError as error:
             self.get_logger().error(f'cannot demonstrate: {error}')
             self.exit_code = 1
@@ -236,8 +265,10 @@ class Demonstrator(Node):
         self._reference_msg.header.stamp = stamp
         self._reference_pub.publish(self._reference_msg)
         self._wrench.header.stamp = stamp
-        self._wrench.wrench.force.x, self._wrench.wrench.force.y = (float(force[0]),
-                                                                    float(force[1]))
+        push = self._wrench.wrench.force
+        push.x, push.y = float(force[0]), float(force[1])
+        if self._dimension == 3:
+            push.z = float(force[2])
         self._wrench_pub.publish(self._wrench)
 
 

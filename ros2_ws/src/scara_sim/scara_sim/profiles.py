@@ -7,8 +7,12 @@ damper, `hand_force`) whose set-point follows a minimum-jerk path (`minimum_jerk
 from where the end-effector starts to the demonstration's goal (`demonstration_goal`), plus
 physiological tremor (`Tremor`: band-limited, seeded noise).
 
-Positions are (..., 2) arrays in m in the robot's base frame, times in s, forces in N.
-No ROS import.
+The hand profiles are planar: positions (..., 2) in m. The demonstration (its goal, path,
+force and tremor) is of the arm's dimension: [x, y] for the planar SCARA (the numbers of the
+planar demonstration are those it always had), [x, y, z] for any other arm, whose tool the
+hand then pushes with a 3-D force along a straight path in space (not only horizontal: the
+goal lies on the line through x_r, at any height). Positions in m in the robot's base frame,
+times in s, forces in N. No ROS import.
 """
 
 import math
@@ -17,7 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hri_core.validation import planar_vector, positive
+from hri_core.robot_model import RobotModel, ScaraModel
+from hri_core.validation import planar_vector, point_vector, positive
 
 HAND_PROFILES = ('hold', 'approach', 'retreat', 'back_and_forth', 'circle', 'waypoints')
 DEMONSTRATION_MODES = ('follow', 'avoid')
@@ -46,14 +51,25 @@ def minimum_jerk_duration(distance: float, peak_speed: float) -> float:
     return MINIMUM_JERK_PEAK_RATIO * distance / peak_speed
 
 
-def minimum_jerk_segment(start, end, t, duration: float) -> tuple[np.ndarray, np.ndarray]:
-    """Position (..., 2) in m and velocity (..., 2) in m/s of a minimum-jerk move.
+def same_dimension(first, second, first_name: str, second_name: str
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Two points (m) of one dimension, 2 or 3 (validation.point_vector each); ValueError
+    naming both if their dimensions differ."""
+    first, second = point_vector(first, first_name, 'm'), point_vector(second, second_name, 'm')
+    if first.shape != second.shape:
+        raise ValueError(f'{first_name} and {second_name} must both be [x, y] or both '
+                         f'[x, y, z], got {first.size} and {second.size} values')
+    return first, second
 
-    Moves from `start` (2,) to `end` (2,) over `duration` s, starting at t = 0; before that
-    it is at `start`, after it at `end`. t may be a scalar or an array of shape (...).
-    A zero duration jumps at t = 0.
+
+def minimum_jerk_segment(start, end, t, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Position (..., d) in m and velocity (..., d) in m/s of a minimum-jerk move.
+
+    Moves from `start` (d,) to `end` (d,) (d = 2 or 3, the same for both) over `duration` s,
+    starting at t = 0; before that it is at `start`, after it at `end`. t may be a scalar or
+    an array of shape (...). A zero duration jumps at t = 0.
     """
-    start, end = planar_vector(start, 'start', 'm'), planar_vector(end, 'end', 'm')
+    start, end = same_dimension(start, end, 'start', 'end')
     t = np.asarray(t, dtype=float)
     if not (math.isfinite(duration) and duration >= 0.0):
         raise ValueError(f'duration must be finite and >= 0 s, got {duration}')
@@ -181,7 +197,8 @@ def hand_position(profile: HandProfile, t: float) -> np.ndarray:
 def demonstration_goal(mode: str, start, reference, stop_distance: float,
                        safe_distance: float, fallback_direction=(0.0, -1.0),
                        min_direction_distance: float = 0.005) -> np.ndarray:
-    """Where the demonstrator brings the end-effector (2,) in m, base frame.
+    """Where the demonstrator brings the end-effector (d,) in m, base frame (d = 2 or 3, the
+    dimension of `start` and `reference`).
 
     follow: onto the segment from `start` to the reference x_r, `stop_distance` m short of
     x_r (the paper's following behaviour stops near the target: d2 of Table I). avoid: along
@@ -190,8 +207,7 @@ def demonstration_goal(mode: str, start, reference, stop_distance: float,
     `fallback_direction` instead. Raises ValueError when the move would not be toward x_r
     (follow) or away from it (avoid).
     """
-    start = planar_vector(start, 'start', 'm')
-    reference = planar_vector(reference, 'reference', 'm')
+    start, reference = same_dimension(start, reference, 'start', 'reference')
     positive(stop_distance, 'stop_distance', 'm')
     positive(safe_distance, 'safe_distance', 'm')
     offset = start - reference
@@ -199,7 +215,10 @@ def demonstration_goal(mode: str, start, reference, stop_distance: float,
     if distance >= min_direction_distance:
         direction = offset / distance
     else:
-        fallback = planar_vector(fallback_direction, 'fallback_direction', 'm')
+        fallback = point_vector(fallback_direction, 'fallback_direction', 'm')
+        if fallback.shape != start.shape:
+            raise ValueError(f'fallback_direction must have {start.size} values, like start, '
+                             f'got {fallback.size}')
         norm = float(np.linalg.norm(fallback))
         if norm == 0.0:
             raise ValueError('fallback_direction must not be zero')
@@ -218,9 +237,53 @@ def demonstration_goal(mode: str, start, reference, stop_distance: float,
                      f'{", ".join(DEMONSTRATION_MODES)}')
 
 
+def demonstration_dimension(arm: RobotModel) -> int:
+    """2 for the planar SCARA (its tool moves in the plane z = 0), 3 for any other arm."""
+    return 2 if isinstance(arm, ScaraModel) else 3
+
+
+def check_reach(arm: RobotModel, point, what: str) -> None:
+    """ValueError unless `point` ((2,) or (3,) m, base frame) lies within the arm's reach of
+    its shoulder (RobotModel.reach, an upper bound: a point within it may still be out of
+    the arm's joint limits)."""
+    point = point_vector(point, what, 'm')
+    distance = float(np.linalg.norm(point - arm.shoulder[:point.size]))
+    if distance > arm.reach:
+        raise ValueError(f'{what} {np.round(point, 4).tolist()} m is {distance:.3f} m from the '
+                         f'shoulder of {arm.name}, beyond its reach {arm.reach:.3f} m')
+
+
+def demonstration_points(arm: RobotModel, reference, avoid_direction,
+                         default_reference=None) -> tuple[np.ndarray, np.ndarray]:
+    """x_r and the avoid direction of a demonstration on `arm`, each of its dimension
+    (demonstration_dimension): `reference` (None: `default_reference`, which None makes a
+    missing value) within the arm's reach, `avoid_direction` not zero (None: -y).
+    ValueError with the reason."""
+    dimension = demonstration_dimension(arm)
+    shape = '[x, y]' if dimension == 2 else '[x, y, z]'
+    if reference is None:
+        if default_reference is None:
+            raise ValueError(f'reference (x_r, {shape} m) must be given for {arm.name}')
+        reference = default_reference
+    reference = point_vector(reference, 'reference', 'm')
+    if reference.size != dimension:
+        raise ValueError(f'{arm.name} moves in {dimension}-D: reference must be {shape} (m), '
+                         f'got {reference.size} values')
+    check_reach(arm, reference, 'reference')
+    if avoid_direction is None:
+        direction = np.zeros(dimension)
+        direction[1] = -1.0
+        return reference, direction
+    direction = point_vector(avoid_direction, 'avoid_direction')
+    if direction.size != dimension or not np.any(direction):
+        raise ValueError(f'avoid_direction must be {dimension} values, not all zero, like '
+                         f'reference, got {direction.tolist()}')
+    return reference, direction
+
+
 def hand_force(setpoint, setpoint_velocity, position, velocity, stiffness: float,
                damping: float, max_force: float) -> np.ndarray:
-    """Force (..., 2) in N of a hand holding the tool: K (x_s - x) + D (v_s - v), capped.
+    """Force (..., d) in N of a hand holding the tool: K (x_s - x) + D (v_s - v), capped.
 
     The arm's impedance of a person guiding a robot: set-point x_s (m) and its velocity
     v_s (m/s), end-effector position x (m) and velocity v (m/s), stiffness K (N/m) and
@@ -239,18 +302,21 @@ def hand_force(setpoint, setpoint_velocity, position, velocity, stiffness: float
 
 
 class Tremor:
-    """Physiological hand tremor: white noise through a band-pass, 2 axes, seeded.
+    """Physiological hand tremor: white noise through a band-pass, `axes` axes (2: the planar
+    arm's x, y; 3: x, y, z), seeded.
 
     Each axis is Gaussian white noise through a 4th-order Butterworth band-pass
     [low, high] Hz sampled at `rate_hz`, scaled so that its stationary RMS is `amplitude` N.
-    Streaming: `sample()` returns the next (2,) value, `at(t)` the value at time t; the same
+    Streaming: `sample()` returns the next (axes,) value, `at(t)` the value at time t; the same
     seed gives the same sequence.
     """
 
     def __init__(self, amplitude: float, band: tuple[float, float], rate_hz: float,
-                 seed: int):
+                 seed: int, axes: int = 2):
         if not (math.isfinite(amplitude) and amplitude >= 0.0):
             raise ValueError(f'tremor amplitude must be finite and >= 0 N, got {amplitude}')
+        if axes not in (2, 3):
+            raise ValueError(f'tremor axes must be 2 or 3, got {axes}')
         low, high = float(band[0]), float(band[1])
         rate_hz = positive(rate_hz, 'rate_hz', 'Hz')
         if not (0.0 < low < high < 0.5 * rate_hz):
@@ -266,26 +332,28 @@ class Tremor:
         noise_gain = float(np.sqrt(np.sum(self._sosfilt(self._sos, impulse) ** 2)))
         self._scale = amplitude / noise_gain
         self._rng = np.random.default_rng(seed)
-        self._state = np.zeros((self._sos.shape[0], 2, 2))  # (sections, 2, axes)
+        self.axes = axes
+        self._state = np.zeros((self._sos.shape[0], 2, axes))  # (sections, 2, axes)
         self._rate_hz = rate_hz
         self._samples = 0
-        self._last = np.zeros(2)
+        self._last = np.zeros(axes)
 
     def sample(self) -> np.ndarray:
-        """The next tremor force (2,) in N."""
-        out, self._state = self._sosfilt(self._sos, self._rng.standard_normal((1, 2)),
+        """The next tremor force (axes,) in N."""
+        out, self._state = self._sosfilt(self._sos, self._rng.standard_normal((1, self.axes)),
                                           axis=0, zi=self._state)
         self._samples += 1
         self._last = self._scale * out[-1]
         return self._last
 
     def at(self, t: float) -> np.ndarray:
-        """The tremor force (2,) in N at time t (s since the first sample): the filter runs
+        """The tremor force (axes,) in N at time t (s since the first sample): the filter runs
         every sample period up to t, so late or missed calls keep the tremor's band and RMS
         in time; the sequence in time is the one `sample()` gives when called at rate_hz."""
         due = math.floor(t * self._rate_hz) + 1 - self._samples
         if due > 0:
-            out, self._state = self._sosfilt(self._sos, self._rng.standard_normal((due, 2)),
+            out, self._state = self._sosfilt(self._sos,
+                                              self._rng.standard_normal((due, self.axes)),
                                               axis=0, zi=self._state)
             self._samples += due
             self._last = self._scale * out[-1]
@@ -347,8 +415,10 @@ class Demonstration:
     """
 
     def __init__(self, start, goal, settings: PushSettings, tremor: 'Tremor | None' = None):
-        self.start = planar_vector(start, 'start', 'm')
-        self.goal = planar_vector(goal, 'goal', 'm')
+        self.start, self.goal = same_dimension(start, goal, 'start', 'goal')
+        if tremor is not None and tremor.axes != self.start.size:
+            raise ValueError(f'the tremor has {tremor.axes} axes, the demonstration '
+                             f'{self.start.size}')
         self.settings = settings
         self.tremor = tremor
         self.duration = minimum_jerk_duration(float(np.linalg.norm(self.goal - self.start)),
@@ -358,6 +428,14 @@ class Demonstration:
         self.settle_timed_out = False
         self.regrasps = 0
         self._window: deque[tuple[float, np.ndarray]] = deque()  # (t, position) within
+
+    def _point(self, value, name: str, unit: str) -> np.ndarray:
+        """`value` as a point of the demonstration's dimension; ValueError otherwise."""
+        point = point_vector(value, name, unit)
+        if point.shape != self.start.shape:
+            raise ValueError(f'{name} must have {self.start.size} values, like start, got '
+                             f'{point.size}')
+        return point
 
     def _arrived(self, t: float, position: np.ndarray, within: bool) -> bool:
         """Whether the end-effector has stayed within settle_tolerance for settle_time s and
@@ -382,17 +460,17 @@ class Demonstration:
         return bool(np.linalg.norm(position - first) / (t - since) <= s.settle_speed)
 
     def update(self, t: float, position, velocity, age: float = 0.0) -> np.ndarray:
-        """Force (2,) in N at time t (s since the push began) for the measured end-effector
-        position (2,) in m and velocity (2,) in m/s, measured `age` s before t; advances the
-        phase.
+        """Force (d,) in N at time t (s since the push began) for the measured end-effector
+        position (d,) in m and velocity (d,) in m/s (d: the dimension of start), measured `age`
+        s before t; advances the phase.
 
         The position is extrapolated to t with the velocity (an age up to
         MAX_POSITION_AGE s): a position that arrives late would otherwise make the hand's
         spring and damper lag behind the arm and overshoot.
         """
         s = self.settings
-        position = planar_vector(position, 'position', 'm')
-        velocity = planar_vector(velocity, 'velocity', 'm/s')
+        position = self._point(position, 'position', 'm')
+        velocity = self._point(velocity, 'velocity', 'm/s')
         if not (math.isfinite(age) and age >= 0.0):
             raise ValueError(f'age must be finite and >= 0 s, got {age}')
         position = position + velocity * min(age, MAX_POSITION_AGE)
@@ -412,7 +490,7 @@ class Demonstration:
         if self.phase == 'holding' and t >= self.released_at + s.hold_time:
             self.phase = 'done'
         if self.phase in ('holding', 'done'):
-            return np.zeros(2)
+            return np.zeros(self.start.size)
         setpoint, setpoint_velocity = minimum_jerk_segment(self.start, self.goal, t,
                                                            self.duration)
         force = hand_force(setpoint, setpoint_velocity, position, velocity, s.stiffness,

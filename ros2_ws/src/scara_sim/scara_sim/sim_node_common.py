@@ -49,6 +49,7 @@ from hri_core.node_common import (
     run_node,
     take_raw,
 )
+from hri_core.robot_model import RobotModel, robot_model
 from scara_sim.simulation import (
     FixedStepClock,
     RealTimeStepper,
@@ -57,6 +58,16 @@ from scara_sim.simulation import (
 )
 
 WARN_THROTTLE = 2.0  # s between two warnings about malformed input
+
+# Which arm a node simulates or works on (robot_from_parameters).
+ROBOT_PARAMETERS = {
+    'robot': ParameterSpec(str, 'the arm: scara or panda (ignored when urdf_file is given)',
+                           read_only=True),
+    'urdf_file': ParameterSpec(str, 'URDF of the arm ("": the robot parameter)',
+                               read_only=True),
+    'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the '
+                                "robot's own; required with urdf_file)", read_only=True),
+}
 
 # The parameters every simulator node declares: stepping first, the inputs' timing last.
 STEPPING_PARAMETERS = {
@@ -78,6 +89,14 @@ TIMING_PARAMETERS = {
     'report_period': ParameterSpec(float, 'how often (s) late or dropped steps are reported',
                                    0.1, 3600.0),
 }
+
+
+def robot_from_parameters(values: dict) -> RobotModel:
+    """The arm of the ROBOT_PARAMETERS in `values` (hri_core.robot_model.robot_model);
+    ValueError with the reason."""
+    if values['urdf_file']:
+        return robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
+    return robot_model(values['robot'], tool_frame=values['tool_frame'])
 
 
 def _taken_by_the_stepping_thread(data: bytes) -> None:

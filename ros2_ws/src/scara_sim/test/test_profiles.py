@@ -5,13 +5,17 @@ import pytest
 from scipy import signal
 
 from hri_core.dynamics import ScaraParameters, forward_kinematics, jacobian
+from hri_core.robot_model import robot_model
 from hri_core.velocity_estimator import VelocityEstimator
+from scara_sim.arm_simulation import ArmSimulator, true_arm
 from scara_sim.profiles import (
     Demonstration,
     HandProfile,
     PushSettings,
     Tremor,
+    demonstration_dimension,
     demonstration_goal,
+    demonstration_points,
     hand_force,
     hand_position,
     minimum_jerk,
@@ -306,3 +310,124 @@ def test_demonstration_extrapolates_an_old_position_with_its_velocity():
     assert demo.phase == 'holding' and np.all(force == 0.0)
     with pytest.raises(ValueError, match='age must be finite'):
         demo.update(demo.duration, [0.09, 0.0], [0.5, 0.0], age=-1.0)
+
+
+# The demonstration in 3-D --------------------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def panda():
+    return robot_model('panda')
+
+
+def test_a_3d_goal_lies_on_the_line_through_x_r_at_its_distance():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        reference = rng.uniform(-0.5, 0.5, 3)
+        start = reference + rng.uniform(-0.3, 0.3, 3)
+        distance = float(np.linalg.norm(start - reference))
+        follow = demonstration_goal('follow', start, reference, 0.2 * distance, 2.0)
+        avoid = demonstration_goal('avoid', start, reference, 0.01, 2.0 * distance)
+        for goal, radius in ((follow, 0.2 * distance), (avoid, 2.0 * distance)):
+            assert np.linalg.norm(goal - reference) == pytest.approx(radius)
+            # On the line through x_r and the start, on the start's side of x_r.
+            along = (goal - reference) @ (start - reference)
+            assert along == pytest.approx(radius * distance)
+
+
+def test_the_planar_demonstration_is_the_3d_one_in_a_plane():
+    """With z held at one height the 3-D path and force are the planar ones, digit for digit,
+    and push nothing along z: the SCARA's demonstrations are the 3-D law restricted."""
+    settings = PushSettings()
+    planar = Demonstration([0.35, 0.30], [0.42, 0.08], settings)
+    spatial = Demonstration([0.35, 0.30, 0.2], [0.42, 0.08, 0.2], settings)
+    rng = np.random.default_rng(4)
+    for t in np.linspace(0.0, planar.duration + 1.0, 50):
+        position, velocity = rng.uniform(0.0, 0.5, 2), rng.uniform(-0.2, 0.2, 2)
+        flat = planar.update(t, position, velocity)
+        full = spatial.update(t, [*position, 0.2], [*velocity, 0.0])
+        np.testing.assert_array_equal(full[:2], flat)
+        assert full[2] == 0.0
+        assert spatial.phase == planar.phase
+    goal_2d = demonstration_goal('follow', [0.35, 0.30], [0.45, 0.05], 0.041, 0.183)
+    goal_3d = demonstration_goal('follow', [0.35, 0.30, 0.0], [0.45, 0.05, 0.0], 0.041, 0.183)
+    np.testing.assert_array_equal(goal_3d, [*goal_2d, 0.0])
+
+
+def test_a_3d_tremor_has_its_rms_on_each_of_three_axes():
+    rate = 200.0
+    tremor = Tremor(0.2, (8.0, 12.0), rate, seed=2, axes=3)
+    samples = np.array([tremor.at(k / rate) for k in range(40_000)])[2000:]
+    assert samples.shape[1] == 3
+    np.testing.assert_allclose(np.sqrt(np.mean(samples ** 2, axis=0)), 0.2, rtol=0.1)
+    with pytest.raises(ValueError, match='tremor axes must be 2 or 3'):
+        Tremor(0.2, (8.0, 12.0), rate, seed=2, axes=4)
+
+
+def test_points_of_mixed_dimensions_are_refused():
+    with pytest.raises(ValueError, match='start and reference must both be'):
+        demonstration_goal('follow', [0.3, 0.3], [0.4, 0.1, 0.2], 0.04, 0.18)
+    with pytest.raises(ValueError, match='the tremor has 2 axes, the demonstration 3'):
+        Demonstration([0, 0, 0], [0.1, 0, 0], PushSettings(), Tremor(0.2, (8.0, 12.0), 200.0, 0))
+    demo = Demonstration([0, 0, 0], [0.1, 0, 0], PushSettings())
+    with pytest.raises(ValueError, match='position must have 3 values, like start'):
+        demo.update(0.1, [0.0, 0.0], [0.0, 0.0])
+
+
+def test_demonstration_points_take_the_arms_dimension_and_reach(panda):
+    scara = robot_model('scara')
+    reference, direction = demonstration_points(scara, None, None, (0.45, 0.05))
+    np.testing.assert_array_equal(reference, [0.45, 0.05])
+    np.testing.assert_array_equal(direction, [0.0, -1.0])
+    reference, direction = demonstration_points(panda, [0.4, 0.1, 0.3], None)
+    np.testing.assert_array_equal(direction, [0.0, -1.0, 0.0])
+    assert demonstration_dimension(scara) == 2 and demonstration_dimension(panda) == 3
+    with pytest.raises(ValueError, match=r'panda moves in 3-D: reference must be \[x, y, z\]'):
+        demonstration_points(panda, [0.45, 0.05], None)
+    with pytest.raises(ValueError, match='beyond its reach 0.650 m'):
+        demonstration_points(scara, [0.6, 0.3], None)
+    with pytest.raises(ValueError, match=r'reference \(x_r, \[x, y, z\] m\) must be given'):
+        demonstration_points(panda, None, None)
+    with pytest.raises(ValueError, match='avoid_direction must be 3 values, not all zero'):
+        demonstration_points(panda, [0.4, 0.1, 0.3], [0.0, 0.0, 0.0])
+
+
+def simulate_panda_demonstration(panda, mode, reference, seed=0, **settings):
+    """The demonstrator's hand (200 Hz, tremor in 3-D) on the Panda of arm_sim in teach mode
+    (1 kHz, gravity compensated, 10 % mass error). Returns the demonstration, the tool path
+    (N, 3) while it ran and the tool 1 s after it ended."""
+    arm = true_arm(panda, 0.1, seed)
+    sim = ArmSimulator(arm, panda.home, np.zeros(7), teach_mode=True)
+    start = arm.tool_position(sim.q)
+    goal = demonstration_goal(mode, start, reference, 0.041, 0.183)
+    demo = Demonstration(start, goal, PushSettings(**settings),
+                         Tremor(0.2, (8.0, 12.0), 200.0, seed=seed, axes=3))
+    estimator = VelocityEstimator(0.01, dimension=3)
+    tips, force, step = [], np.zeros(3), 0
+    while demo.phase != 'done' and step < 30_000:
+        tips.append(arm.tool_position(sim.q))
+        estimator.update(tips[-1], step * 1e-3)
+        if step % 5 == 0:
+            force = demo.update(step * 1e-3, tips[-1], estimator.velocity)
+        sim.step('idle', None, (*force, 0.0, 0.0, 0.0))
+        step += 1
+    for _ in range(1000):
+        sim.step('idle', None, ())
+    return demo, np.array(tips), arm.tool_position(sim.q)
+
+
+@pytest.mark.parametrize(('mode', 'reference', 'distance'), [
+    ('follow', (0.45, 0.15, 0.30), 0.041),
+    ('avoid', (0.31, 0.004, 0.49), 0.183),
+])
+def test_a_3d_demonstration_brings_the_panda_to_its_goal_in_space(panda, mode, reference,
+                                                                  distance):
+    demo, path, later = simulate_panda_demonstration(panda, mode, np.array(reference),
+                                                     hold_time=1.0, peak_speed=0.2)
+    assert demo.phase == 'done' and not demo.settle_timed_out
+    assert np.linalg.norm(path[-1] - reference) == pytest.approx(distance, abs=0.002)
+    assert np.linalg.norm(later - reference) == pytest.approx(distance, abs=0.003)
+    # Not a horizontal push: the tool's height changes by a good part of the move.
+    moved = path[-1] - path[0]
+    assert abs(moved[2]) > 0.2 * np.linalg.norm(moved)
+    speeds = np.linalg.norm(np.diff(path, axis=0), axis=1) / 1e-3
+    assert 0.1 <= speeds.max() <= 0.3

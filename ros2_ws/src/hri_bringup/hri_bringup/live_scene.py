@@ -1,8 +1,10 @@
 """The live view's 3-D scene as plain data: the arm, the hand and the active task's region.
 
 `live_view` draws this at `scene_rate_hz`; the geometry lives here, without ROS or foxglove,
-so that it is tested on its own. Everything is in the arm's base frame (m), in the plane z = 0
-in which the planar SCARA moves and its task distances are measured:
+so that it is tested on its own. Everything is in the arm's base frame (m).
+
+Two kinds of arm. With no /robot_description, the planar SCARA, in the plane z = 0 in which it
+moves and its task distances are measured:
 
 - the arm (`arm_entity`): link 1 from the base to the elbow and link 2 from the elbow to the
   end-effector (`hri_core.dynamics.forward_kinematics`) as rods, its joints as balls;
@@ -16,14 +18,29 @@ in which the planar SCARA moves and its task distances are measured:
 `scene_entities` gives the three entities; one with nothing to draw (no joint state, no hand,
 no task yet) is returned empty, so that sending it clears what the viewer showed before.
 `arm_frames` gives the arm's frames (base -> link1 -> link2 -> tool) for a transform tree.
+
+Any arm that /robot_description describes (`description_arm`: its URDF through
+hri_core.robot_model.PinocchioModel), in 3-D (`spatial_scene_entities`):
+
+- the arm (`chain_points`, `chain_entity`): the base, each moving joint's origin and the tool
+  point from pinocchio's forward kinematics of the /joint_states positions; a rod for each
+  moving joint from its origin to the next one's (the last to the tool point), and a pedestal
+  rod from the base to the first joint where they are apart (the Panda: 7 joints, 8 rods); a
+  ball at each joint and at the tool (meshes are not drawn);
+- the hand: a ball at /target's x, y, z;
+- the desired region: translucent spheres of radius d1 and d2 round the hand, with rings of
+  those radii at the hand's height, coloured by a as in the plane.
+`chain_frames` gives each moving link's frame in the base frame.
 """
 
 import math
+import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 
 import numpy as np
 
 from hri_core.dynamics import forward_kinematics
+from hri_core.robot_model import PANDA_TOOL_FRAME, PinocchioModel
 
 Point = tuple[float, float, float]
 Quaternion = tuple[float, float, float, float]  # x, y, z, w
@@ -34,6 +51,8 @@ REGION_ENTITY = 'task_region'
 # Enough segments for a ring of 0.5 m to look round (1.8 cm chords) at little cost.
 RING_SEGMENTS = 96
 REGION_SHAPE_INSIDE = 1  # TaskParameters.SHAPE_REGION_INSIDE: desired region d1 <= |z| <= d2
+# The tool frame of the arms the suite knows by their URDF's robot name (description_arm).
+KNOWN_TOOL_FRAMES = {'scara': 'tip', 'panda': PANDA_TOOL_FRAME}
 
 
 @dataclass(frozen=True)
@@ -152,7 +171,7 @@ class ArmGeometry:
     joint_diameter: float = 0.05
 
 
-def joint_angles(names, positions, wanted: tuple[str, str]) -> tuple[float, float] | None:
+def joint_angles(names, positions, wanted: tuple[str, ...]) -> tuple[float, ...] | None:
     """The positions (rad) of the joints named `wanted` in a joint state, or None if one is
     missing or not finite (a joint state of another robot, a broken message)."""
     index = {name: i for i, name in enumerate(names)}
@@ -263,19 +282,38 @@ def arm_entity(q: tuple[float, float] | None, geometry: ArmGeometry) -> Entity:
     if q is None:
         return Entity(ARM_ENTITY)
     base, elbow, tip = arm_points(q, geometry.l1, geometry.l2)
-    rods = (Rod(base, elbow, geometry.link_diameter, LINK_COLOUR),
-            Rod(elbow, tip, geometry.link_diameter, LINK_COLOUR))
-    balls = (Ball(base, geometry.joint_diameter * 1.4, JOINT_COLOUR),
-             Ball(elbow, geometry.joint_diameter, JOINT_COLOUR),
-             Ball(tip, geometry.joint_diameter * 0.8, TOOL_COLOUR))
-    return Entity(ARM_ENTITY, rods=rods, balls=balls)
+    return chain_entity((base, base, elbow, tip), geometry)  # joint 1 sits on the base
 
 
-def hand_entity(hand: tuple[float, float] | None, diameter: float = 0.06) -> Entity:
-    """The hand at (x, y) (m); empty without it."""
+def chain_entity(points: tuple[Point, ...] | None, geometry: ArmGeometry) -> Entity:
+    """An arm through `points`: the base, each joint's origin, the tool point (chain_points).
+    A rod from each joint to the next (the last to the tool), a pedestal rod from the base to
+    the first joint if they are apart; a ball at each joint (the first larger) and at the
+    tool. Empty without points."""
+    if points is None:
+        return Entity(ARM_ENTITY)
+    base, joints, tool = points[0], points[1:-1], points[-1]
+    ends = (*joints, tool)
+    rods = tuple(Rod(start, end, geometry.link_diameter, LINK_COLOUR)
+                 for start, end in zip(ends[:-1], ends[1:], strict=True))
+    if math.dist(base, joints[0]) > 0.0:
+        rods = (Rod(base, joints[0], geometry.link_diameter, LINK_COLOUR), *rods)
+    balls = tuple(Ball(joint, geometry.joint_diameter * (1.4 if k == 0 else 1.0),
+                       JOINT_COLOUR) for k, joint in enumerate(joints))
+    return Entity(ARM_ENTITY, rods=rods,
+                  balls=(*balls, Ball(tool, geometry.joint_diameter * 0.8, TOOL_COLOUR)))
+
+
+def spatial(point) -> Point:
+    """(x, y) or (x, y, z) as (x, y, z): a planar point lies in the plane z = 0."""
+    return (float(point[0]), float(point[1]), float(point[2]) if len(point) > 2 else 0.0)
+
+
+def hand_entity(hand: tuple[float, ...] | None, diameter: float = 0.06) -> Entity:
+    """The hand at (x, y) or (x, y, z) (m); empty without it."""
     if hand is None or not all(math.isfinite(v) for v in hand):
         return Entity(HAND_ENTITY)
-    return Entity(HAND_ENTITY, balls=(Ball((hand[0], hand[1], 0.0), diameter, HAND_COLOUR),))
+    return Entity(HAND_ENTITY, balls=(Ball(spatial(hand), diameter, HAND_COLOUR),))
 
 
 def region_label(region: TaskRegion, distance: float | None) -> str:
@@ -286,17 +324,19 @@ def region_label(region: TaskRegion, distance: float | None) -> str:
     return text
 
 
-def region_entity(hand: tuple[float, float] | None, region: TaskRegion | None,
-                  tip: Point | None, display_radius: float, ring_thickness: float = 0.005
-                  ) -> Entity:
-    """The task's desired region around the hand; empty without a hand, a task, or with
-    boundaries that are not finite and >= 0."""
+def region_entity(hand: tuple[float, ...] | None, region: TaskRegion | None,
+                  tip: Point | None, display_radius: float, ring_thickness: float = 0.005,
+                  spheres: bool = False) -> Entity:
+    """The task's desired region around the hand ((x, y) or (x, y, z) m): rings of radius d1
+    and d2 at the hand's height, and the region shaded in the plane (spheres False) or as
+    translucent spheres of radius d1 and d2 (spheres True, within display_radius). Empty
+    without a hand, a task, or with boundaries that are not finite and >= 0."""
     if hand is None or region is None or not all(math.isfinite(v) for v in hand):
         return Entity(REGION_ENTITY)
     d1, d2 = region.d1, region.d2
     if not (math.isfinite(d1) and math.isfinite(d2) and d1 >= 0.0 and d2 >= 0.0):
         return Entity(REGION_ENTITY)
-    centre = (hand[0], hand[1], 0.0)
+    centre = spatial(hand)
     ring_colour, shading_colour = region_colours(region.weight)
     lines = []
     for radius in (d1, d2):
@@ -307,22 +347,40 @@ def region_entity(hand: tuple[float, float] | None, region: TaskRegion | None,
         beyond = radius > display_radius
         lines.append(Lines(dashes(loop) if beyond else loop, ring_thickness, ring_colour,
                            dashed=beyond))
-    triangles = tuple(Triangles(annulus_triangles(centre, inner, outer), shading_colour)
-                      for inner, outer in region_bands(region.shape, d1, d2, display_radius))
-    distance = None if tip is None else math.dist(tip[:2], hand)
+    triangles, balls = (), ()
+    if spheres:
+        balls = tuple(Ball(centre, 2.0 * min(radius, display_radius), shading_colour)
+                      for radius in (d1, d2) if radius > 0.0)
+    else:
+        triangles = tuple(Triangles(annulus_triangles(centre, inner, outer), shading_colour)
+                          for inner, outer in region_bands(region.shape, d1, d2,
+                                                           display_radius))
+    distance = None if tip is None else math.dist(spatial(tip), centre)
     label_height = min(max(d2, 0.05), display_radius)
-    label = Label((hand[0], hand[1] + label_height, 0.05), region_label(region, distance),
-                  0.03, LABEL_COLOUR)
-    return Entity(REGION_ENTITY, lines=tuple(lines), triangles=triangles, labels=(label,))
+    label = Label((centre[0], centre[1] + label_height, centre[2] + 0.05),
+                  region_label(region, distance), 0.03, LABEL_COLOUR)
+    return Entity(REGION_ENTITY, balls=balls, lines=tuple(lines), triangles=triangles,
+                  labels=(label,))
 
 
-def scene_entities(q: tuple[float, float] | None, hand: tuple[float, float] | None,
+def scene_entities(q: tuple[float, float] | None, hand: tuple[float, ...] | None,
                    region: TaskRegion | None, geometry: ArmGeometry,
                    display_radius: float) -> tuple[Entity, Entity, Entity]:
     """The arm, the hand and the task region: each empty where its input is missing."""
     tip = None if q is None else arm_points(q, geometry.l1, geometry.l2)[2]
-    return (arm_entity(q, geometry), hand_entity(hand),
-            region_entity(hand, region, tip, display_radius))
+    planar_hand = None if hand is None else (hand[0], hand[1])  # the plane's task distances
+    return (arm_entity(q, geometry), hand_entity(planar_hand),
+            region_entity(planar_hand, region, tip, display_radius))
+
+
+def spatial_scene_entities(points: tuple[Point, ...] | None, hand: Point | None,
+                           region: TaskRegion | None, geometry: ArmGeometry,
+                           display_radius: float) -> tuple[Entity, Entity, Entity]:
+    """The arm through `points` (chain_points), the hand (x, y, z) and the task region as
+    spheres round it: each empty where its input is missing."""
+    tip = None if points is None else points[-1]
+    return (chain_entity(points, geometry), hand_entity(hand),
+            region_entity(hand, region, tip, display_radius, spheres=True))
 
 
 def arm_frames(q: tuple[float, float], l1: float, l2: float, base_frame: str
@@ -332,3 +390,50 @@ def arm_frames(q: tuple[float, float], l1: float, l2: float, base_frame: str
     return (Frame(base_frame, 'link1', (0.0, 0.0, 0.0), yaw_quaternion(q[0])),
             Frame('link1', 'link2', (l1, 0.0, 0.0), yaw_quaternion(q[1])),
             Frame('link2', 'tool', (l2, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
+
+
+def description_arm(urdf_text: str, tool_frame: str = '') -> PinocchioModel:
+    """The arm of a /robot_description's URDF, its tool point at `tool_frame` ('': the tool
+    frame of the robot its URDF names, if the suite knows it: KNOWN_TOOL_FRAMES). ValueError
+    with a one-line reason for a URDF that cannot be read or a tool frame not known."""
+    try:
+        name = ElementTree.fromstring(urdf_text).get('name', '')
+    except ElementTree.ParseError as error:
+        raise ValueError(f'not a valid URDF: {error}') from None
+    frame = tool_frame or KNOWN_TOOL_FRAMES.get(name, '')
+    if not frame:
+        raise ValueError(f'robot {name!r} is not one the suite knows '
+                         f'({", ".join(KNOWN_TOOL_FRAMES)}): give tool_frame')
+    return PinocchioModel(urdf_text, frame, name=name or 'urdf')
+
+
+def chain_points(arm: PinocchioModel, q) -> tuple[Point, ...]:
+    """The base frame's origin, each moving joint's origin and the tool point (m, base frame)
+    at joint positions q (n,) in arm.joint_names order (ValueError if not n finite values)."""
+    import pinocchio as pin  # installed with hri_core; imported where the arm needs it
+
+    q = arm.joint_vector(q, 'q')
+    pin.forwardKinematics(arm.model, arm.data, q)
+    tool = pin.updateFramePlacement(arm.model, arm.data, arm.tool_frame_id).translation
+    joints = [arm.data.oMi[joint].translation for joint in range(1, arm.model.njoints)]
+    return ((0.0, 0.0, 0.0), *(spatial(point) for point in joints), spatial(tool))
+
+
+def chain_frames(arm: PinocchioModel, q, base_frame: str) -> tuple[Frame, ...]:
+    """Each moving link's frame (named as in the URDF) in `base_frame` at joint positions q,
+    and the tool frame, for a transform tree; ValueError as chain_points."""
+    import pinocchio as pin
+
+    q = arm.joint_vector(q, 'q')
+    pin.forwardKinematics(arm.model, arm.data, q)
+    pin.updateFramePlacements(arm.model, arm.data)
+    frames = []
+    for frame_id, frame in enumerate(arm.model.frames):
+        moving_link = frame.type == pin.FrameType.BODY and frame.parentJoint > 0 and \
+            frame.placement.isIdentity()
+        if moving_link or frame_id == arm.tool_frame_id:
+            placement = arm.data.oMf[frame_id]
+            x, y, z, w = pin.Quaternion(placement.rotation).coeffs()
+            frames.append(Frame(base_frame, frame.name, spatial(placement.translation),
+                                (float(x), float(y), float(z), float(w))))
+    return tuple(frames)

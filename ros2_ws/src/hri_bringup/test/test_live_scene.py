@@ -27,6 +27,7 @@ from hri_bringup.live_scene import (
     scene_entities,
 )
 from hri_core.dynamics import forward_kinematics
+from hri_core.robot_model import PANDA_TOOL_FRAME, panda_urdf_path, scara_urdf
 
 GEOMETRY = ArmGeometry(l1=0.35, l2=0.30)
 FOLLOW = TaskRegion('follow', 1, 0.0, 0.041, 1.0, 'active')
@@ -176,3 +177,104 @@ def test_every_entity_is_sent_even_empty_so_that_the_viewer_clears_it():
     arm, hand, region = scene_entities((0.0, 1.0), (0.45, 0.05), FOLLOW, GEOMETRY, 0.5)
     assert not (arm.is_empty() or hand.is_empty() or region.is_empty())
     assert hand_entity((math.inf, 0.0)).is_empty()
+
+
+# Any arm from its URDF, in 3-D ----------------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def panda():
+    return live_scene.description_arm(panda_urdf_path().read_text())
+
+
+def test_the_description_names_its_arm_and_tool(panda):
+    assert panda.name == 'panda' and panda.tool_frame == PANDA_TOOL_FRAME
+    assert panda.joint_names == tuple(f'panda_joint{i}' for i in range(1, 8))
+    assert live_scene.description_arm(scara_urdf()).tool_frame == 'tip'
+    assert live_scene.description_arm(panda.urdf, 'panda_link8').tool_frame == 'panda_link8'
+    unknown = scara_urdf().replace('<robot name="scara">', '<robot name="arm">')
+    with pytest.raises(ValueError, match="robot 'arm' is not one the suite knows"):
+        live_scene.description_arm(unknown)
+    with pytest.raises(ValueError, match='not a valid URDF'):
+        live_scene.description_arm('<robot name="x"')
+    with pytest.raises(ValueError, match="no frame 'nope'"):
+        live_scene.description_arm(panda.urdf, 'nope')
+
+
+def test_chain_points_run_from_the_base_through_each_joint_to_the_tool(panda):
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q = rng.uniform(panda.limits.lower, panda.limits.upper)
+        points = live_scene.chain_points(panda, q)
+        assert len(points) == 1 + 7 + 1
+        assert points[0] == (0.0, 0.0, 0.0)
+        assert points[1] == pytest.approx(tuple(panda.shoulder))  # joint 1 does not move
+        assert points[-1] == pytest.approx(tuple(panda.tool_position(q)), abs=1e-12)
+    with pytest.raises(ValueError, match=r'q must have shape \(7,\)'):
+        live_scene.chain_points(panda, [0.0, 0.0])
+
+
+def test_the_panda_is_drawn_as_a_pedestal_and_a_rod_per_joint(panda):
+    points = live_scene.chain_points(panda, panda.home)
+    entity = live_scene.chain_entity(points, GEOMETRY)
+    assert len(entity.rods) == 7 + 1 and len(entity.balls) == 7 + 1
+    assert entity.rods[0].start == (0.0, 0.0, 0.0) and entity.rods[0].end == points[1]
+    for rod, following in zip(entity.rods[:-1], entity.rods[1:], strict=True):
+        assert rod.end == following.start  # one unbroken chain
+    assert entity.rods[-1].end == points[-1] == entity.balls[-1].centre
+    assert entity.balls[-1].colour == live_scene.TOOL_COLOUR
+    assert live_scene.chain_entity(None, GEOMETRY).is_empty()
+
+
+@pytest.mark.parametrize('q', [(0.0, math.pi / 2), (0.7, -1.2)])
+def test_the_scara_from_its_urdf_is_drawn_as_the_planar_scara(q):
+    generic = live_scene.description_arm(scara_urdf())
+    spatial = live_scene.chain_entity(live_scene.chain_points(generic, q), GEOMETRY)
+    planar = arm_entity(q, GEOMETRY)
+    assert len(spatial.rods) == len(planar.rods) == 2
+    for mine, theirs in zip(spatial.rods + spatial.balls, planar.rods + planar.balls,
+                            strict=True):
+        assert type(mine) is type(theirs)
+        for field in ('start', 'end', 'centre'):
+            if hasattr(mine, field):
+                assert getattr(mine, field) == pytest.approx(getattr(theirs, field),
+                                                             abs=1e-12)
+
+
+def test_the_region_in_3d_is_spheres_of_d1_and_d2_round_the_hand():
+    hand = (0.4, 0.1, 0.35)
+    entity = region_entity(hand, FOLLOW_SAFE, (0.4, 0.3, 0.35), 0.5, spheres=True)
+    assert [ball.diameter for ball in entity.balls] == pytest.approx([2 * 0.183, 2 * 0.271])
+    assert all(ball.centre == hand for ball in entity.balls)
+    assert all(ball.colour == region_colours(1.0)[1] for ball in entity.balls)
+    assert not entity.triangles
+    for ring, radius in zip(entity.lines, (0.183, 0.271), strict=True):
+        points = np.array(ring.points)
+        assert radii(points, hand) == pytest.approx([radius] * len(points))
+        assert points[:, 2] == pytest.approx(0.35)  # at the hand's height
+    assert '|x - x_h| = 0.200 m' in entity.labels[0].text  # distance in space
+    faded = region_entity(hand, TaskRegion('avoid', 1, 0.183, 2.0, 0.0, 'fading_out'),
+                          None, 0.5, spheres=True)
+    assert [ball.diameter for ball in faded.balls] == pytest.approx([0.366, 1.0])  # capped
+    assert all(ball.colour == region_colours(0.0)[1] for ball in faded.balls)
+    assert len(region_entity(hand, FOLLOW, None, 0.5, spheres=True).balls) == 1  # d1 = 0
+
+
+def test_the_spatial_scene_has_the_arm_the_hand_and_the_region(panda):
+    points = live_scene.chain_points(panda, panda.home)
+    hand = (0.5, 0.2, 0.4)
+    arm, hand_ball, region = live_scene.spatial_scene_entities(points, hand, FOLLOW_SAFE,
+                                                               GEOMETRY, 0.5)
+    assert [arm.id, hand_ball.id, region.id] == ['arm', 'hand', 'task_region']
+    assert len(arm.rods) == 8 and hand_ball.balls[0].centre == hand
+    assert len(region.balls) == 2
+    assert all(e.is_empty() for e in live_scene.spatial_scene_entities(
+        None, None, None, GEOMETRY, 0.5))
+
+
+def test_the_chain_frames_place_each_link_and_the_tool(panda):
+    frames = live_scene.chain_frames(panda, panda.home, 'base')
+    names = [frame.child for frame in frames]
+    assert names[:7] == [f'panda_link{i}' for i in range(1, 8)] and names[-1] == PANDA_TOOL_FRAME
+    assert all(frame.parent == 'base' for frame in frames)
+    assert frames[-1].translation == pytest.approx(tuple(panda.tool_position(panda.home)))
+    assert all(np.linalg.norm(frame.rotation) == pytest.approx(1.0) for frame in frames)

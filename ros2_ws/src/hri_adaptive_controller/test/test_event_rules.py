@@ -227,18 +227,18 @@ def test_the_default_rule_set_loads_and_runs_follow_avoid_follow_safe():
     task, switches = 'follow', []
     # The arm follows a still hand 0.3 m away (the arm comes at 0.25 m/s: no event) ...
     timeline = separations(np.linspace(0.3, 0.05, 50), robot_speed=0.25)
-    # ... the hand reaches in at 0.5 m/s, rests 2 s, withdraws slowly.
+    # ... the hand reaches in at 0.5 m/s, rests 4 s, withdraws slowly.
     timeline += separations(np.linspace(0.3, 0.1, 20), start=1.0, hand_speed=0.5,
                             hand_motion=0.5)
-    timeline += separations([0.18] * 100, start=1.4, hand_motion=0.01)
-    timeline += separations(np.linspace(0.2, 0.25, 100), start=3.4, hand_speed=-0.1,
+    timeline += separations([0.18] * 200, start=1.4, hand_motion=0.01)
+    timeline += separations(np.linspace(0.2, 0.25, 100), start=5.4, hand_speed=-0.1,
                             hand_motion=0.1)
     for obs in timeline:
         for firing in events.update(obs, task):
             task = firing.rule.task
             switches.append((round(firing.time, 6), firing.rule.event, task))
     assert switches == [(1.0 + 0.06, 'hand_reaches_in', 'avoid'),
-                        (1.4 + 1.5, 'hand_rests', 'follow_safe')]
+                        (1.4 + 3.0, 'hand_rests', 'follow_safe')]
 
 
 @pytest.mark.parametrize(('text', 'message'), [

@@ -30,6 +30,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hri_adaptive_controller.run_metrics import run_metrics  # noqa: E402
+from hri_adaptive_controller.separation import ProtectiveSeparation  # noqa: E402
 from hri_bringup.processes import (  # noqa: E402
     LIVE_LOOP,
     NodeProcess,
@@ -581,6 +582,56 @@ class Demo:
               f'between samples {jumps:.4f}; final distance {metrics.steady_distance:.3f} m; '
               f'closest {self.metrics["sequence"]["separation_min_m"]:.3f} m')
 
+    def separation_verdicts(self) -> list[str]:
+        """The report's lines on ISO/TS 15066 for each learned task that keeps the hand at
+        d1 > 0: is d1 >= S_p with the arm at its max_task_speed, and up to what arm speed it
+        would be, for a hand at ISO 13855's speed and for a still hand (metrics too)."""
+        constants = load_defaults('hri_adaptive_controller', 'event_detector')
+        settings = ProtectiveSeparation(**{name: constants[name] for name in (
+            'reaction_time', 'stopping_time', 'stopping_distance', 'intrusion_distance',
+            'human_uncertainty', 'robot_uncertainty', 'near_speed', 'far_speed', 'near_limit',
+            'assume_iso_speed')})
+        speed = load_defaults('hri_adaptive_controller', 'controller')['max_task_speed']
+        verdicts = {}
+        for name, learned in self.metrics['learning'].items():
+            d1 = learned['d1']
+            if d1 <= 0.0:
+                continue
+            iso = settings.iso_human_speed(d1)
+            verdicts[name] = {
+                'd1_m': d1, 'arm_speed_m_s': speed,
+                'protective_distance_m': settings.distance(iso, speed),
+                'protective_distance_still_hand_m': settings.distance(0.0, speed),
+                'arm_speed_limit_m_s': settings.arm_speed_limit(d1),
+                'arm_speed_limit_still_hand_m_s': settings.arm_speed_limit(d1, 0.0),
+            }
+        self.metrics['separation_verdicts'] = verdicts
+
+        def limit(value):
+            return 'none (a still arm is too close already)' if value is None \
+                else f'{value:.2f} m/s'
+
+        lines = ['', '## Speed and separation (ISO/TS 15066)', '',
+                 f'S_p = v_h (T_r + T_s) + v_r T_r + B + C + Z_d + Z_r with T_r = '
+                 f'{settings.reaction_time:g} s, T_s = {settings.stopping_time:g} s and B = '
+                 f'{settings.stopping_distance:g} m (the arm\'s stop from its peak task speed '
+                 f'through the 1 s fade of a(E, t), measured in the pure closed loop), C = '
+                 f'{settings.intrusion_distance:g} m, Z_d + Z_r = '
+                 f'{settings.human_uncertainty + settings.robot_uncertainty:g} m; the arm at '
+                 f'its max_task_speed {speed:g} m/s.', '',
+                 '| task | d1 (m) | S_p, hand at ISO 13855 speed (m) | d1 >= S_p | arm speed '
+                 'for d1 >= S_p | S_p, still hand (m) | d1 >= S_p | arm speed for d1 >= S_p |',
+                 '|---|---|---|---|---|---|---|---|']
+        for name, v in verdicts.items():
+            lines.append(
+                f"| {name} | {v['d1_m']:.3f} | {v['protective_distance_m']:.3f} | "
+                f"{'yes' if v['d1_m'] >= v['protective_distance_m'] else 'no'} | "
+                f"{limit(v['arm_speed_limit_m_s'])} | "
+                f"{v['protective_distance_still_hand_m']:.3f} | "
+                f"{'yes' if v['d1_m'] >= v['protective_distance_still_hand_m'] else 'no'} | "
+                f"{limit(v['arm_speed_limit_still_hand_m_s'])} |")
+        return lines
+
     def write_report(self) -> None:
         lines = ['# HRI control through demonstration: simulation report', '',
                  f'Run of `scripts/demo.sh{" --quick" if self.quick else ""}` on '
@@ -681,6 +732,7 @@ class Demo:
                       f'consecutive control cycles: {seq["max_effort_step"]:.3f} N m. Final '
                       f'distance {seq["final"]["steady_distance"]:.3f} m.', '',
                       '![sequence](figures/sequence.png)']
+        lines += self.separation_verdicts()
         steps = {name: m['max_effort_step'] for name, m in self.metrics['behaviours'].items()}
         if 'sequence' in self.metrics:
             steps['sequence'] = self.metrics['sequence']['max_effort_step']

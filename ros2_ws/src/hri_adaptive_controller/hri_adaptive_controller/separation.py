@@ -75,6 +75,21 @@ class ProtectiveSeparation:
                 + max(robot_speed, 0.0) * self.reaction_time + self.stopping_distance
                 + self.intrusion_distance + self.human_uncertainty + self.robot_uncertainty)
 
+    def arm_speed_limit(self, separation: float, human_speed: float | None = None
+                        ) -> float | None:
+        """The highest speed v_r (m/s) of the tool towards the hand at which S_p <= separation
+        (m), for a hand coming at ISO 13855's speed at this separation (human_speed None) or
+        at `human_speed` m/s (taken as human_speed_used takes a measured one).
+        None if no speed does (S_p of a still tool is above the separation); inf if any does
+        (T_r = 0 and the still tool's S_p fits). T_s and B stay at their values (measured at
+        the arm's peak speed: a slower arm stops sooner, so this is conservative)."""
+        v_h = self.iso_human_speed(separation) if human_speed is None \
+            else self.human_speed_used(human_speed, separation)
+        room = separation - self.distance(v_h, 0.0)
+        if room < 0.0:
+            return None
+        return math.inf if self.reaction_time == 0.0 else room / self.reaction_time
+
 
 @dataclass(frozen=True)
 class SeparationSample:

@@ -77,6 +77,19 @@ def test_speeds_towards_each_other_along_the_separation():
         (0.0, 0.5, 0.1))
 
 
+def test_arm_speed_limit_solves_the_formula_for_the_robot_speed():
+    # A still hand: 0.2 m leaves 0.2 - 0.075 m for v_r T_r: 1.25 m/s.
+    assert SETTINGS.arm_speed_limit(0.2, human_speed=0.0) == pytest.approx(1.25)
+    assert SETTINGS.distance(0.0, 1.25) == pytest.approx(0.2)
+    # A hand at 0.3 m/s: 0.2 - 0.075 - 0.3 x 0.4 = 0.005 m: 0.05 m/s.
+    assert SETTINGS.arm_speed_limit(0.2, human_speed=0.3) == pytest.approx(0.05)
+    # ISO 13855's 2.0 m/s within 0.5 m: 0.875 m at least; no arm speed fits 0.2 m.
+    assert SETTINGS.arm_speed_limit(0.2) is None
+    assert SETTINGS.arm_speed_limit(1.0) == pytest.approx((1.0 - 1.6 * 0.4 - 0.075) / 0.1)
+    instant = ProtectiveSeparation(**{**SETTINGS.__dict__, 'reaction_time': 0.0})
+    assert instant.arm_speed_limit(0.2, human_speed=0.0) == math.inf
+
+
 @pytest.mark.parametrize(('change', 'message'), [
     ({'stopping_time': -0.1}, 'stopping_time must be a finite number >= 0, got -0.1'),
     ({'reaction_time': math.inf}, 'reaction_time must be a finite number >= 0'),

@@ -57,28 +57,34 @@ class Script:
         self._thread.join(self._duration + 10.0)
         assert not self._thread.is_alive()
 
-    def _publish(self, publisher, point) -> float:
-        msg = PointStamped()
-        msg.header.stamp = self._probe.now()
-        msg.header.frame_id = 'base'
-        msg.point.x, msg.point.y = float(point[0]), float(point[1])
-        publisher.publish(msg)
-        return stamp_seconds(msg.header.stamp)
+    def _publish(self, publisher, path, start: float) -> tuple[float, np.ndarray | None]:
+        """Publish where `path` is now, stamped now: the stamp is the time the position is
+        taken at (a position of one instant stamped a few ms later reads as a velocity
+        spike when the thread catches up after a stall)."""
+        now = self._probe.now()
+        stamp = stamp_seconds(now)
+        point = path(stamp - start)
+        if point is not None:
+            msg = PointStamped()
+            msg.header.stamp = now
+            msg.header.frame_id = 'base'
+            msg.point.x, msg.point.y = float(point[0]), float(point[1])
+            publisher.publish(msg)
+        return stamp, point
 
     def _run(self) -> None:
-        start = time.monotonic()
+        start = stamp_seconds(self._probe.now())
         next_hand = next_tool = 0.0
-        while (t := time.monotonic() - start) < self._duration:
+        while (t := stamp_seconds(self._probe.now()) - start) < self._duration:
             if t >= next_tool:
-                self._publish(self._tool_pub, self._tool(t))
+                self._publish(self._tool_pub, self._tool, start)
                 next_tool += 1.0 / TOOL_RATE
             if t >= next_hand:
-                point = self._hand(t)
+                stamp, point = self._publish(self._hand_pub, self._hand, start)
                 if point is not None:
-                    self.hand_sent.append((self._publish(self._hand_pub, point),
-                                           np.asarray(point, dtype=float)))
+                    self.hand_sent.append((stamp, np.asarray(point, dtype=float)))
                 next_hand += 1.0 / HAND_RATE
-            time.sleep(max(0.0, min(next_hand, next_tool) - (time.monotonic() - start)))
+            time.sleep(max(0.0, min(next_hand, next_tool) - t))
 
 
 def params_file(tmp_path, rules: str | None = None, **params) -> str:
@@ -220,3 +226,35 @@ def test_separation_agrees_with_the_formula_on_its_published_speeds(
     # moving away at up to 0.1 m/s.
     assert max(m.robot_speed for m in messages) == pytest.approx(0.25, abs=0.03)
     assert min(m.human_speed for m in messages) == pytest.approx(-0.1, abs=0.02)
+
+
+@pytest.mark.exclusive  # the 1 kHz loop
+def test_on_the_live_loop_a_reaching_hand_switches_to_avoid_before_d1(live_loop, probe):
+    """The whole loop with the detector: the arm comes under follow to a hand 0.6 m away,
+    which reaches in at 0.5 m/s 0.3 s later (hand_sim); the switch to avoid starts before the
+    separation the detector publishes falls below avoid's d1, if it ever does. (A hand that
+    reaches in later, when the arm has come nearer, leaves less time: 0.8 s later, 0.07 s in
+    the pure closed loop, the detector's latency being the velocity estimate's.)"""
+    d1 = load_task_file(paper_tasks_dir() / 'avoid.yaml').d1
+    events = probe.collect(topics.EVENTS.name, TaskEvent, topics.EVENTS.qos)
+    states = probe.collect(topics.TASK_STATE.name, TaskState, topics.TASK_STATE.qos)
+    separation = probe.collect(topics.SEPARATION.name, SeparationState, topics.SEPARATION.qos)
+    loop = live_loop({'hand_sim': {
+        'profile': 'waypoints', 'start_delay': 0.3, 'speed': 0.1,
+        'waypoints': [0.35, -0.30, 0.35, 0.0], 'segment_speeds': [0.5], 'pauses': [2.0]}},
+        nodes=['scara_sim', 'event_manager', 'controller', 'event_detector', 'hand_sim'],
+        ready_timeout=30.0)
+    assert wait_for(lambda: any(s.task.name == 'avoid' and s.phase == 'active'
+                                for s in states), 20.0), loop['event_detector'].log()
+    assert [(e.name, e.task) for e in events][:1] == [('hand_reaches_in', 'avoid')]
+    event_time = stamp_seconds(events[0].header.stamp)
+    switch = next(stamp_seconds(s.header.stamp) for s in states if s.pending_task == 'avoid')
+    closest = min(m.separation for m in separation)
+    below = [stamp_seconds(m.header.stamp) for m in separation if m.separation < d1]
+    at_event = [m.separation for m in separation
+                if stamp_seconds(m.header.stamp) <= event_time][-1]
+    print(f'live loop: event at separation {at_event:.3f} m, switch {switch - event_time:.3f} s '
+          f'after it; closest {closest:.3f} m (d1 {d1} m)'
+          + (f', first below d1 {below[0] - switch:.3f} s after the switch' if below else ''))
+    assert at_event > d1
+    assert not below or switch < below[0]

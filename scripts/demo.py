@@ -30,7 +30,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hri_adaptive_controller.run_metrics import run_metrics  # noqa: E402
-from hri_adaptive_controller.separation import ProtectiveSeparation  # noqa: E402
 from hri_bringup.processes import (  # noqa: E402
     LIVE_LOOP,
     NodeProcess,
@@ -41,6 +40,7 @@ from hri_bringup.processes import (  # noqa: E402
 )
 from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
+from hri_core.separation import ProtectiveSeparation  # noqa: E402
 from hri_core.task_file import load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from hri_demo_learning.figures import plot_task_fit  # noqa: E402

@@ -14,7 +14,7 @@ cost no callback each), estimates both velocities (hri_core.velocity_estimator),
   line saying why;
 - publishes hri_interfaces/SeparationState on /hri/separation (separation, the speeds towards
   each other, S_p of ISO/TS 15066 from the parameters below, and whether the separation is
-  below it: separation.py) while both the hand and the tool are known (their newest samples
+  below it: hri_core.separation) while both the hand and the tool are known (their newest samples
   no older than input_timeout); nothing otherwise, never a NaN.
 
 A bad rule set or parameter ends the node at start with a one-line reason (exit 1). A hand or
@@ -32,7 +32,7 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
 from hri_adaptive_controller.event_rules import EventDetector, RuleError, load_rules
-from hri_adaptive_controller.separation import ProtectiveSeparation, SeparationMonitor
+from hri_adaptive_controller.separation_monitor import SeparationMonitor
 from hri_core import topics
 from hri_core.cdr import LayoutReader, point_stamped_layout, read_stamp
 from hri_core.node_common import (
@@ -43,6 +43,7 @@ from hri_core.node_common import (
     run_node,
     take_raw,
 )
+from hri_core.separation import ProtectiveSeparation
 
 PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'event_detector'

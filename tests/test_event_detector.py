@@ -258,3 +258,37 @@ def test_on_the_live_loop_a_reaching_hand_switches_to_avoid_before_d1(live_loop,
           + (f', first below d1 {below[0] - switch:.3f} s after the switch' if below else ''))
     assert at_event > d1
     assert not below or switch < below[0]
+
+
+def test_a_bad_rule_ends_the_detector_with_one_line(nodes, tmp_path):
+    process = nodes('hri_adaptive_controller', 'event_detector', params_files=[params_file(
+        tmp_path, 'near: {kind: zone_entered, task: avoid, distance: -0.3}\n')])
+    assert process.wait(20.0) == 1, process.log()
+    log = process.log()
+    assert "bad parameter rules: rule 'near': distance must be a number > 0 (m), got -0.3" \
+        in log, log
+    assert 'Traceback' not in log
+
+
+def test_non_finite_positions_are_dropped_with_a_warning(nodes, probe, tmp_path):
+    separation = probe.collect(topics.SEPARATION.name, SeparationState, topics.SEPARATION.qos)
+    detector = start_detector(nodes, tmp_path)
+    # Every tenth hand and tool position is NaN or infinite.
+    bad = (math.nan, math.inf)
+
+    def hand(t):
+        return (bad[int(t * 100) % 2], 0.0) if int(t * 100) % 10 == 0 else TOOL + [0.0, -0.3]
+
+    def tool(t):
+        return (0.0, bad[int(t * 250) % 2]) if int(t * 250) % 10 == 0 else TOOL
+
+    Script(probe, hand, tool, 2.0).start().join()
+    time.sleep(0.2)
+    assert len(separation) >= 2.0 * 50 * 0.7
+    assert all(m.separation == pytest.approx(0.3, abs=1e-6) and math.isfinite(m.human_speed)
+               and math.isfinite(m.protective_distance) for m in separation)
+    log = detector.log()
+    assert 'target dropped: non-finite position' in log, log
+    assert 'ee_position dropped: non-finite position' in log, log
+    assert log.count('dropped') <= 2 * 3, log  # throttled: once a second each
+    assert detector.alive()

@@ -587,10 +587,7 @@ class Demo:
         d1 > 0: is d1 >= S_p with the arm at its max_task_speed, and up to what arm speed it
         would be, for a hand at ISO 13855's speed and for a still hand (metrics too)."""
         constants = load_defaults('hri_adaptive_controller', 'event_detector')
-        settings = ProtectiveSeparation(**{name: constants[name] for name in (
-            'reaction_time', 'stopping_time', 'stopping_distance', 'intrusion_distance',
-            'human_uncertainty', 'robot_uncertainty', 'near_speed', 'far_speed', 'near_limit',
-            'assume_iso_speed')})
+        settings = ProtectiveSeparation.from_mapping(constants)
         speed = load_defaults('hri_adaptive_controller', 'controller')['max_task_speed']
         verdicts = {}
         for name, learned in self.metrics['learning'].items():

@@ -50,7 +50,8 @@ NODE_NAME = 'event_detector'
 WARNING_THROTTLE = 1.0  # s between repeats of one kind of warning
 
 
-def _length(description: str) -> ParameterSpec:
+def _constant(description: str) -> ParameterSpec:
+    """A constant of S_p: a time (s) or a length (m) in [0, 10]."""
     return ParameterSpec(float, description, low=0.0, high=10.0, read_only=True)
 
 
@@ -65,13 +66,13 @@ PARAMETERS = {
                                       low=1e-3, high=2.0, read_only=True),
     'input_timeout': ParameterSpec(float, 'a hand or tool sample older than this counts as '
                                    'absent (s)', low=0.01, high=10.0, read_only=True),
-    'reaction_time': _length('T_r of S_p: the system reaction time (s)'),
-    'stopping_time': _length('T_s of S_p: the arm stopping time under the controller (s)'),
-    'stopping_distance': _length('B of S_p: the arm stopping distance (m)'),
-    'intrusion_distance': _length('C of S_p: how far a hand reaches beyond its tracked '
+    'reaction_time': _constant('T_r of S_p: the system reaction time (s)'),
+    'stopping_time': _constant('T_s of S_p: the arm stopping time under the controller (s)'),
+    'stopping_distance': _constant('B of S_p: the arm stopping distance (m)'),
+    'intrusion_distance': _constant('C of S_p: how far a hand reaches beyond its tracked '
                                   'point (m)'),
-    'human_uncertainty': _length('Z_d of S_p: position uncertainty of the hand (m)'),
-    'robot_uncertainty': _length('Z_r of S_p: position uncertainty of the tool (m)'),
+    'human_uncertainty': _constant('Z_d of S_p: position uncertainty of the hand (m)'),
+    'robot_uncertainty': _constant('Z_r of S_p: position uncertainty of the tool (m)'),
     'near_speed': ParameterSpec(float, 'ISO 13855 approach speed within near_limit (m/s)',
                                 low=1e-3, high=10.0, read_only=True),
     'far_speed': ParameterSpec(float, 'ISO 13855 approach speed beyond near_limit (m/s)',
@@ -81,9 +82,6 @@ PARAMETERS = {
     'assume_iso_speed': ParameterSpec(bool, 'v_h of S_p is at least the ISO 13855 speed '
                                       '(false: the measured speed alone)', read_only=True),
 }
-SETTINGS = ('reaction_time', 'stopping_time', 'stopping_distance', 'intrusion_distance',
-            'human_uncertainty', 'robot_uncertainty', 'near_speed', 'far_speed', 'near_limit',
-            'assume_iso_speed')
 
 
 class EventDetectorNode(Node):
@@ -96,7 +94,7 @@ class EventDetectorNode(Node):
             rules = load_rules(values['rules'])
         except RuleError as error:
             raise StartupError(f'bad parameter rules: {error}') from None
-        settings = ProtectiveSeparation(**{name: values[name] for name in SETTINGS})
+        settings = ProtectiveSeparation.from_mapping(values)
         self._detector = EventDetector(rules)
         self._monitor = SeparationMonitor(settings, values['hand_filter_time'],
                                           values['tool_filter_time'], values['input_timeout'])

@@ -15,10 +15,7 @@ from hri_core.separation import ProtectiveSeparation, separation_sample
 from hri_core.task_file import load_task_file
 
 DEFAULTS = load_defaults('hri_adaptive_controller', 'event_detector')
-SETTING_NAMES = ('reaction_time', 'stopping_time', 'stopping_distance', 'intrusion_distance',
-                 'human_uncertainty', 'robot_uncertainty', 'near_speed', 'far_speed',
-                 'near_limit', 'assume_iso_speed')
-SETTINGS = ProtectiveSeparation(**{name: DEFAULTS[name] for name in SETTING_NAMES})
+SETTINGS = ProtectiveSeparation.from_mapping(DEFAULTS)
 
 
 def test_the_defaults_give_iso_13855_hand_speed_near_the_tool():

@@ -56,6 +56,12 @@ class ProtectiveSeparation:
                 raise ValueError(f'{field.name} must be a finite number '
                                  f'{"> 0" if positive else ">= 0"}, got {value!r}')
 
+    @classmethod
+    def from_mapping(cls, values) -> 'ProtectiveSeparation':
+        """The constants named by this class's fields, taken from `values` (a mapping that may
+        hold more, e.g. the event_detector's parameters); KeyError names a missing one."""
+        return cls(**{field.name: values[field.name] for field in fields(cls)})
+
     def iso_human_speed(self, separation: float) -> float:
         """ISO 13855's approach speed K (m/s) of a hand at `separation` m from the tool."""
         return self.near_speed if separation <= self.near_limit else self.far_speed

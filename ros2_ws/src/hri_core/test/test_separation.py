@@ -69,6 +69,14 @@ def test_arm_speed_limit_solves_the_formula_for_the_robot_speed():
     assert instant.arm_speed_limit(0.2, human_speed=0.0) == math.inf
 
 
+def test_from_mapping_takes_the_constants_and_names_a_missing_one():
+    values = {**SETTINGS.__dict__, 'publish_rate_hz': 50.0}
+    assert ProtectiveSeparation.from_mapping(values) == SETTINGS
+    del values['stopping_time']
+    with pytest.raises(KeyError, match='stopping_time'):
+        ProtectiveSeparation.from_mapping(values)
+
+
 @pytest.mark.parametrize(('change', 'message'), [
     ({'stopping_time': -0.1}, 'stopping_time must be a finite number >= 0, got -0.1'),
     ({'reaction_time': math.inf}, 'reaction_time must be a finite number >= 0'),

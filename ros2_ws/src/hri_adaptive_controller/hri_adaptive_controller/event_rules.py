@@ -120,23 +120,17 @@ class ZoneCondition:
 
 @dataclass(frozen=True)
 class ApproachCondition:
-    """Hand and tool close in faster than min_speed, or time to contact below a bound."""
+    """Hand and tool close in faster than min_speed, or time to contact below a bound; on
+    after `dwell_on` s (the rule's dwell), off at once."""
 
     min_speed: float | None
     max_time_to_contact: float | None
     hysteresis: float
     speed_of: str
     within: float
-    dwell: float
+    dwell_on: float
     initial = False
-
-    @property
-    def dwell_on(self) -> float:
-        return self.dwell
-
-    @property
-    def dwell_off(self) -> float:
-        return 0.0
+    dwell_off = 0.0
 
     def speed(self, obs: Observation) -> float:
         return obs.closing_speed if self.speed_of == 'closing' else obs.hand_speed
@@ -163,20 +157,14 @@ class ApproachCondition:
 
 @dataclass(frozen=True)
 class StillCondition:
-    """The hand moves slower than max_speed for `duration` s."""
+    """The hand moves slower than max_speed for `dwell_on` s (the rule's duration); off at
+    once."""
 
     max_speed: float
-    duration: float
+    dwell_on: float
     hysteresis: float
     initial = False
-
-    @property
-    def dwell_on(self) -> float:
-        return self.duration
-
-    @property
-    def dwell_off(self) -> float:
-        return 0.0
+    dwell_off = 0.0
 
     def holds(self, obs: Observation, held: bool) -> bool:
         if obs.separation is None:
@@ -185,7 +173,7 @@ class StillCondition:
 
     def describe(self, obs: Observation) -> str:
         return f'hand speed {obs.hand_motion:.3f} m/s (< {self.max_speed:g}) for ' \
-               f'{self.duration:g} s'
+               f'{self.dwell_on:g} s'
 
 
 @dataclass(frozen=True)

@@ -139,10 +139,14 @@ class EventDetectorNode(Node):
             self.get_logger().warning(text)
 
     def _on_task_state(self, msg: TaskState) -> None:
-        if msg.phase == TaskState.PHASE_IDLE and not msg.pending_task:
+        """The current task: where the event_manager is heading ('' = no task). While it
+        fades out, that is the pending task ('' when the switch is to no task)."""
+        if msg.phase == TaskState.PHASE_FADING_OUT:
+            self._current_task = msg.pending_task
+        elif msg.phase == TaskState.PHASE_IDLE:
             self._current_task = ''
         else:
-            self._current_task = msg.pending_task or msg.task.name
+            self._current_task = msg.task.name
 
     def _take_hand(self, now: float) -> None:
         for data, _ in take_raw(self._hand_sub):

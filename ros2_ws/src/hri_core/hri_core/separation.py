@@ -131,7 +131,7 @@ def separation_sample(hand, hand_velocity, tool, tool_velocity,
     if separation > 0.0:
         towards_tool = offset / separation
         human_speed = float(hand_velocity @ towards_tool)
-        robot_speed = float(-(tool_velocity @ towards_tool))
+        robot_speed = 0.0 - float(tool_velocity @ towards_tool)  # 0.0, not -0.0
     else:
         human_speed = float(math.hypot(*hand_velocity))
         robot_speed = float(math.hypot(*tool_velocity))

@@ -68,8 +68,8 @@ TARGET = Topic('/target', PointStamped, SENSOR_STREAM_QOS)
 TASK = Topic('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
 EVENTS = Topic('/hri/events', TaskEvent, EVENT_QOS)
 TASK_STATE = Topic('/hri/task_state', TaskState, TASK_STATE_QOS)
-CONTROLLER_STATE = Topic('/hri/controller_state', ControllerState, MONITOR_QOS)
 SEPARATION = Topic('/hri/separation', SeparationState, MONITOR_QOS)
+CONTROLLER_STATE = Topic('/hri/controller_state', ControllerState, MONITOR_QOS)
 
 # What the recorder writes by default: everything the learner and the reports read.
 DEMONSTRATION_TOPICS = (JOINT_STATES, EE_POSITION, DEMO_REFERENCE, TARGET, HUMAN_WRENCH)

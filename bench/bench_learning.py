@@ -21,6 +21,9 @@ Three parts, all through the functions the `learner` node uses:
   l2 0.30 m). Then `bag_io.read_demonstration` alone (read time) and `learn_from_bags` with
   the default method (total: read + energy + identification + fit; the fit's own time is
   reported by the fit). The read is measured in a call of its own, before the learning.
+  First of all, the `learner` node itself on that bag (`ros2 run hri_demo_learning learner
+  ... once:=true`, its own ROS domain, nothing subscribed): wall time from process start to
+  exit, figure included (`learner_process_s`).
 
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_learning.py`.
 `--json` prints the figures as one JSON object only.
@@ -28,11 +31,14 @@ Run it in the project's environment: `source scripts/env.sh; python bench/bench_
 
 import argparse
 import json
+import os
 import statistics
 import struct
+import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +53,7 @@ from hri_demo_learning.bag_io import (
     read_demonstration,
 )
 from hri_demo_learning.identification import identify_task_region
-from hri_demo_learning.learning import LearningError, learn_from_bags
+from hri_demo_learning.learning import LearningError, LearningSettings, learn_from_bags
 from hri_demo_learning.performance_learning import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_TOLERANCE,
@@ -59,9 +65,10 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = REPO_ROOT / 'bags' / 'fixtures'
 METHODS = ('gauss_newton', 'trf')
 L1, L2 = 0.35, 0.30  # m, the sim's arm
-LEARNER_SETTINGS = dict(n=3, stationary_speed=DEFAULT_STATIONARY_SPEED, workspace_radius=2.0,
-                        tolerance=DEFAULT_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
-                        l1=L1, l2=L2)
+LEARNER_SETTINGS = LearningSettings(n=3, stationary_speed=DEFAULT_STATIONARY_SPEED,
+                                    workspace_radius=2.0, method='trf',
+                                    tolerance=DEFAULT_TOLERANCE,
+                                    max_iterations=DEFAULT_MAX_ITERATIONS, l1=L1, l2=L2)
 TASKS = {
     'follow': ([FIXTURES / 'follow'], [0.0]),
     'avoid': ([FIXTURES / 'avoid'], [0.0]),
@@ -75,6 +82,7 @@ REPLAY_PUSH_SECONDS = 4.0  # s, duration of the minimum-jerk push
 REPLAY_RATE_HZ = 1000.0
 REFERENCE_RATE_HZ = 10.0
 EPOCH_NS = 1_700_000_000 * 10**9  # ns, bag time of the first sample
+LEARNER_DOMAIN_ID = int(os.environ.get('BENCH_LEARNER_DOMAIN_ID', '94'))  # the node's domain
 
 
 def parse_arguments(argv=None) -> argparse.Namespace:
@@ -102,14 +110,14 @@ def bench_fixtures(repeats: int) -> dict:
     """Both methods on each task, side by side, `repeats` rounds (after one warm-up call)."""
     runs = {task: {method: [] for method in METHODS} for task in TASKS}
     bags, shifts = TASKS['follow']  # warm-up (imports, typestore, caches): not measured
-    learn_from_bags([str(b) for b in bags], shifts, 'follow', method='trf', **LEARNER_SETTINGS)
+    learn_from_bags([str(b) for b in bags], shifts, 'follow', LEARNER_SETTINGS)
     for round_index in range(repeats):
         order = METHODS if round_index % 2 == 0 else METHODS[::-1]
         for task, (bags, shifts) in TASKS.items():
             for method in order:
                 try:
                     learned = learn_from_bags([str(b) for b in bags], shifts, task,
-                                              method=method, **LEARNER_SETTINGS)
+                                              replace(LEARNER_SETTINGS, method=method))
                 except LearningError as error:  # e.g. Gauss-Newton not converged in time
                     learned = str(error)
                 runs[task][method].append(learned)
@@ -150,12 +158,11 @@ def resampled_profile(distance: np.ndarray, energy: np.ndarray, moving: np.ndarr
 
 def bench_scaling(sizes: list[int], repeats: int) -> dict:
     bags, shifts = TASKS['follow']
-    learned = learn_from_bags([str(b) for b in bags], shifts, 'follow', method='trf',
-                              **LEARNER_SETTINGS)
+    learned = learn_from_bags([str(b) for b in bags], shifts, 'follow', LEARNER_SETTINGS)
     profile = learned.profile
     region = identify_task_region(profile.distance, profile.energy, profile.moving,
-                                  workspace_radius=LEARNER_SETTINGS['workspace_radius'],
-                                  n=LEARNER_SETTINGS['n'])
+                                  workspace_radius=LEARNER_SETTINGS.workspace_radius,
+                                  n=LEARNER_SETTINGS.n)
     result = {'profile': 'follow fixture, resampled', 'source_samples': int(profile.distance.size),
               's': region.s, 'd1': round(region.d1, 4), 'd2': round(region.d2, 4), 'sizes': {}}
     for size in sizes:
@@ -165,10 +172,10 @@ def bench_scaling(sizes: list[int], repeats: int) -> dict:
         for round_index in range(repeats):
             order = METHODS if round_index % 2 == 0 else METHODS[::-1]
             for method in order:
+                options = replace(LEARNER_SETTINGS, method=method).fit_options
                 fits[method].append(fit_task_parameters(
-                    distance, energy, region.s, region.d1, region.d2, n=LEARNER_SETTINGS['n'],
-                    method=method, tolerance=LEARNER_SETTINGS['tolerance'],
-                    max_iterations=LEARNER_SETTINGS['max_iterations']))
+                    distance, energy, region.s, region.d1, region.d2, n=LEARNER_SETTINGS.n,
+                    options=options))
         result['sizes'][str(size)] = {
             method: {'fit_s': min_median([f.seconds for f in runs]),
                      'iterations': runs[-1].iterations,
@@ -280,20 +287,44 @@ def write_replay_bag(path: Path, seconds: float) -> dict:
             'write_s': round(time.perf_counter() - started, 2)}
 
 
+def time_learner_process(bag: Path, output_dir: Path) -> float:
+    """Wall time (s) of `ros2 run hri_demo_learning learner` on `bag` with once:=true, from
+    process start to exit; its own ROS domain (LEARNER_DOMAIN_ID), ended by PID on overrun."""
+    command = ['ros2', 'run', 'hri_demo_learning', 'learner', '--ros-args',
+               '-p', f'bags:=[{bag}]', '-p', 'once:=true', '-p', 'task_name:=follow',
+               '-p', f'output_dir:={output_dir}']
+    environment = {**os.environ, 'ROS_DOMAIN_ID': str(LEARNER_DOMAIN_ID)}
+    started = time.perf_counter()
+    process = subprocess.Popen(command, env=environment, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        _, errors = process.communicate(timeout=300)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    elapsed = time.perf_counter() - started
+    if process.returncode != 0:
+        raise RuntimeError(f'learner exited {process.returncode}: {errors.strip()[-300:]}')
+    return round(elapsed, 2)
+
+
 def bench_replay(seconds: float) -> dict:
     with tempfile.TemporaryDirectory(prefix='bench-learning-') as workdir:
         bag = Path(workdir) / 'replay_follow'
         log(f'replay: writing {int(seconds * REPLAY_RATE_HZ)} joint states into {bag}')
         result = {'seconds': seconds, 'rate_hz': REPLAY_RATE_HZ, 'method': 'trf',
                   **write_replay_bag(bag, seconds)}
-        log(f'replay: written in {result["write_s"]} s; reading')
+        log(f'replay: written in {result["write_s"]} s; the learner node on it')
+        result['learner_process_s'] = time_learner_process(bag, Path(workdir) / 'tasks')
+        log(f'replay: learner node {result["learner_process_s"]} s; reading')
         started = time.perf_counter()
         demo = read_demonstration(bag, l1=L1, l2=L2)
         result['read_s'] = round(time.perf_counter() - started, 2)
         result['position_source'] = demo.position_source
         del demo
         log(f'replay: read in {result["read_s"]} s; learning')
-        learned = learn_from_bags([str(bag)], [0.0], 'follow', method='trf', **LEARNER_SETTINGS)
+        learned = learn_from_bags([str(bag)], [0.0], 'follow', LEARNER_SETTINGS)
     record = learned.record
     result.update({
         'learn_total_s': round(learned.total_seconds, 2),
@@ -342,7 +373,8 @@ def print_table(result: dict) -> None:
     if 'replay' in result:
         r = result['replay']
         print(f'replay of {r["joint_states"]} joint states ({r["bag_mb"]} MB, written in '
-              f'{r["write_s"]} s): read {r["read_s"]} s, learn_from_bags {r["learn_total_s"]} s '
+              f'{r["write_s"]} s): learner node {r["learner_process_s"]} s start to exit, '
+              f'read {r["read_s"]} s, learn_from_bags {r["learn_total_s"]} s '
               f'(fit {r["fit_s"]} s, {r["iterations"]} it), d2 {r["d2"]} m')
 
 

@@ -215,6 +215,7 @@ for name in PIECES:
         if 'replay' in piece:
             r = piece['replay']
             row(name, f"replay {r['joint_states']:,} joint states",
+                f"learner node {r['learner_process_s']} s start to exit; "
                 f"read {r['read_s']} s, learn_from_bags {r['learn_total_s']} s "
                 f"(read + energy + identification + fit; fit {r['fit_s']} s, "
                 f"{r['iterations']} it, {r['method']}); bag {r['bag_mb']} MB written in "

@@ -20,7 +20,7 @@ import signal
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import matplotlib
@@ -44,7 +44,11 @@ from hri_core.separation import ProtectiveSeparation  # noqa: E402
 from hri_core.task_file import load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from hri_demo_learning.figures import plot_task_fit  # noqa: E402
-from hri_demo_learning.learning import LearningError, learn_from_bags  # noqa: E402
+from hri_demo_learning.learning import (  # noqa: E402
+    LearningError,
+    LearningSettings,
+    learn_from_bags,
+)
 from hri_demo_learning.performance_learning import fit_task_parameters, task_cost  # noqa: E402
 from scara_sim.profiles import HandProfile, waypoint_schedule  # noqa: E402
 
@@ -161,19 +165,18 @@ def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures:
     the paper's a1, a2 scored on the same demonstration, the paper's Gauss-Newton
     iteration run on it (at most `gauss_newton_updates` updates), and the figure overlaying
     P_d, the learned P and the paper's."""
-    settings = load_defaults('hri_demo_learning', 'learner')
-    keys = ('n', 'stationary_speed', 'workspace_radius', 'tolerance', 'max_iterations',
-            'l1', 'l2', 'rest_fraction', 'max_task_speed', 'max_cost')
-    learned = learn_from_bags(bags, shifts, name, method='trf',
-                              **{key: settings[key] for key in keys})
+    defaults = LearningSettings.from_parameters(load_defaults('hri_demo_learning', 'learner'))
+    settings = replace(defaults, method='trf')
+    learned = learn_from_bags(bags, shifts, name, settings)
     record, profile = learned.record, learned.profile
     paper = PAPER_TABLE_I[name]
     paper_here = TaskShape(record.s, paper['a1'], paper['a2'], record.d1, record.d2,
                            record.n)
     gauss_newton = fit_task_parameters(
         profile.distance, profile.energy, record.s, record.d1, record.d2, n=record.n,
-        method='gauss_newton', tolerance=settings['tolerance'],
-        max_iterations=gauss_newton_updates, a1_max=learned.a1_max)
+        options=replace(settings, method='gauss_newton',
+                        max_iterations=gauss_newton_updates).fit_options,
+        a1_max=learned.a1_max)
     paper_row = TaskShape(paper['s'], paper['a1'], paper['a2'], paper['d1'], paper['d2'],
                           record.n)
     plot_task_fit(profile.distance, profile.energy, record.shape,

@@ -5,6 +5,7 @@
     dtheta_hat/dt = -L Y_d^T s                                               (eq. 19)
     V = 1/2 s^T M s + Kp a Q + 1/2 dtheta^T L^-1 dtheta,  dtheta = theta - theta_hat  (eq. 21)
     dV/dt = -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q               (eq. 22)
+            + Kp a delta_eps^T w,   w = v_r + a delta_eps - xdot_d    (avoid tasks only)
 
 qdot_r, qddot_r, delta_eps = K dP/d(dx) under the speed cap and its potential Q come from
 task_variable (eq. 12', 14);
@@ -17,6 +18,12 @@ text, both needed for eq. 22 to follow from eq. 16-21:
   is right only for Kp = 1). Q is task_variable's potential (equal to K P where the task
   speed is below the cap), so eq. 22 holds below and above the cap. An avoid task's return to
   its rest position enters qdot_r only (not the Kp term): it is not a gradient of Q.
+- eq. 22 assumes the reference of eq. 14, whose hand-velocity feed-forward cancels xdot_d in
+  dQ/dt. An avoid task's reference v_r drops that feed-forward ((1 - a) xdot_d) and adds
+  a v_rest, so w = v_r + a delta_eps - xdot_d = -a xdot_d + a v_rest is not zero and dV/dt
+  gains Kp a delta_eps^T w = -Kp a^2 delta_eps^T xdot_d (+ Kp a^2 delta_eps^T v_rest, which
+  is zero: v_rest fades in only where delta_eps has faded out). A hand reaching in at 0.2 m/s
+  makes it about a tenth of dV/dt; the monitor (`predicted_lyapunov_rate`) includes it.
   F = diag(b1, b2), the true viscous friction, only adds dissipation. eq. 22 is exact when J+ is
   the exact inverse (manipulability above the damping threshold); the torque limit and the
   projection of theta_hat are the other places where the argument is not used as is.
@@ -150,7 +157,8 @@ DEFAULT_GAINS = ControllerGains(
     # The gravity moments (zero columns for the horizontal arm) keep a small rate.
     adaptation=(5.0, 2.0, 1.0, 20.0, 10.0, 0.1, 0.1),
     # K: each task's own (the learner's k; Table I's rows, which have none, get
-    # hri_core.potential.default_task_gain): a1, a2 and K set the speed.
+    # hri_core.potential.default_task_gain): a1, a2 and K set the speed where K |dP/dz|
+    # exceeds approach_speed; nearer the region the approach floor below sets it.
     task_gain=None,
     # Approach floor: where the learned pull K |dP/dz| is below 0.1 m/s, the arm still moves
     # towards the region at about 0.1 m/s and enters it (P rises from its region like
@@ -311,17 +319,23 @@ def lyapunov(s, q, weight: float, task_potential_value: float, kp: float, theta_
 
 def predicted_lyapunov_rate(s, weighted_task_variable, weight_rate: float,
                             task_potential_value: float, ks, kp: float,
-                            friction=(0.0, 0.0)) -> float:
-    """dV/dt of eq. 22 (W): -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q.
+                            friction=(0.0, 0.0), reference_offset=(0.0, 0.0)) -> float:
+    """dV/dt (W) of eq. 22 with the avoid task's term (module docstring):
+
+        -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q + Kp (a delta_eps)^T w.
 
     s (2,) rad/s; weighted_task_variable a delta_eps (2,) m/s; weight_rate da/dt (1/s);
-    task_potential_value Q (m^2/s); ks (2,) N m s/rad; kp N s/m; friction diag F (2,).
+    task_potential_value Q (m^2/s); ks (2,) N m s/rad; kp N s/m; friction diag F (2,);
+    reference_offset w = v_r + a delta_eps - xdot_d (2,) m/s: what the reference adds to
+    the hand's velocity besides the task term (0 for follow tasks and without a task,
+    -a xdot_d + a v_rest for an avoid task).
     """
     s = np.asarray(s, dtype=float)
     damping = np.asarray(ks, dtype=float) + np.asarray(friction, dtype=float)
     task = np.asarray(weighted_task_variable, dtype=float)
+    offset = np.asarray(reference_offset, dtype=float)
     return float(-np.sum(damping * s * s) - kp * (task @ task)
-                 + kp * weight_rate * task_potential_value)
+                 + kp * weight_rate * task_potential_value + kp * (task @ offset))
 
 
 class AdaptiveController:
@@ -466,9 +480,14 @@ class AdaptiveController:
             q_value = 0.0 if shaped is None else task_potential(reference.distance, shaped)
             v_value = lyapunov(s, q, a, q_value, gains.kp, theta_hat, self._adaptation,
                                theta_true, self._gravity)
+            # w = v_r + a delta_eps - xdot_d: a v_rest (task_velocity + a delta_eps), and
+            # -a xdot_d for an avoid task, whose reference drops the feed-forward.
+            offset = reference.task_velocity + reference.weighted_task_variable
+            if shaped is not None and shaped.open_outward:
+                offset = offset - a * xdot_d
             v_rate = predicted_lyapunov_rate(
                 s, reference.weighted_task_variable, da, q_value, self._ks, gains.kp,
-                (0.0, 0.0) if friction is None else friction)
+                (0.0, 0.0) if friction is None else friction, offset)
         return ControlOutput(
             tau=tau, tau_requested=tau_requested, s=s, distance=reference.distance,
             lyapunov=v_value, task_potential=q_value, lyapunov_rate=v_rate,
@@ -612,8 +631,11 @@ class AdaptiveController:
                 v_value += 0.5 * sum((true - hat) ** 2 / gain for true, hat, gain in zip(
                     model, theta, self._adaptation_floats, strict=True) if gain > 0.0)
             f1, f2 = (0.0, 0.0) if friction is None else friction
+            # eq. 22 and the avoid task's Kp a delta_eps^T w, w = (feed - 1) xdot_d + a v_rest.
+            e1, e2 = (feed - 1.0) * vd1 + o1, (feed - 1.0) * vd2 + o2
             v_rate = (-((ks1 + f1) * sn1 * sn1 + (ks2 + f2) * sn2 * sn2)
-                      - kp * (m1 * m1 + m2 * m2) + kp * da * q_value)
+                      - kp * (m1 * m1 + m2 * m2) + kp * da * q_value
+                      + kp * (m1 * e1 + m2 * e2))
         return LeanOutput(tau, (tau1, tau2), (sn1, sn2), (qr1, qr2), distance, v_value,
                           q_value if with_potential else None, v_rate, theta, k, limited,
                           False, damping=lam2)

@@ -21,7 +21,7 @@ cycles that do not come. With `realtime_priority` > 0 the process asks for SCHED
 priority (hri_core.realtime) and logs once whether it got it; with `cpu_wakeup_latency` >= 0 it
 holds a PM QoS request that idle CPUs wake within that many microseconds (0: they poll).
 
-Safety (the choices are argued in docs/design-notes.md):
+Safety (the choices are argued in docs/design.md):
 - zero torque while joint states are missing or older than `joint_state_timeout` (one
   warning per outage, one info line when they resume), or invalid (throttled warning:
   non-finite, wrong length, unknown joint names: joints are mapped by name; stamps going

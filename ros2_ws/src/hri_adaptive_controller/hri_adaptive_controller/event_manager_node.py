@@ -13,7 +13,7 @@ its timer runs at `publish_rate_hz` only during a ramp (and until `initial_task`
 `heartbeat_period` otherwise, so a node with nothing to ramp wakes twice a second, not 200
 times, beside the 1 kHz loop.
 
-Choices (docs/design-notes.md says why):
+Choices (docs/design.md says why):
 - `initial_task` fades in from a = 0 (a ramp of `ramp_time`), like any other switch, so a
   robot never starts with the full task force at once. The ramp starts when /hri/task_state
   has its first subscriber (a = 0 until then): started at once, it would be over before a

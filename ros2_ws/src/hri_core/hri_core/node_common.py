@@ -328,7 +328,7 @@ def run_node(create_node: Callable[[], Node], node_name: str, executor_class=Non
     left to the garbage collector and with it destroyed before rclpy shut down alike).
     `on_stop(node)` runs before the node is destroyed (a summary line, closing a file).
     `executor_class` defaults to SingleThreadedExecutor; the EventsExecutor is driven with
-    spin_once here, because its spin() ignores shutdown (docs/design-notes.md).
+    spin_once here, because its spin() ignores shutdown (docs/design.md).
     """
     logger = rclpy.logging.get_logger(node_name)
     # `kill -USR1 PID` prints every thread's Python stack to stderr (the node's log), even when

@@ -21,9 +21,9 @@ PM QoS interface (/dev/cpu_dma_latency) that an idle CPU wake within so many mic
 held while the file stays open. With 0 an idle CPU polls instead of halting. The loop hands
 each message from one thread to another, and a thread woken on a CPU that halted, above all
 on a virtual machine whose host must resume the vCPU, then runs its code much slower
-(docs/design-notes.md, "CPU wake-up latency", has the figures). The kernel drops the request
-when the process ends, however it ends; the price is power (and, on a virtual machine, host
-CPU) while it is held.
+(docs/design.md, "SCHED_FIFO and CPU wake-up latency", has the figures). The kernel drops
+the request when the process ends, however it ends; the price is power (and, on a virtual
+machine, host CPU) while it is held.
 """
 
 import os

@@ -10,8 +10,11 @@ The learner reads bags back with `read_bag` (messages per topic) and `read_demon
 (the arrays of paper section II-B: receive times, end-effector positions x_i and the reference
 x_r). Three layouts are read:
 
-- a rosbag2 folder with metadata.yaml (closed cleanly): read with the rosbags reader; a storage
-  file that does not match its metadata is reported as truncated or corrupt;
+- a rosbag2 folder with metadata.yaml (closed cleanly): opened with the rosbags reader
+  (metadata, summary, message definitions); its messages come from a walk of the MCAP data
+  section (`_walk_records`: one struct unpack per record, payloads kept as zero-copy views of
+  the file), or from the rosbags reader where chunks or files are compressed; a storage file
+  that does not match its metadata is reported as truncated or corrupt;
 - a folder without metadata.yaml (the recorder was killed), or a bare .mcap file: when the
   MCAP file has no footer, every message up to the last complete chunk is recovered with
   mcap's `NonSeekingReader` (the rosbags reader cannot open such a file);
@@ -20,12 +23,13 @@ x_r). Three layouts are read:
 Messages are deserialised with the rosbags typestore of ROS 2 Jazzy; types it lacks are
 registered from the bag's own message definitions. `read_demonstration` takes a fast path for
 the two types a demonstration is made of, JointState and PointStamped: `read_bag` keeps their
-raw CDR bytes, and `joint_state_positions` / `point_stamped_xy` read the numbers straight into
-numpy arrays (hri_core.cdr). The first message of a topic gives the byte layout (a small CDR
-walk); every message with the same length and the same bytes where the layout could differ
-(encoding, frame_id, joint names, sequence lengths) has that layout and is read by one fancy-
-indexed view; any other message is deserialised with rosbags, which stays the reference (the
-unit tests hold the two equal on the fixture bags and on a crash-recovered bag).
+raw CDR bytes, and `_joint_positions` / `_point_array` read the numbers straight into numpy
+arrays (hri_core.cdr's `joint_state_layout`, `point_stamped_layout` and `read_float64s`). The
+first message of a topic gives the byte layout (a small CDR walk); every message with the
+same length and the same bytes where the layout could differ (encoding, frame_id, joint
+names, sequence lengths) has that layout and is read by one fancy-indexed view; any other
+message is deserialised with rosbags, which stays the reference (the unit tests hold the two
+equal on the fixture bags and on a crash-recovered bag).
 """
 
 import os

@@ -1,8 +1,12 @@
 """Figures of a learned task, like the paper's Fig. 3 (b)-(d).
 
-The normalised task energy P_d/||P_d|| of the demonstration samples (eq. 3, 4) is drawn as
-points, the fitted potential P (eq. 2) as a line scaled by the same ||P|| over the samples as in
-eq. 7, both against the distance to x_r, with the desired region shaded. Drawing uses
+The normalised task energy P_d/||P_d|| of the demonstration samples (eq. 3, 4) is drawn
+against the distance to x_r as the median of each of at most `PROFILE_BINS` distance bins
+(points) with the 5-95 % band of the samples in it, the fitted potential P (eq. 2) as a line
+scaled by the same ||P|| over all the samples as in eq. 7, and the desired region shaded.
+Binning bounds the drawing whatever the bag's length: a million scattered points took the
+learner 6-9 s to draw, the bins a fraction of a second, and they show the same profile.
+Drawing uses
 matplotlib's object API on an Agg canvas (no pyplot, no display, no global backend state), so
 it works headless and inside a running node.
 """
@@ -17,6 +21,8 @@ from hri_core.potential import log_potential
 from hri_demo_learning.task_energy import normalised_energy
 
 _GRID_POINTS = 600
+PROFILE_BINS = 300  # distance bins of the drawn demonstration (points drawn: at most this)
+_BAND = (5.0, 95.0)  # percentiles of each bin's band
 _MAX_LOG = 700.0  # keeps exp() finite when P at a grid point dwarfs P at the samples
 
 
@@ -27,6 +33,31 @@ def _desired_spans(shape, right):
     else:
         spans = [(0.0, min(shape.d1, right)), (shape.d2, right)]
     return [(start, end) for start, end in spans if end > start]
+
+
+def binned_profile(distance, values, bins: int = PROFILE_BINS):
+    """The samples summarised per distance bin, for drawing.
+
+    distance, values: (N,) finite; bins >= 1 equal bins over [min, max] of distance. Returns
+    (centre, median, low, high), each (B,) with B <= bins (bins without samples left out):
+    the median distance and value of each bin's samples and the _BAND percentiles of its
+    values. O(N log N), one sort.
+    """
+    d = np.asarray(distance, dtype=float)
+    v = np.asarray(values, dtype=float)
+    low, high = float(np.min(d)), float(np.max(d))
+    width = (high - low) / bins if high > low else 1.0
+    index = np.minimum(((d - low) / width).astype(np.int64), bins - 1)
+    order = np.lexsort((v, index))
+    index, d_sorted, v_sorted = index[order], d[order], v[order]
+    starts = np.flatnonzero(np.r_[True, index[1:] != index[:-1]])
+    ends = np.r_[starts[1:], index.size]
+    summary = np.empty((4, starts.size))
+    for column, (start, end) in enumerate(zip(starts, ends, strict=True)):
+        in_bin = v_sorted[start:end]  # sorted by value within the bin
+        summary[:, column] = (np.median(d_sorted[start:end]), np.median(in_bin),
+                              *np.percentile(in_bin, _BAND))
+    return tuple(summary)
 
 
 def _scaled_curves(d, grid, shape):
@@ -41,7 +72,7 @@ def _scaled_curves(d, grid, shape):
 
 
 def plot_task_fit(distance, energy, shape, path, title='', reference=None):
-    """Write a PNG of the fit: P_d/||P_d|| (points) and P/||P|| (line) against |x - x_r|.
+    """Write a PNG of the fit: P_d/||P_d|| (binned) and P/||P|| (line) against |x - x_r|.
 
     distance: (N,) m; energy: (N,) P_d, not all zero; shape: TaskShape of the fitted P;
     path: PNG file to write (its folder is created); title: figure title; reference: None, or
@@ -71,8 +102,11 @@ def plot_task_fit(distance, energy, shape, path, title='', reference=None):
     for index, (start, end) in enumerate(_desired_spans(shape, right)):
         axes.axvspan(start, end, color='tab:green', alpha=0.15,
                      label='desired region' if index == 0 else None)
-    axes.scatter(d, demonstrated, s=6, color='tab:blue', alpha=0.6,
-                 label=r'demonstration $P_d/\|P_d\|$')
+    centre, median, band_low, band_high = binned_profile(d, demonstrated)
+    axes.fill_between(centre, band_low, band_high, color='tab:blue', alpha=0.25, linewidth=0,
+                      label='demonstration, 5-95 % per distance bin')
+    axes.scatter(centre, median, s=8, color='tab:blue',
+                 label=r'demonstration $P_d/\|P_d\|$ (median per bin)')
     axes.plot(grid, fitted_grid, color='tab:red', linewidth=1.8,
               label=rf'fit $P/\|P\|$: S={shape.s:+d}, $a_1$={shape.a1:.4g}, '
                     rf'$a_2$={shape.a2:.4g}')

@@ -1,7 +1,8 @@
 """The `learner` node: demonstration bags in, a learned task (TaskParameters + YAML) out.
 
 Once up, it learns one task with `learning.learn_task` (eq. 3-11, the task gain K and the
-reach check) from the bags in `bags`, bag i moved outward by `shifts[i]` (eq. 4; with
+reach check; its fit and reading parameters become one `learning.LearningSettings` at start)
+from the bags in `bags`, bag i moved outward by `shifts[i]` (eq. 4; with
 `combine` false the bags are repetitions of one demonstration, with one averaged x_d), writes
 `<output_dir>/<task_name>.yaml` and a figure `<task_name>.png` next to it, publishes the task
 on hri_core.topics.TASK (/hri/task, reliable, transient local) and logs one summary line.
@@ -36,7 +37,12 @@ from hri_core.node_common import (
     run_node,
 )
 from hri_core.task_message import task_message
-from hri_demo_learning.learning import LearningError, learn_task
+from hri_demo_learning.learning import (
+    SETTING_RANGES,
+    LearningError,
+    LearningSettings,
+    learn_task,
+)
 from hri_demo_learning.performance_learning import METHODS
 
 PACKAGE = 'hri_demo_learning'
@@ -53,28 +59,33 @@ PARAMETERS = {
                             '(eq. 4); unset: no shift', optional=True),
     'task_name': ParameterSpec(str, 'name of the learned task ("" = the bag names joined)'),
     'output_dir': ParameterSpec(str, 'folder of the task YAML file and its figure'),
-    'n': ParameterSpec(int, 'exponent N of eq. 2', 3, 15),
-    'tolerance': ParameterSpec(float, 'stopping tolerance of the fit', 1e-15, 1e-2),
-    'max_iterations': ParameterSpec(int, 'cap on the fit iterations', 1, 100000),
+    'n': ParameterSpec(int, 'exponent N of eq. 2', *SETTING_RANGES['n']),
+    'tolerance': ParameterSpec(float, 'stopping tolerance of the fit',
+                               *SETTING_RANGES['tolerance']),
+    'max_iterations': ParameterSpec(int, 'cap on the fit iterations',
+                                    *SETTING_RANGES['max_iterations']),
     'stationary_speed': ParameterSpec(float, 'a sample slower than this is at rest whatever '
-                                      'the pace (m/s, eq. 3, 5)', 1e-5, 1.0),
+                                      'the pace (m/s, eq. 3, 5)',
+                                      *SETTING_RANGES['stationary_speed']),
     'rest_fraction': ParameterSpec(float, 'a sample slower than this fraction of the '
-                                   "demonstration's peak speed is at rest", 0.0, 0.5),
+                                   "demonstration's peak speed is at rest",
+                                   *SETTING_RANGES['rest_fraction']),
     'combine': ParameterSpec(bool, 'true: the bags are combined by eq. 4 (shifts); false: '
                              'they repeat one demonstration and share its averaged x_d'),
     'max_cost': ParameterSpec(float, 'largest fit cost C (eq. 8) of a task it publishes',
-                              1e-6, 2.0),
+                              *SETTING_RANGES['max_cost']),
     'max_task_speed': ParameterSpec(float, "the controller's max_task_speed (m/s), the "
-                                    'reference of the reach check', 1e-3, 10.0),
+                                    'reference of the reach check',
+                                    *SETTING_RANGES['max_task_speed']),
     'workspace_radius': ParameterSpec(float, 'd2 of a desired region open outward (m)',
-                                      0.01, 100.0),
+                                      *SETTING_RANGES['workspace_radius']),
     'once': ParameterSpec(bool, 'exit 0 after saving and delivering the task'),
     'method': ParameterSpec(str, 'fit solver: ' + ', '.join(METHODS) + " (trf: bounded least "
                             "squares; gauss_newton: the paper's eq. 9-11)"),
     'l1': ParameterSpec(float, 'link 1 length, for bags with joint states only (m)',
-                        0.01, 10.0),
+                        *SETTING_RANGES['l1']),
     'l2': ParameterSpec(float, 'link 2 length, for bags with joint states only (m)',
-                        0.01, 10.0),
+                        *SETTING_RANGES['l2']),
 }
 
 
@@ -85,6 +96,10 @@ class Learner(Node):
         super().__init__(NODE_NAME)
         self._started = time.monotonic()
         self._values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
+        try:
+            self._settings = LearningSettings.from_parameters(self._values)
+        except LearningError as error:
+            raise StartupError(str(error)) from None
         self.exit_code: int | None = None  # set when a `once` run is over
         self.add_on_set_parameters_callback(self._reject_changes)
         self._publisher = self.create_publisher(TaskParameters, topics.TASK.name,
@@ -98,14 +113,8 @@ class Learner(Node):
         self._learn_timer.cancel()
         values = self._values
         try:
-            learned = learn_task(
-                values['bags'], values['shifts'], values['task_name'], values['output_dir'],
-                n=values['n'], stationary_speed=values['stationary_speed'],
-                workspace_radius=values['workspace_radius'], method=values['method'],
-                tolerance=values['tolerance'], max_iterations=values['max_iterations'],
-                l1=values['l1'], l2=values['l2'], combine=values['combine'],
-                rest_fraction=values['rest_fraction'], max_task_speed=values['max_task_speed'],
-                max_cost=values['max_cost'])
+            learned = learn_task(values['bags'], values['shifts'], values['task_name'],
+                                 values['output_dir'], self._settings)
         except LearningError as error:
             raise StartupError(str(error)) from None
         task = learned.record

@@ -1,6 +1,7 @@
 """Learning one task from demonstration bags: the paper's eq. 3-11 chained, without ROS.
 
-`learn_task` is the one entry point (the `learner` node and scripts call it):
+`learn_task` is the one entry point (the `learner` node and scripts call it). Its tunables
+travel as one `LearningSettings` (the learner node builds it once from its parameters):
 
 1. each bag is read (`bag_io.read_demonstration`): receive times t_i (s, shape (M,)),
    end-effector positions x_i (m, (M, 2)) from /ee_position, else from /joint_states through
@@ -25,16 +26,17 @@
    figure as `<task_name>.png` next to it.
 
 `learn_from_bags` runs steps 1-6 alone (nothing written; the benchmark times it), and
-`learn_from_demonstrations` steps 2-6 on arrays. Every input the task cannot be learned from,
-or output that cannot be written, raises `LearningError` with a one-line reason, and then no
-task file is written.
+`learn_from_demonstrations` steps 2-6 on arrays. Every input the task cannot be learned from
+(a setting out of its range included), or output that cannot be written, raises
+`LearningError` with a one-line reason, and then no task file is written.
 """
 
 import math
 import re
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import MISSING, dataclass, fields, replace
+from numbers import Integral, Real
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +47,7 @@ from hri_demo_learning.bag_io import BagError, read_demonstration
 from hri_demo_learning.identification import identify_task_region
 from hri_demo_learning.performance_learning import (
     METHODS,
+    FitOptions,
     FitResult,
     fit_task_parameters,
     reach_steepness_limit,
@@ -69,6 +72,93 @@ demonstration that is no function of the distance to x_r (out and back) gives 0.
 DEFAULT_MAX_TASK_SPEED = 0.25
 """m/s: the controller's max_task_speed, the speed the reach criterion is measured against."""
 
+SETTING_RANGES = {
+    'n': (3, 15),
+    'stationary_speed': (1e-5, 1.0),
+    'rest_fraction': (0.0, 0.5),
+    'workspace_radius': (0.01, 100.0),
+    'tolerance': (1e-15, 1e-2),
+    'max_iterations': (1, 100_000),
+    'l1': (0.01, 10.0),
+    'l2': (0.01, 10.0),
+    'max_task_speed': (1e-3, 10.0),
+    'max_cost': (1e-6, 2.0),
+}
+"""[low, high] of each numeric setting of LearningSettings (the learner node's parameter
+ranges too: one table for both)."""
+
+INTEGER_SETTINGS = ('n', 'max_iterations')
+
+
+class LearningError(Exception):
+    """The task cannot be learned; the message is a one-line reason."""
+
+
+@dataclass(frozen=True)
+class LearningSettings:
+    """The learning pipeline's tunables, in one object (the learner node's parameters).
+
+    n: exponent N of eq. 2; stationary_speed: m/s below which a sample is at rest whatever the
+    pace (eq. 3, 5); workspace_radius: m, d2 of a region open outward; method: the fit's solver
+    (performance_learning.METHODS); tolerance, max_iterations: the fit's stopping rule; l1, l2:
+    m, link lengths for bags with joint states only, and the reach l1 + l2; combine: True for
+    eq. 4's combination, False for repetitions of one demonstration (averaged x_d);
+    rest_fraction: of the demonstration's peak speed below which a sample is at rest;
+    max_task_speed: m/s, the controller's cap, the reference of the reach check; max_cost:
+    largest fit cost C (eq. 8). Ranges in SETTING_RANGES. Raises LearningError (one line) for
+    a value out of its range or of the wrong type.
+    """
+
+    n: int
+    stationary_speed: float
+    workspace_radius: float
+    method: str
+    tolerance: float
+    max_iterations: int
+    l1: float
+    l2: float
+    combine: bool = True
+    rest_fraction: float = DEFAULT_REST_FRACTION
+    max_task_speed: float = DEFAULT_MAX_TASK_SPEED
+    max_cost: float = DEFAULT_MAX_COST
+
+    def __post_init__(self):
+        for name, (low, high) in SETTING_RANGES.items():
+            value = getattr(self, name)
+            integer = name in INTEGER_SETTINGS
+            kind = 'an integer' if integer else 'a number'
+            if isinstance(value, bool) or not isinstance(value, Integral if integer else Real) \
+                    or not low <= value <= high:
+                raise LearningError(f'parameter {name} must be {kind} in [{low:g}, {high:g}], '
+                                    f'got {value!r}')
+        if self.method not in METHODS:
+            raise LearningError(f'parameter method must be one of {", ".join(METHODS)}, '
+                                f'got {self.method!r}')
+        if not isinstance(self.combine, bool):
+            raise LearningError(f'parameter combine must be true or false, '
+                                f'got {self.combine!r}')
+
+    @classmethod
+    def from_parameters(cls, values: Mapping) -> 'LearningSettings':
+        """The settings named in `values` (e.g. the learner's parameters or its YAML), the
+        other keys ignored; the defaults of this class for settings `values` lacks."""
+        missing = [f.name for f in fields(cls) if f.name not in values
+                   and f.default is MISSING]
+        if missing:
+            raise LearningError(f'settings {", ".join(missing)} are required')
+        return cls(**{f.name: values[f.name] for f in fields(cls) if f.name in values})
+
+    @property
+    def reach(self) -> float:
+        """m: how far outside its region a task must still pull (the arm's l1 + l2)."""
+        return self.l1 + self.l2
+
+    @property
+    def fit_options(self) -> FitOptions:
+        """The fit's solver, tolerance and iteration cap (its start: the default)."""
+        return FitOptions(method=self.method, tolerance=self.tolerance,
+                          max_iterations=self.max_iterations)
+
 
 @dataclass(frozen=True)
 class Demonstration:
@@ -79,10 +169,6 @@ class Demonstration:
     positions: np.ndarray
     reference: np.ndarray
     source: str
-
-
-class LearningError(Exception):
-    """The task cannot be learned; the message is a one-line reason."""
 
 
 @dataclass(frozen=True)
@@ -123,20 +209,16 @@ def check_fixed_reference(references: np.ndarray, x_r: np.ndarray, bag) -> None:
 
 
 def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float],
-                              task_name: str, *, n: int, stationary_speed: float,
-                              workspace_radius: float, method: str, tolerance: float,
-                              max_iterations: int, reach: float, combine: bool = True,
-                              rest_fraction: float = DEFAULT_REST_FRACTION,
-                              max_task_speed: float = DEFAULT_MAX_TASK_SPEED,
-                              max_cost: float = DEFAULT_MAX_COST) -> LearnedTask:
+                              task_name: str, settings: LearningSettings) -> LearnedTask:
     """Learn one task from demonstrations given as arrays (steps 2-6 of the module docstring).
 
-    One shift (m) per demonstration (all 0 with combine false); reach: m, how far outside the
-    region the task must still pull (l1 + l2); max_task_speed: m/s; max_cost: largest C.
-    Raises LearningError (one line).
+    One shift (m) per demonstration (all 0 with settings.combine false); the task must pull
+    settings.reach (l1 + l2) m outside its region. Raises LearningError (one line).
     """
     started = time.perf_counter()
     sources = ', '.join(demo.source for demo in demos)
+    combine, n = settings.combine, settings.n
+    max_cost, method = settings.max_cost, settings.method
     if not combine and any(shift != 0.0 for shift in shifts):
         raise LearningError('parameter shifts belongs to a combination (eq. 4): repetitions '
                             '(combine false) share one x_d and take no shift')
@@ -144,8 +226,8 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
     for demo in demos:
         try:
             energy = demonstration_energy(demo.times, demo.positions, demo.reference,
-                                          stationary_speed=stationary_speed,
-                                          rest_fraction=rest_fraction)
+                                          stationary_speed=settings.stationary_speed,
+                                          rest_fraction=settings.rest_fraction)
         except ValueError as err:
             raise LearningError(f'bag {demo.source}: {_one_line(err)}') from None
         energies.append(energy)
@@ -158,17 +240,16 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
                                 '(combine true) instead')
         target = np.mean([energy.target for energy in energies], axis=0)
         energies = [demonstration_energy(demo.times, demo.positions, demo.reference,
-                                         stationary_speed=stationary_speed,
-                                         rest_fraction=rest_fraction, target=target)
+                                         stationary_speed=settings.stationary_speed,
+                                         rest_fraction=settings.rest_fraction, target=target)
                     for demo in demos]
     try:
         profile = combine_energy_profiles([energy.profile for energy in energies], shifts)
         region = identify_task_region(profile.distance, profile.energy, profile.moving,
-                                      workspace_radius=workspace_radius, n=n)
-        a1_max = reach_steepness_limit(region.s, region.d1, region.d2, reach)
+                                      workspace_radius=settings.workspace_radius, n=n)
+        a1_max = reach_steepness_limit(region.s, region.d1, region.d2, settings.reach)
         fit = fit_task_parameters(profile.distance, profile.energy, region.s, region.d1,
-                                  region.d2, n=n, method=method, tolerance=tolerance,
-                                  max_iterations=max_iterations, a1_max=a1_max)
+                                  region.d2, n=n, options=settings.fit_options, a1_max=a1_max)
         if fit.cost > max_cost and not fit.converged:
             raise ValueError(f'the {method} fit did not converge in {fit.iterations} '
                              f'iterations: cost C = {fit.cost:.3g} > max_cost {max_cost:g} '
@@ -181,7 +262,7 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
         record = TaskRecord(name=task_name, s=region.s, a1=fit.a1, a2=fit.a2, d1=region.d1,
                             d2=region.d2, n=n, cost=fit.cost, iterations=fit.iterations)
         k = fit_task_gain(profile.distance, profile.speed, profile.moving, record.shape)
-        shortfall = reach_shortfall(record.shape, k, max_task_speed, reach)
+        shortfall = reach_shortfall(record.shape, k, settings.max_task_speed, settings.reach)
         if shortfall is not None:
             raise ValueError(f'the task does not reach: {shortfall}')
         record = replace(record, k=k)
@@ -195,25 +276,22 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
                        a1_max=a1_max)
 
 
-def learn_from_bags(bags: list[str], shifts: list[float], task_name: str, n: int,
-                    stationary_speed: float, workspace_radius: float, method: str,
-                    tolerance: float, max_iterations: int, l1: float, l2: float, *,
-                    combine: bool = True, rest_fraction: float = DEFAULT_REST_FRACTION,
-                    max_task_speed: float = DEFAULT_MAX_TASK_SPEED,
-                    max_cost: float = DEFAULT_MAX_COST) -> LearnedTask:
+def learn_from_bags(bags: list[str], shifts: list[float], task_name: str,
+                    settings: LearningSettings) -> LearnedTask:
     """Learn one task from demonstration bags (eq. 3-11, K, reach) without writing it.
 
-    One shift (m) per bag; the reach is l1 + l2. Raises LearningError (one line).
+    One shift (m) per bag; the reach is settings.l1 + settings.l2. Raises LearningError (one
+    line).
     """
     started = time.perf_counter()
     demos = []
     for bag in bags:
         try:
-            demo = read_demonstration(bag, l1=l1, l2=l2)
+            demo = read_demonstration(bag, l1=settings.l1, l2=settings.l2)
             x_r = demo.references[-1]  # the reference in force when the person let go
             energy = demonstration_energy(demo.times, demo.positions, x_r,
-                                          stationary_speed=stationary_speed,
-                                          rest_fraction=rest_fraction)
+                                          stationary_speed=settings.stationary_speed,
+                                          rest_fraction=settings.rest_fraction)
             check_fixed_reference(demo.references[demo.times >= energy.times[0]], x_r,
                                   demo.path)
         except BagError as err:
@@ -221,11 +299,7 @@ def learn_from_bags(bags: list[str], shifts: list[float], task_name: str, n: int
         except ValueError as err:
             raise LearningError(f'bag {bag}: {_one_line(err)}') from None
         demos.append(Demonstration(demo.times, demo.positions, x_r, str(bag)))
-    learned = learn_from_demonstrations(
-        demos, shifts, task_name, n=n, stationary_speed=stationary_speed,
-        workspace_radius=workspace_radius, method=method, tolerance=tolerance,
-        max_iterations=max_iterations, reach=l1 + l2, combine=combine,
-        rest_fraction=rest_fraction, max_task_speed=max_task_speed, max_cost=max_cost)
+    learned = learn_from_demonstrations(demos, shifts, task_name, settings)
     return replace(learned, total_seconds=time.perf_counter() - started)
 
 
@@ -263,25 +337,15 @@ def _checked_shifts(shifts: Sequence[float] | None, bag_count: int) -> list[floa
 
 
 def learn_task(bags: Sequence[str], shifts: Sequence[float] | None, task_name: str,
-               output_dir: str | Path, *, n: int, stationary_speed: float,
-               workspace_radius: float, method: str, tolerance: float, max_iterations: int,
-               l1: float, l2: float, combine: bool = True,
-               rest_fraction: float = DEFAULT_REST_FRACTION,
-               max_task_speed: float = DEFAULT_MAX_TASK_SPEED,
-               max_cost: float = DEFAULT_MAX_COST) -> LearnedTask:
+               output_dir: str | Path, settings: LearningSettings) -> LearnedTask:
     """Learn one task from demonstration bags (eq. 3-11) and write its file and figure.
 
     bags: bag folders or .mcap files; shifts: m, one per bag (None: no shift); task_name: a
     safe file name ('' for the bag names joined by '_'); output_dir: folder of
-    `<task_name>.yaml` and `<task_name>.png`, created if missing; n: exponent N of eq. 2;
-    stationary_speed: m/s below which a sample is at rest (eq. 3, 5); workspace_radius: m, d2
-    of a region open outward; method: one of performance_learning.METHODS; tolerance,
-    max_iterations: the fit's stopping rule; l1, l2: m, link lengths for bags with joint
-    states only, and the reach l1 + l2; combine: True for eq. 4's combination, False for
-    repetitions of one demonstration (averaged x_d); rest_fraction: of the peak speed;
-    max_task_speed: m/s, the controller's cap; max_cost: largest fit cost C. Returns the
-    LearnedTask with the paths written. Raises LearningError (one line) for bad input, a bag
-    it cannot learn from, or an output it cannot write.
+    `<task_name>.yaml` and `<task_name>.png`, created if missing; settings: the fit and
+    reading settings (LearningSettings). Returns the LearnedTask with the paths written.
+    Raises LearningError (one line) for bad input, a bag it cannot learn from, or an output it
+    cannot write.
     """
     bags = [str(bag) for bag in bags]
     if not bags:
@@ -290,18 +354,11 @@ def learn_task(bags: Sequence[str], shifts: Sequence[float] | None, task_name: s
     if not all(bags):
         raise LearningError(f'parameter bags holds an empty path: {bags}')
     shifts = _checked_shifts(shifts, len(bags))
-    if method not in METHODS:
-        raise LearningError(f'parameter method must be one of {", ".join(METHODS)}, '
-                            f'got {method!r}')
     name = task_name or default_task_name(bags)
     if not is_safe_task_name(name):
         raise LearningError(f'parameter task_name {name!r} is not a safe file name '
                             '(1-64 of A-Z a-z 0-9 _ -, not starting with -)')
-    learned = learn_from_bags(
-        bags, shifts, name, n=n, stationary_speed=stationary_speed,
-        workspace_radius=workspace_radius, method=method, tolerance=tolerance,
-        max_iterations=max_iterations, l1=l1, l2=l2, combine=combine,
-        rest_fraction=rest_fraction, max_task_speed=max_task_speed, max_cost=max_cost)
+    learned = learn_from_bags(bags, shifts, name, settings)
     output_dir = Path(output_dir)
     try:
         output_dir.mkdir(parents=True, exist_ok=True)

@@ -114,7 +114,42 @@ def _bounds(a1_max):
     return np.array([low, low]), top
 
 
-def _check_fit_input(distance, energy, tolerance, max_iterations, method, initial, bounds):
+@dataclass(frozen=True)
+class FitOptions:
+    """How the fit of a1, a2 runs: method (one of METHODS: 'trf', damped and bounded, or
+    'gauss_newton', the paper's plain eq. 9-11), tolerance (the stop test), max_iterations (cap
+    on trial steps of 'trf', updates of 'gauss_newton') and initial, the (a1, a2) start in
+    1/m^2 within STEEPNESS_BOUNDS. Raises ValueError (one-line reason) for a value it cannot
+    use."""
+
+    method: str = 'trf'
+    tolerance: float = DEFAULT_TOLERANCE
+    max_iterations: int = DEFAULT_MAX_ITERATIONS
+    initial: tuple[float, float] = DEFAULT_INITIAL_STEEPNESS
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f'method must be one of {", ".join(METHODS)}, '
+                             f'got {self.method!r}')
+        if not (math.isfinite(self.tolerance) and self.tolerance > 0.0):
+            raise ValueError(f'tolerance must be > 0, got {self.tolerance}')
+        if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, int) \
+                or self.max_iterations < 1:
+            raise ValueError(f'max_iterations must be an integer >= 1, '
+                             f'got {self.max_iterations!r}')
+        a = np.asarray(self.initial, dtype=float)
+        low, high = STEEPNESS_BOUNDS
+        if a.shape != (2,) or not np.all(np.isfinite(a)) or np.any(a < low) \
+                or np.any(a > high):
+            raise ValueError(f'initial (a1, a2) must lie in [{low}, {high}], '
+                             f'got {self.initial!r}')
+
+
+DEFAULT_FIT_OPTIONS = FitOptions()
+
+
+def _check_fit_input(distance, energy, options, bounds):
+    """(distance, P_d / ||P_d||, the start (a1, a2) clipped into `bounds`) as arrays."""
     d = np.asarray(distance, dtype=float)
     e = np.asarray(energy, dtype=float)
     if d.ndim != 1 or e.shape != d.shape:
@@ -127,19 +162,8 @@ def _check_fit_input(distance, energy, tolerance, max_iterations, method, initia
         raise ValueError('distance and energy must be >= 0')
     if not np.any(e > 0.0):
         raise ValueError('the task energy P_d is zero on every sample: nothing to fit')
-    if method not in METHODS:
-        raise ValueError(f'method must be one of {", ".join(METHODS)}, got {method!r}')
-    if not (math.isfinite(tolerance) and tolerance > 0.0):
-        raise ValueError(f'tolerance must be > 0, got {tolerance}')
-    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) \
-            or max_iterations < 1:
-        raise ValueError(f'max_iterations must be an integer >= 1, got {max_iterations!r}')
-    a = np.asarray(initial, dtype=float)
-    low, high = STEEPNESS_BOUNDS
-    if a.shape != (2,) or not np.all(np.isfinite(a)) or np.any(a < low) or np.any(a > high):
-        raise ValueError(f'initial (a1, a2) must lie in [{low}, {high}], got {initial!r}')
     # A start beyond a lowered bound starts on it.
-    return d, normalised_energy(e), np.clip(a, *bounds)
+    return d, normalised_energy(e), np.clip(np.asarray(options.initial, dtype=float), *bounds)
 
 
 def _log_factor_sensitivity(u, a, d):
@@ -177,19 +201,20 @@ def _condition(jacobian, a):
     return float(singular[0] / singular[-1]) if singular[-1] > 0.0 else math.inf
 
 
-def _fit_trust_region(d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds):
+def _fit_trust_region(d, target, shape_at, a0, bounds, options):
+    """`shape_at(a)`: the TaskShape with steepness a = (a1, a2), the rest fixed."""
     def residual(a):
-        return target - normalised_potential(d, TaskShape(s, a[0], a[1], d1, d2, n))
+        return target - normalised_potential(d, shape_at(a))
 
     def jacobian(a):
-        return -normalised_potential_jacobian(d, TaskShape(s, a[0], a[1], d1, d2, n))[1]
+        return -normalised_potential_jacobian(d, shape_at(a))[1]
 
     # Imported here: scipy.optimize costs the learner 0.4 s at start-up, wasted on a bad
     # parameter or bag.
     from scipy.optimize import least_squares
     result = least_squares(residual, a0, jac=jacobian, bounds=bounds, method='trf',
-                           xtol=tolerance, ftol=tolerance, gtol=tolerance,
-                           max_nfev=max_iterations)
+                           xtol=options.tolerance, ftol=options.tolerance,
+                           gtol=options.tolerance, max_nfev=options.max_iterations)
     a = np.clip(result.x, *bounds)
     return a, int(result.nfev), result.status > 0, result.message
 
@@ -200,15 +225,17 @@ def _blocked(gradient, a, bounds):
     return ((a <= low) & (gradient > 0.0)) | ((a >= high) & (gradient < 0.0))
 
 
-def _fit_gauss_newton(d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds):
+def _fit_gauss_newton(d, target, shape_at, a0, bounds, options):
+    """`shape_at(a)`: the TaskShape with steepness a = (a1, a2), the rest fixed."""
     low, high = bounds
+    tolerance, max_iterations = options.tolerance, options.max_iterations
     a = a0.copy()
     message = f'max_iterations ({max_iterations}) reached'
     converged = False
     iterations = 0
     while iterations < max_iterations:
         iterations += 1
-        p, jac = normalised_potential_jacobian(d, TaskShape(s, a[0], a[1], d1, d2, n))
+        p, jac = normalised_potential_jacobian(d, shape_at(a))
         j_r = -jac
         gradient = j_r.T @ (target - p)                                  # eq. 9
         free = ~_blocked(gradient, a, bounds)
@@ -239,36 +266,33 @@ def _bound_note(a, bounds):
     return f' ({"; ".join(notes)}: the data favour a value beyond it)' if notes else ''
 
 
-def fit_task_parameters(distance, energy, s, d1, d2, n=3, method='trf',
-                        tolerance=DEFAULT_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
-                        initial=DEFAULT_INITIAL_STEEPNESS, a1_max=None):
+def fit_task_parameters(distance, energy, s, d1, d2, n=3, options=DEFAULT_FIT_OPTIONS,
+                        a1_max=None):
     """Fit a1, a2 of eq. 1, 2 to the task energy by minimising C (eq. 7-11).
 
     distance: (N,) m to x_r; energy: (N,) P_d (eq. 3 or 4), not all zero; s, d1, d2 from
-    identification; n: N of eq. 2; method: 'trf' (default, damped, bounded) or 'gauss_newton'
-    (the paper's plain eq. 9-11); tolerance: stop test;
-    max_iterations: cap on iterations (trial steps); initial: (a1, a2) start, 1/m^2;
-    a1_max: upper bound of a1 below STEEPNESS_BOUNDS' (1/m^2, e.g. `reach_steepness_limit`),
-    None for none. Returns a FitResult. Raises ValueError (one-line reason) for unusable input.
+    identification; n: N of eq. 2; options: a FitOptions (method, tolerance, max_iterations,
+    initial); a1_max: upper bound of a1 below STEEPNESS_BOUNDS' (1/m^2, e.g.
+    `reach_steepness_limit`), None for none. Returns a FitResult. Raises ValueError (one-line
+    reason) for unusable input.
     """
     bounds = _bounds(a1_max)
-    d, target, a0 = _check_fit_input(distance, energy, tolerance, max_iterations, method,
-                                     initial, bounds)
+    d, target, a0 = _check_fit_input(distance, energy, options, bounds)
+
+    def shape_at(a):
+        return TaskShape(s, a[0], a[1], d1, d2, n)
+
     # The support of P (where P > 0) depends on s, d1, d2 only, not on a1, a2.
-    if not np.any(np.isfinite(log_potential(d, TaskShape(s, a0[0], a0[1], d1, d2, n)))):
+    if not np.any(np.isfinite(log_potential(d, shape_at(a0)))):
         raise ValueError(f'P is zero on every sample for S={s}, d1={d1}, d2={d2}: no a1, a2 '
                          'can fit the task energy')
     start = time.perf_counter()
-    if method == 'gauss_newton':
-        a, iterations, converged, message = _fit_gauss_newton(
-            d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds)
-    else:
-        a, iterations, converged, message = _fit_trust_region(
-            d, target, s, d1, d2, n, tolerance, max_iterations, a0, bounds)
+    solve = _fit_gauss_newton if options.method == 'gauss_newton' else _fit_trust_region
+    a, iterations, converged, message = solve(d, target, shape_at, a0, bounds, options)
     seconds = time.perf_counter() - start
     shape = TaskShape(s, float(a[0]), float(a[1]), d1, d2, n)
     _, jac = normalised_potential_jacobian(d, shape)
     return FitResult(a1=shape.a1, a2=shape.a2, cost=task_cost(d, target, shape),
-                     iterations=iterations, method=method, converged=bool(converged),
+                     iterations=iterations, method=options.method, converged=bool(converged),
                      message=message + _bound_note(a, bounds), seconds=seconds,
                      condition=_condition(jac, a))

@@ -21,7 +21,6 @@ topic). An `output` that exists already is refused
 (`topics`: the names of hri_core.topics.DEMONSTRATION_TOPICS); `output` has none (required).
 """
 
-import importlib
 import sys
 import time
 from collections.abc import Callable
@@ -48,6 +47,7 @@ from rosbags.interfaces import (
     QosTime,
 )
 
+from hri_core.message_types import MessageTypeError, message_class
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -75,12 +75,6 @@ PARAMETERS = {
     'flush_period': ParameterSpec(float, 's between flushes to disk: a SIGKILL loses at most '
                                   'this much', *FLUSH_PERIOD_RANGE),
 }
-
-
-def message_class(msgtype: str):
-    """The Python class of a ROS message type 'pkg/msg/Name'."""
-    package, kind, name = msgtype.split('/')
-    return getattr(importlib.import_module(f'{package}.{kind}'), name)
 
 
 def read_msg_definition(msgtype: str) -> str:
@@ -208,8 +202,8 @@ class Recorder(Node):
     def _subscribe(self, topic: str, msgtype: str, profiles: list[QoSProfile]) -> None:
         try:
             cls = message_class(msgtype)
-        except (ImportError, AttributeError, ValueError) as err:
-            self.get_logger().error(f'cannot record {topic}: no Python type {msgtype} ({err})')
+        except MessageTypeError as err:
+            self.get_logger().error(f'cannot record {topic}: {err}')
             return
         try:
             connection = self._writer.add_topic(topic, msgtype,

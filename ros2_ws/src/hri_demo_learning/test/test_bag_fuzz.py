@@ -10,7 +10,6 @@ CASE_TIME_LIMIT s is a hang. tests/test_learner.py checks that a LearningError b
 ERROR line, a non-zero exit of the node and no task file.
 """
 
-import inspect
 import random
 import shutil
 import signal
@@ -20,7 +19,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from hri_demo_learning.learning import LearningError, learn_from_bags
+from hri_demo_learning.learning import LearningError, LearningSettings, learn_from_bags
 
 FIXTURES = Path(__file__).resolve().parents[4] / 'bags' / 'fixtures'
 LEARNER_DEFAULTS = Path(__file__).resolve().parents[1] / 'config' / 'learner.yaml'
@@ -36,12 +35,11 @@ class CaseTimeoutError(Exception):
     """Raised by the alarm when a case runs over CASE_TIME_LIMIT."""
 
 
-def learner_defaults() -> dict:
+def learner_defaults() -> LearningSettings:
     """learn_from_bags' settings from the learner's config/learner.yaml (the node's own
     defaults)."""
     values = yaml.safe_load(LEARNER_DEFAULTS.read_text())['learner']['ros__parameters']
-    return {name: values[name] for name in inspect.signature(learn_from_bags).parameters
-            if name in values and name != 'task_name'}
+    return LearningSettings.from_parameters(values)
 
 
 def bag_layout(bag: Path) -> tuple[Path, list[tuple[int, int]], tuple[int, int]]:
@@ -117,7 +115,7 @@ def test_mutated_bags_are_learned_or_refused_in_one_line(tmp_path):
             what = f'case {case}: {source.name} {done}'
             signal.setitimer(signal.ITIMER_REAL, CASE_TIME_LIMIT)
             try:
-                learned = learn_from_bags([str(bag)], [0.0], 'fuzz', **settings)
+                learned = learn_from_bags([str(bag)], [0.0], 'fuzz', settings)
             except LearningError as error:
                 reason = str(error)
                 assert reason and '\n' not in reason, what

@@ -6,6 +6,7 @@ the reach (a fit constrained or refused, never deaf) and repeated demonstrations
 """
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,16 +17,18 @@ from hri_demo_learning.learning import (
     DEFAULT_MAX_TASK_SPEED,
     Demonstration,
     LearningError,
+    LearningSettings,
     learn_from_demonstrations,
 )
 from hri_demo_learning.task_gain import fit_task_gain
 
 REFERENCE = np.array([0.45, 0.05])  # m, x_r
 HEADING = np.array([-0.35, 0.94]) / math.hypot(0.35, 0.94)  # from x_r toward the start
-REACH = 0.65  # m, l1 + l2 of the sim's arm
-SETTINGS = dict(n=3, stationary_speed=0.004, workspace_radius=2.0, method='trf',
-                tolerance=1e-10, max_iterations=200, reach=REACH)
+SETTINGS = LearningSettings(n=3, stationary_speed=0.004, workspace_radius=2.0, method='trf',
+                            tolerance=1e-10, max_iterations=200, l1=0.35, l2=0.30)
+REACH = SETTINGS.reach  # m, l1 + l2 of the sim's arm
 NOISE = 1e-4  # m, position noise (0.1 mm)
+HOLD_BEFORE, HOLD_AFTER = 1.0, 1.5  # s at rest before and after a push
 
 
 def minimum_jerk(tau):
@@ -33,13 +36,12 @@ def minimum_jerk(tau):
     return tau ** 3 * (10.0 - 15.0 * tau + 6.0 * tau ** 2)
 
 
-def push(start, stop, duration, rate, rng, hold_before=1.0, hold_after=1.5,
-         reference=REFERENCE, heading=HEADING):
+def push(start, stop, duration, rate, rng, reference=REFERENCE):
     """A minimum-jerk push along a ray from x_r, from `start` to `stop` m in `duration` s,
     sampled at `rate` Hz with NOISE of position noise; at rest before and after."""
-    times = np.arange(0.0, hold_before + duration + hold_after, 1.0 / rate)
-    distance = start + (stop - start) * minimum_jerk((times - hold_before) / duration)
-    positions = reference + distance[:, None] * heading
+    times = np.arange(0.0, HOLD_BEFORE + duration + HOLD_AFTER, 1.0 / rate)
+    distance = start + (stop - start) * minimum_jerk((times - HOLD_BEFORE) / duration)
+    positions = reference + distance[:, None] * HEADING
     positions = positions + rng.normal(0.0, NOISE, positions.shape)
     return Demonstration(times, positions, np.asarray(reference, dtype=float),
                          f'push {duration} s at {rate} Hz')
@@ -47,7 +49,7 @@ def push(start, stop, duration, rate, rng, hold_before=1.0, hold_after=1.5,
 
 def learn(demos, shifts=None, **overrides):
     shifts = [0.0] * len(demos) if shifts is None else shifts
-    return learn_from_demonstrations(demos, shifts, 'task', **{**SETTINGS, **overrides})
+    return learn_from_demonstrations(demos, shifts, 'task', replace(SETTINGS, **overrides))
 
 
 # -- 1. speed independence -----------------------------------------------------------------

@@ -8,6 +8,7 @@ import pytest
 from hri_core.potential import TaskShape, normalised_potential, potential
 from hri_demo_learning.performance_learning import (
     STEEPNESS_BOUNDS,
+    FitOptions,
     fit_task_parameters,
     normalised_potential_jacobian,
     task_cost,
@@ -33,7 +34,7 @@ def samples(name, seed=3, count=400):
 def test_both_methods_recover_the_generating_parameters(name):
     shape, distance, energy = samples(name)
     fits = {method: fit_task_parameters(distance, energy, shape.s, shape.d1, shape.d2,
-                                        method=method)
+                                        options=FitOptions(method=method))
             for method in ('trf', 'gauss_newton')}
     for fit in fits.values():
         assert fit.converged, fit.message
@@ -80,8 +81,8 @@ def minimum_jerk_push(rng, start, stop, rate=500.0, noise=3e-4):
 def test_default_fit_of_a_realistic_push(start, stop, s, d1, d2):
     distance, energy = minimum_jerk_push(np.random.default_rng(21), start, stop)
     default = fit_task_parameters(distance, energy, s, d1, d2)
-    plain = fit_task_parameters(distance, energy, s, d1, d2, method='gauss_newton',
-                                max_iterations=3000)
+    plain = fit_task_parameters(distance, energy, s, d1, d2,
+                                options=FitOptions('gauss_newton', max_iterations=3000))
     assert default.method == 'trf' and default.converged, default.message
     assert default.iterations <= 50
     assert default.cost <= plain.cost * (1 + 1e-9)
@@ -97,9 +98,10 @@ def test_plain_gauss_newton_far_from_the_optimum_stays_finite():
     shape, distance, energy = samples('follow_safe')
     with warnings.catch_warnings():
         warnings.simplefilter('error')
+        start = (STEEPNESS_BOUNDS[1], STEEPNESS_BOUNDS[0])
         fit = fit_task_parameters(distance, energy, shape.s, shape.d1, shape.d2,
-                                  method='gauss_newton', max_iterations=50,
-                                  initial=(STEEPNESS_BOUNDS[1], STEEPNESS_BOUNDS[0]))
+                                  options=FitOptions('gauss_newton', max_iterations=50,
+                                                     initial=start))
     assert np.isfinite(fit.cost) and np.isfinite(fit.a1) and np.isfinite(fit.a2)
     assert fit.iterations <= 50
 
@@ -123,8 +125,6 @@ def test_bad_input_is_rejected_with_a_reason():
     fit = fit_task_parameters
     with pytest.raises(ValueError, match='zero on every sample: nothing to fit'):
         fit(distance, np.zeros_like(energy), 1, 0.0, 0.041)
-    with pytest.raises(ValueError, match='method must be one of trf, gauss_newton'):
-        fit(distance, energy, 1, 0.0, 0.041, method='newton')
     bad = energy.copy()
     bad[3] = np.inf
     with pytest.raises(ValueError, match='non-finite input'):
@@ -133,13 +133,21 @@ def test_bad_input_is_rejected_with_a_reason():
         fit(distance, energy[:-1], 1, 0.0, 0.041)
     with pytest.raises(ValueError, match='P is zero on every sample'):
         fit(distance[distance < 0.04], energy[distance < 0.04] + 1.0, 1, 0.0, 0.041)
-    with pytest.raises(ValueError, match='initial'):
-        fit(distance, energy, 1, 0.0, 0.041, initial=(0.0, 10.0))
-    with pytest.raises(ValueError, match='max_iterations must be an integer >= 1'):
-        fit(distance, energy, 1, 0.0, 0.041, max_iterations=0)
-    with pytest.raises(ValueError, match='tolerance must be > 0'):
-        fit(distance, energy, 1, 0.0, 0.041, tolerance=-1.0)
     with pytest.raises(ValueError, match='d1 must be <= d2'):
         fit(distance, energy, 1, 0.3, 0.041)
     with pytest.raises(ValueError, match='distance and energy must be >= 0'):
         fit(-distance, energy, 1, 0.0, 0.041)
+
+
+@pytest.mark.parametrize(('options', 'reason'), [
+    ({'method': 'newton'}, r"^method must be one of trf, gauss_newton, got 'newton'$"),
+    ({'tolerance': -1.0}, r'^tolerance must be > 0, got -1\.0$'),
+    ({'tolerance': float('nan')}, r'^tolerance must be > 0, got nan$'),
+    ({'max_iterations': 0}, r'^max_iterations must be an integer >= 1, got 0$'),
+    ({'max_iterations': 5.0}, r'^max_iterations must be an integer >= 1, got 5\.0$'),
+    ({'initial': (0.0, 10.0)}, r'^initial \(a1, a2\) must lie in \[0\.001, 1000\.0\]'),
+    ({'initial': (1.0,)}, r'^initial \(a1, a2\) must lie in'),
+], ids=lambda value: next(iter(value)) if isinstance(value, dict) else None)
+def test_fit_options_out_of_range_are_refused_in_one_line(options, reason):
+    with pytest.raises(ValueError, match=reason):
+        FitOptions(**options)

@@ -1,7 +1,7 @@
 """`ros2 topic` for environments without ros2cli: list, info, echo, hz and pub.
 
-scripts/bin/ros2 runs `main(argv)` for `ros2 topic ...` when no real ros2cli is on PATH. The
-common forms behave and print as ros2cli's do:
+hri_cli.ros2 (scripts/bin/ros2) runs `main(argv)` for `ros2 topic ...` when no real ros2cli is
+on PATH. The common forms behave and print as ros2cli's do:
 
     ros2 topic list [-t] [-c] [--include-hidden-topics]
     ros2 topic info NAME [-v]
@@ -29,7 +29,6 @@ and info formatting.
 
 import argparse
 import array
-import importlib
 import re
 import sys
 import time
@@ -41,7 +40,7 @@ import numpy as np
 import yaml
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from hri_bringup.cli_common import (
+from hri_cli.common import (
     ArgumentParser,
     CliError,
     StopRequest,
@@ -59,6 +58,7 @@ from hri_bringup.cli_common import (
     run_main,
     tool_node_name,
 )
+from hri_core import message_types
 
 DEFAULT_TRUNCATE_LENGTH = 128
 DEFAULT_WINDOW_SIZE = 10000
@@ -201,12 +201,6 @@ def check_array_length(field_type: str, length: int, where: str) -> None:
                          f'got {length}')
 
 
-def nested_message_class(type_name: str) -> type:
-    """The class of a nested message type 'pkg/Name' (as get_fields_and_field_types names it)."""
-    package, name = type_name.rsplit('/', 1)
-    return getattr(importlib.import_module(f'{package.split("/")[0]}.msg'), name)
-
-
 def _scalar(type_name: str, value, where: str):
     """`value` converted to what a field of primitive type `type_name` takes."""
     if type_name in FLOAT_TYPES:
@@ -267,7 +261,7 @@ def fill_message(message, values: Mapping, prefix: tuple = ()) -> list[tuple]:
                     raise FieldError(f"field '{dotted}' takes a list, got {value!r}")
                 check_array_length(field_types[name], len(value), dotted)
                 if nested:
-                    cls = nested_message_class(element_type)
+                    cls = message_types.message_class(element_type)
                     items = []
                     for index, item_values in enumerate(value):
                         item = cls()

@@ -1,7 +1,7 @@
 """`ros2 bag` for environments without rosbag2's command line: info and play.
 
-scripts/bin/ros2 runs `main(argv)` for `ros2 bag ...` when no real ros2cli is on PATH. Bags
-are read with rosbags (a rosbag2 folder with metadata.yaml, or a bare .mcap/.db3 file):
+hri_cli.ros2 (scripts/bin/ros2) runs `main(argv)` for `ros2 bag ...` when no real ros2cli is on
+PATH. Bags are read with rosbags (a rosbag2 folder with metadata.yaml, or a bare .mcap/.db3 file):
 
     ros2 bag info BAG
     ros2 bag play BAG [--rate R] [--topics T ...] [--loop] [--delay S]
@@ -45,7 +45,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosbags.interfaces import Qos, QosDurability, QosReliability
 from rosbags.rosbag2 import Reader
 
-from hri_bringup.cli_common import (
+from hri_cli.common import (
     ArgumentParser,
     CliError,
     StopRequest,

@@ -1,7 +1,7 @@
-"""What the `ros2 topic` and `ros2 bag` stand-ins (cli_topic, cli_bag) share.
+"""What the `ros2 topic` and `ros2 bag` stand-ins (hri_cli.topic, hri_cli.bag) share.
 
-scripts/bin/ros2 hands `ros2 topic ...` and `ros2 bag ...` to those modules when no real
-ros2cli is installed. Both follow the same rules, set here:
+hri_cli.ros2 (scripts/bin/ros2) hands `ros2 topic ...` and `ros2 bag ...` to those modules
+when no real ros2cli is installed. Both follow the same rules, set here:
 
 - `ArgumentParser`: a bad argument is one line on stderr (`PROG: error: ...`) and exit code 2,
   never argparse's multi-line usage block; `UsageError` is the same for arguments that can
@@ -12,12 +12,12 @@ ros2cli is installed. Both follow the same rules, set here:
 - `ros_node`: an rclpy node in a Context of its own, without rclpy's signal handlers (they
   would turn Ctrl-C into an exception inside a wait), with no parameter services and no
   rosout publisher, so the tool adds as little as possible to the graph it inspects.
-- `message_class`: the Python class of 'pkg/msg/Name' (or 'pkg/Name'), as ros2cli resolves it.
+- `message_class`: the Python class of 'pkg/msg/Name' (or 'pkg/Name'), as ros2cli resolves it
+  (hri_core.message_types), its failure a CliError.
 """
 
 import argparse
 import contextlib
-import importlib
 import os
 import signal
 import sys
@@ -30,6 +30,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+
+from hri_core import message_types
 
 # The highest ROS_DOMAIN_ID whose DDS ports fit in 16 bits (ROS 2's documented limit on
 # Linux); Fast DDS ends the process from C++ for a higher one, before Python can report it.
@@ -153,21 +155,10 @@ def message_class(type_name: str) -> type:
 
     CliError('The passed message type is invalid: ...') when it cannot be imported.
     """
-    parts = type_name.split('/')
-    if len(parts) == 2:
-        parts = [parts[0], 'msg', parts[1]]
-    if len(parts) != 3 or not all(parts) or parts[1] != 'msg':
-        raise CliError(f"The passed message type is invalid: '{type_name}' "
-                       '(expected pkg/msg/Name)')
-    package, _, name = parts
     try:
-        cls = getattr(importlib.import_module(f'{package}.msg'), name)
-    except (ImportError, AttributeError, ValueError):
-        raise CliError(f"The passed message type is invalid: '{type_name}' "
-                       f'(no message {name} in a Python package {package})') from None
-    if not hasattr(cls, 'get_fields_and_field_types'):
-        raise CliError(f"The passed message type is invalid: '{type_name}' is not a message")
-    return cls
+        return message_types.message_class(type_name)
+    except message_types.MessageTypeError as error:
+        raise CliError(f'The passed message type is invalid: {error}') from None
 
 
 def is_hidden_name(name: str) -> bool:

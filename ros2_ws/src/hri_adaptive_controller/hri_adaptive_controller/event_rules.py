@@ -2,8 +2,8 @@
 
 The event_detector node builds an `Observation` of the hand and the tool at its rate
 (separation in m, speeds in m/s, times in s) and asks `EventDetector.update` which rules fire;
-each firing becomes a TaskEvent that switches to the rule's task. Rules come from YAML
-(`parse_rules`): a mapping of rule name -> settings, e.g.
+each firing becomes a TaskEvent that switches to the rule's task. Rules come from YAML text
+(`load_rules`; `parse_rules` for the parsed mapping): rule name -> settings, e.g.
 
     hand_reaches_in:          # the rule's name, also its event's unless `event` is given
       kind: approach

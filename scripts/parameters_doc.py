@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from hri_adaptive_controller import controller_node, event_manager_node
+from hri_adaptive_controller import controller_node, event_detector_node, event_manager_node
 from hri_bringup import live_view_node, system
 from hri_core.node_common import load_defaults
 from hri_demo_learning import learner_node, recorder_node
@@ -30,6 +30,7 @@ NODES = [  # (package, module), in the README's order
     ('hri_demo_learning', learner_node),
     ('hri_adaptive_controller', event_manager_node),
     ('hri_adaptive_controller', controller_node),
+    ('hri_adaptive_controller', event_detector_node),
     ('hri_bringup', live_view_node),
 ]
 HEADER = """# Parameters

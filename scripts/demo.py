@@ -4,7 +4,8 @@ Stages (each prints what it does; a failing stage is named and the exit code is 
   1. record a following and an avoidance demonstration (scara_sim + demonstrator + recorder);
   2. learn `follow`, `avoid` and their combination `follow_safe` (shifts [0.23, 0]) from the bags;
   3. run the three behaviours closed-loop with a scripted hand, each recorded to a bag;
-  4. run follow -> (event) avoid -> (event) follow_safe, recorded;
+  4. run follow -> avoid -> follow_safe, the events detected by the event_detector from a hand
+     that reaches in, rests and withdraws (no timer sends one), recorded;
   5. write OUT/report.md, OUT/figures/*.png and OUT/metrics.json.
 Run through scripts/demo.sh, which sets the project up and sources its environment first.
 Every process is started on this run's own ROS_DOMAIN_ID, discovery on loopback, and ended by
@@ -27,20 +28,19 @@ import matplotlib
 matplotlib.use('Agg')  # before pyplot is imported: figures go to files, no display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from hri_interfaces.msg import TaskEvent  # noqa: E402
 
 from hri_adaptive_controller.run_metrics import run_metrics  # noqa: E402
 from hri_bringup.processes import (  # noqa: E402
+    LIVE_LOOP,
     NodeProcess,
     NodesNotReadyError,
-    RosProbe,
     start_live_loop,
     start_node,
     stop_all,
-    wait_for,
 )
 from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
+from hri_core.separation import ProtectiveSeparation  # noqa: E402
 from hri_core.task_file import load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from hri_demo_learning.figures import plot_task_fit  # noqa: E402
@@ -109,10 +109,17 @@ QUICK_DEMONSTRATION = {'start_delay': 0.5, 'hold_time': 1.5}
 # run's second half) in one --quick run on this 2-core machine.
 LOOP_PRIORITY = 50
 MAX_DOMAIN_ID = 232  # the highest ROS_DOMAIN_ID whose Fast DDS ports fit below 65536
-SEQUENCE_HAND = {'profile': 'hold', 'start': [0.45, 0.10]}
-SEQUENCE_EVENTS = (('hand_too_close', 'avoid'), ('keep_company', 'follow_safe'))
+# The sequence's hand: it waits 0.6 m from the arm, which comes to it under follow; it reaches
+# in to 0.3 m from the arm's start at 0.5 m/s (the event_detector's rule hand_reaches_in:
+# avoid), rests 5 s (hand_rests, after 3 s still: follow_safe) and withdraws at 0.1 m/s. The
+# detector runs its default rules (config/event_detector.yaml); no timer sends an event.
+SEQUENCE_HAND = {'profile': 'waypoints', 'start_delay': 0.8, 'speed': 0.1,
+                 'waypoints': [0.35, -0.30, 0.35, 0.0, 0.55, -0.15],
+                 'segment_speeds': [0.5, 0.1], 'pauses': [5.0, 0.0]}
+SEQUENCE_SETTLE = 4.0  # s after the hand stops
 RUN_TOPICS = ['/hri/controller_state', '/hri/task_state', '/target', '/ee_position',
               '/effort_controller/commands']
+SEQUENCE_TOPICS = [*RUN_TOPICS, '/hri/events', '/hri/separation']
 
 
 def hand_profile(hand: dict) -> HandProfile:
@@ -342,7 +349,9 @@ class Demo:
 
     # -- stages 3 and 4 ----------------------------------------------------------------
     def closed_loop(self, run: str, initial_task: str, hand: dict, seconds: float,
-                    events=()) -> Path:
+                    detector: bool = False) -> Path:
+        """Run the live loop (with the event_detector: `detector`) for `seconds` s, recorded
+        into bags/run_<run>; the bag's path."""
         bag = self.bags / f'run_{run}'
         shutil.rmtree(bag, ignore_errors=True)
         # The hand starts last, once the others are up, so its script begins with the loop
@@ -351,37 +360,22 @@ class Demo:
             loop = start_live_loop(self.domain_id, {
                 'event_manager': {'tasks_dir': str(self.tasks), 'initial_task': initial_task,
                                   'ramp_time': 1.0},
-                'recorder': {'topics': RUN_TOPICS},
+                'recorder': {'topics': SEQUENCE_TOPICS if detector else RUN_TOPICS},
                 'hand_sim': hand,
                 'scara_sim': {'realtime_priority': LOOP_PRIORITY},
                 'controller': {'realtime_priority': LOOP_PRIORITY},
-            }, log_dir=self.logs, record=bag, ready_timeout=30.0)
+            }, log_dir=self.logs, record=bag, ready_timeout=30.0,
+                nodes=[*LIVE_LOOP, *(['event_detector'] if detector else [])])
         except NodesNotReadyError as error:
             raise StageError(f'{error}; logs in {self.logs}') from None
         self.running.extend(loop.values())
-        probe = RosProbe(self.domain_id, name='demo_events') if events else None
-        try:
-            publisher = probe.publisher('/hri/events', TaskEvent, 10) if probe else None
-            pending = list(events)
-
-            def fire(elapsed: float) -> None:
-                while pending and elapsed >= pending[0][0]:
-                    _, event, task = pending.pop(0)
-                    publisher.publish(TaskEvent(name=event, task=task))
-                    print(f'\n    t = {elapsed:.1f} s: event {event!r} -> task {task!r}')
-
-            if publisher is not None and not wait_for(
-                    lambda: publisher.get_subscription_count() > 0, 10.0):
-                raise StageError('event_manager did not subscribe to /hri/events')
-            self.run_for(seconds, f'{run}: running', list(loop.values()), fire)
-        finally:
-            if probe is not None:
-                probe.close()
+        self.run_for(seconds, f'{run}: running', list(loop.values()))
         # The hand first, then the recorder: the bag ends with the loop still running; then
         # the loop's nodes together.
         for name in ('hand_sim', 'recorder'):
             self.stop(loop[name])
-        self.stop(*(loop[name] for name in ('controller', 'event_manager', 'scara_sim')))
+        self.stop(*(process for name, process in loop.items()
+                    if name not in ('hand_sim', 'recorder')))
         return bag
 
     def run_behaviours(self) -> None:
@@ -400,13 +394,12 @@ class Demo:
             self.behaviour_report(task, bag)
 
     def run_sequence(self) -> None:
-        step = 3.0 if self.quick else 12.0
-        events = [(step * (i + 1), event, task) for i, (event, task)
-                  in enumerate(SEQUENCE_EVENTS)]
-        print(f'  sequence follow -> avoid -> follow_safe, events at '
-              f'{", ".join(f"{e[0]:.0f} s" for e in events)}')
-        bag = self.closed_loop('sequence', 'follow', SEQUENCE_HAND, step * 3, events)
-        self.sequence_report(bag, events)
+        seconds = hand_stops_at(SEQUENCE_HAND) + SEQUENCE_SETTLE
+        print(f'  sequence follow -> avoid -> follow_safe, events from the event_detector: '
+              f'hand {SEQUENCE_HAND["waypoints"]} at {SEQUENCE_HAND["segment_speeds"]} m/s, '
+              f'resting {SEQUENCE_HAND["pauses"][0]:g} s; {seconds:.0f} s')
+        bag = self.closed_loop('sequence', 'follow', SEQUENCE_HAND, seconds, detector=True)
+        self.sequence_report(bag)
 
     # -- stage 5 -----------------------------------------------------------------------
     def controller_series(self, bag: Path) -> dict:
@@ -426,6 +419,7 @@ class Demo:
             'ok': ok,
             'control_dropout_fraction': float(1.0 - np.mean(ok)),
             't': t - float(t[0]),
+            't0': float(t[0]),  # bag time (s since the epoch) of t = 0
             'distance': np.array([m.distance for m in messages]),
             'effort': np.array([list(m.effort) or [0.0, 0.0] for m in messages]),
             'weight': np.array([m.weight for m in messages]),
@@ -489,14 +483,42 @@ class Demo:
         figure.savefig(self.figures / f'behaviour_{task}.png', dpi=110)
         plt.close(figure)
 
-    def sequence_report(self, bag: Path, events) -> None:
+    def detected_events(self, bag: Path, t0: float) -> tuple[list[dict], dict]:
+        """The events of the bag's /hri/events ({'time_s', 'event', 'task'}, t from `t0`)
+        and its /hri/separation as arrays: t (s from t0), separation, S_p as published (ISO
+        13855 hand speed) and S_p of the measured speeds (m)."""
+        contents = read_bag(bag, topics=['/hri/events', '/hri/separation']).topics
+        events = []
+        if '/hri/events' in contents:
+            series = contents['/hri/events']
+            events = [{'time_s': float(t - t0), 'event': m.name, 'task': m.task}
+                      for t, m in zip(series.times(), series.messages, strict=True)]
+        if '/hri/separation' not in contents or not contents['/hri/separation'].messages:
+            raise StageError(f'no /hri/separation in {bag}: did the event_detector run?')
+        series = contents['/hri/separation']
+        constants = load_defaults('hri_adaptive_controller', 'event_detector')
+        fixed = sum(constants[name] for name in ('stopping_distance', 'intrusion_distance',
+                                                 'human_uncertainty', 'robot_uncertainty'))
+        stop = constants['reaction_time'] + constants['stopping_time']
+        messages = series.messages
+        separation = {
+            't': series.times() - t0,
+            'separation': np.array([m.separation for m in messages]),
+            'protective': np.array([m.protective_distance for m in messages]),
+            'measured': np.array([max(m.human_speed, 0.0) * stop + max(m.robot_speed, 0.0)
+                                  * constants['reaction_time'] + fixed for m in messages]),
+        }
+        return events, separation
+
+    def sequence_report(self, bag: Path) -> None:
         series = self.controller_series(bag)
-        figure, axes = plt.subplots(3, 1, sharex=True, figsize=(7, 6.5))
+        events, separation = self.detected_events(bag, series['t0'])
+        figure, axes = plt.subplots(4, 1, sharex=True, figsize=(7, 8.5))
         # Cycles without control (stale input under load) are gaps, not a = 0.
         axes[0].plot(series['t'], np.where(series['ok'], series['weight'], np.nan),
                      color='tab:purple')
         axes[0].set_ylabel('a(E, t)')
-        axes[0].set_title('follow -> avoid -> follow_safe: event weight, distance, V')
+        axes[0].set_title('follow -> avoid -> follow_safe, events detected from the hand')
         regions = {name: load_task_file(self.tasks / f'{name}.yaml')
                    for name in ('follow', 'avoid', 'follow_safe')}
         # The band follows the task in force at each controller state.
@@ -506,11 +528,26 @@ class Demo:
         axes[1].fill_between(series['t'], lower, upper, color='tab:green', alpha=0.2,
                              label='desired region of the active task')
         axes[1].plot(series['t'], series['distance'], color='k')
-        axes[1].set_ylim(0.0, 0.6)
+        axes[1].set_ylim(0.0, 0.7)
         axes[1].set_ylabel('distance (m)')
-        axes[2].semilogy(series['t'], np.maximum(series['lyapunov'], 1e-12), color='tab:red')
-        axes[2].set_ylabel('V (eq. 21)')
-        axes[2].set_xlabel('t (s)')
+        axes[2].plot(separation['t'], separation['separation'], color='k',
+                     label='separation')
+        axes[2].plot(separation['t'], separation['protective'], color='tab:red',
+                     label='S_p, ISO 13855 hand speed')
+        axes[2].plot(separation['t'], separation['measured'], color='tab:orange',
+                     label='S_p, measured speeds')
+        axes[2].set_yscale('log')
+        axes[2].set_ylabel('m (ISO/TS 15066)')
+        axes[2].legend(loc='upper right', fontsize='small')
+        axes[3].semilogy(series['t'], np.maximum(series['lyapunov'], 1e-12), color='tab:red')
+        axes[3].set_ylabel('V (eq. 21)')
+        axes[3].set_xlabel('t (s)')
+        for event in events:
+            for axis in axes:
+                axis.axvline(event['time_s'], color='tab:blue', linestyle='--', linewidth=1)
+            axes[0].annotate(f"{event['event']}\n-> {event['task'] or 'none'}",
+                             (event['time_s'], 0.5), xytext=(3, 0),
+                             textcoords='offset points', fontsize='small', color='tab:blue')
         axes[1].legend(loc='upper right')
         figure.tight_layout()
         figure.savefig(self.figures / 'sequence.png', dpi=110)
@@ -520,8 +557,20 @@ class Demo:
         final = load_task_file(self.tasks / 'follow_safe.yaml')
         metrics = run_metrics(series['t'], series['distance'], series['effort'], final.d1,
                               final.d2, window=2.0)
+        for event in events:
+            nearest = int(np.argmin(np.abs(separation['t'] - event['time_s'])))
+            event['separation_m'] = float(separation['separation'][nearest])
         self.metrics['sequence'] = {
-            'events': [{'time_s': e[0], 'event': e[1], 'task': e[2]} for e in events],
+            'events': events,
+            'separation_min_m': float(np.min(separation['separation'])),
+            'protective_distance_m': [float(np.min(separation['protective'])),
+                                      float(np.max(separation['protective']))],
+            'protective_distance_measured_m': [float(np.min(separation['measured'])),
+                                               float(np.max(separation['measured']))],
+            'below_protective_fraction': float(np.mean(
+                separation['separation'] < separation['protective'])),
+            'below_measured_fraction': float(np.mean(
+                separation['separation'] < separation['measured'])),
             'max_effort_step': effort_steps(bag)[1],
             'weight_min': float(np.min(weight)), 'weight_max': float(np.max(weight)),
             'largest_weight_step': jumps, 'final': asdict(metrics),
@@ -529,8 +578,59 @@ class Demo:
             'control_dropout_fraction': series['control_dropout_fraction'],
             'tasks_seen': sorted(set(series['task']) - {''}),
         }
+        for event in events:
+            print(f"    t = {event['time_s']:.2f} s: event {event['event']!r} -> task "
+                  f"{event['task'] or 'none'!r} at separation {event['separation_m']:.3f} m")
         print(f'    a(E,t) in [{np.min(weight):.3f}, {np.max(weight):.3f}], largest step '
-              f'between samples {jumps:.4f}; final distance {metrics.steady_distance:.3f} m')
+              f'between samples {jumps:.4f}; final distance {metrics.steady_distance:.3f} m; '
+              f'closest {self.metrics["sequence"]["separation_min_m"]:.3f} m')
+
+    def separation_verdicts(self) -> list[str]:
+        """The report's lines on ISO/TS 15066 for each learned task that keeps the hand at
+        d1 > 0: is d1 >= S_p with the arm at its max_task_speed, and up to what arm speed it
+        would be, for a hand at ISO 13855's speed and for a still hand (metrics too)."""
+        constants = load_defaults('hri_adaptive_controller', 'event_detector')
+        settings = ProtectiveSeparation.from_mapping(constants)
+        speed = load_defaults('hri_adaptive_controller', 'controller')['max_task_speed']
+        verdicts = {}
+        for name, learned in self.metrics['learning'].items():
+            d1 = learned['d1']
+            if d1 <= 0.0:
+                continue
+            iso = settings.iso_human_speed(d1)
+            verdicts[name] = {
+                'd1_m': d1, 'arm_speed_m_s': speed,
+                'protective_distance_m': settings.distance(iso, speed),
+                'protective_distance_still_hand_m': settings.distance(0.0, speed),
+                'arm_speed_limit_m_s': settings.arm_speed_limit(d1),
+                'arm_speed_limit_still_hand_m_s': settings.arm_speed_limit(d1, 0.0),
+            }
+        self.metrics['separation_verdicts'] = verdicts
+
+        def limit(value):
+            return 'none (a still arm is too close already)' if value is None \
+                else f'{value:.2f} m/s'
+
+        lines = ['', '## Speed and separation (ISO/TS 15066)', '',
+                 f'S_p = v_h (T_r + T_s) + v_r T_r + B + C + Z_d + Z_r with T_r = '
+                 f'{settings.reaction_time:g} s, T_s = {settings.stopping_time:g} s and B = '
+                 f'{settings.stopping_distance:g} m (the arm\'s stop from its peak task speed '
+                 f'through the 1 s fade of a(E, t), measured in the pure closed loop), C = '
+                 f'{settings.intrusion_distance:g} m, Z_d + Z_r = '
+                 f'{settings.human_uncertainty + settings.robot_uncertainty:g} m; the arm at '
+                 f'its max_task_speed {speed:g} m/s.', '',
+                 '| task | d1 (m) | S_p, hand at ISO 13855 speed (m) | d1 >= S_p | arm speed '
+                 'for d1 >= S_p | S_p, still hand (m) | d1 >= S_p | arm speed for d1 >= S_p |',
+                 '|---|---|---|---|---|---|---|---|']
+        for name, v in verdicts.items():
+            lines.append(
+                f"| {name} | {v['d1_m']:.3f} | {v['protective_distance_m']:.3f} | "
+                f"{'yes' if v['d1_m'] >= v['protective_distance_m'] else 'no'} | "
+                f"{limit(v['arm_speed_limit_m_s'])} | "
+                f"{v['protective_distance_still_hand_m']:.3f} | "
+                f"{'yes' if v['d1_m'] >= v['protective_distance_still_hand_m'] else 'no'} | "
+                f"{limit(v['arm_speed_limit_still_hand_m_s'])} |")
+        return lines
 
     def write_report(self) -> None:
         lines = ['# HRI control through demonstration: simulation report', '',
@@ -611,15 +711,28 @@ class Demo:
         if 'sequence' in self.metrics:
             seq = self.metrics['sequence']
             lines += ['', '## Sequential task with events (eq. 12, 13)', '',
-                      'Events: ' + ', '.join(
-                          f"{e['event']} -> {e['task']} at {e['time_s']:.0f} s"
-                          for e in seq['events']) + '.',
+                      'The event_detector sent every event (its default rules, '
+                      'config/event_detector.yaml) from a hand that reached in at 0.5 m/s, '
+                      'rested 5 s and withdrew at 0.1 m/s; no timer sent one. Events: '
+                      + ', '.join(f"{e['event']} -> {e['task'] or 'none'} at "
+                                  f"{e['time_s']:.2f} s (separation {e['separation_m']:.3f} m)"
+                                  for e in seq['events']) + '.',
+                      f'Separation of hand and tool: at least {seq["separation_min_m"]:.3f} m. '
+                      'ISO/TS 15066 protective separation distance S_p with ISO 13855\'s hand '
+                      f'speed: {seq["protective_distance_m"][0]:.2f}-'
+                      f'{seq["protective_distance_m"][1]:.2f} m (below it '
+                      f'{100 * seq["below_protective_fraction"]:.0f} % of the time); with the '
+                      f'measured speeds: {seq["protective_distance_measured_m"][0]:.2f}-'
+                      f'{seq["protective_distance_measured_m"][1]:.2f} m (below it '
+                      f'{100 * seq["below_measured_fraction"]:.0f} % of the time). T_s and B '
+                      'are the arm\'s stop through a 1 s fade of a(E, t).',
                       f'a(E, t) stayed in [{seq["weight_min"]:.3f}, {seq["weight_max"]:.3f}]; '
                       f'largest change between two controlled cycles: '
                       f'{seq["largest_weight_step"]:.4f}; largest torque step between two '
                       f'consecutive control cycles: {seq["max_effort_step"]:.3f} N m. Final '
                       f'distance {seq["final"]["steady_distance"]:.3f} m.', '',
                       '![sequence](figures/sequence.png)']
+        lines += self.separation_verdicts()
         steps = {name: m['max_effort_step'] for name, m in self.metrics['behaviours'].items()}
         if 'sequence' in self.metrics:
             steps['sequence'] = self.metrics['sequence']['max_effort_step']

@@ -15,21 +15,23 @@ import json
 import sys
 from pathlib import Path
 
-from hri_adaptive_controller import controller_node, event_manager_node
+from hri_adaptive_controller import controller_node, event_detector_node, event_manager_node
 from hri_bringup import live_view_node, system
 from hri_core.node_common import load_defaults
 from hri_demo_learning import learner_node, recorder_node
-from scara_sim import demonstrator_node, hand_sim_node, scara_sim_node
+from scara_sim import arm_sim_node, demonstrator_node, hand_sim_node, scara_sim_node
 
 DOC = Path(__file__).resolve().parents[1] / 'docs' / 'parameters.md'
 NODES = [  # (package, module), in the README's order
     ('scara_sim', scara_sim_node),
+    ('scara_sim', arm_sim_node),
     ('scara_sim', hand_sim_node),
     ('scara_sim', demonstrator_node),
     ('hri_demo_learning', recorder_node),
     ('hri_demo_learning', learner_node),
     ('hri_adaptive_controller', event_manager_node),
     ('hri_adaptive_controller', controller_node),
+    ('hri_adaptive_controller', event_detector_node),
     ('hri_bringup', live_view_node),
 ]
 HEADER = """# Parameters

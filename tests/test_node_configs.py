@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from hri_adaptive_controller import controller_node, event_manager_node
+from hri_adaptive_controller import controller_node, event_detector_node, event_manager_node
 from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
 from hri_bringup import live_view_node
 from hri_core import topics
@@ -25,6 +25,7 @@ TABLE_NODES = [
     ('scara_sim', demonstrator_node),
     ('hri_adaptive_controller', controller_node),
     ('hri_adaptive_controller', event_manager_node),
+    ('hri_adaptive_controller', event_detector_node),
     ('hri_demo_learning', learner_node),
     ('hri_demo_learning', recorder_node),
     ('hri_bringup', live_view_node),

@@ -65,6 +65,7 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path
         'event_manager': nodes('hri_adaptive_controller', 'event_manager', params={
             'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow'}),
         'controller': nodes('hri_adaptive_controller', 'controller'),
+        'event_detector': nodes('hri_adaptive_controller', 'event_detector'),
     }
     reference = NodeProcess.from_command(
         'reference', [sys.executable, '-c', REFERENCE_NODE], node_environment(ros_domain),

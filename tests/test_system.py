@@ -17,7 +17,7 @@ import psutil
 import pytest
 from hri_interfaces.msg import ControllerState
 
-from hri_bringup.processes import LIVE_LOOP, LIVE_LOOP_EXECUTABLES, start_node, wait_for
+from hri_bringup.processes import LIVE_LOOP_EXECUTABLES, SYSTEM_NODES, start_node, wait_for
 from hri_core.topics import MONITOR_QOS
 
 pytestmark = pytest.mark.integration
@@ -91,10 +91,10 @@ def test_system_runs_the_loop_and_ends_every_node_on_sigint(system, probe, tmp_p
     config = tmp_path / 'loop.yaml'
     config.write_text(LOOP_CONFIG.format(log_dir=log_dir))
     process = system(config)
-    assert wait_for(lambda: len(child_pids(process)) == len(LIVE_LOOP), 30.0), process.log()
+    assert wait_for(lambda: len(child_pids(process)) == len(SYSTEM_NODES), 30.0), process.log()
     pids = child_pids(process)
-    assert set(pids) == set(LIVE_LOOP)
-    assert wait_for(lambda: f'all {len(LIVE_LOOP)} nodes ready' in process.log(), 40.0), \
+    assert set(pids) == set(SYSTEM_NODES)
+    assert wait_for(lambda: f'all {len(SYSTEM_NODES)} nodes ready' in process.log(), 40.0), \
         process.log()
     # The arm comes to the still hand.
     assert wait_for(lambda: any(s.status == 'ok' for s in states), 30.0), process.log()
@@ -110,13 +110,14 @@ def test_system_runs_the_loop_and_ends_every_node_on_sigint(system, probe, tmp_p
     log = process.log()
     assert 'Traceback' not in log
     assert system_lines(log, 'INFO')[-1].endswith(
-        'stopped; exit codes: scara_sim 0, event_manager 0, controller 0, hand_sim 0'), log
+        'stopped; exit codes: scara_sim 0, event_manager 0, controller 0, event_detector 0, '
+        'hand_sim 0'), log
     # The children's output: echoed with their names, and in log_dir with the parameters
     # file they were given (substitutions done).
     assert '[controller] [INFO]' in log and '[hand_sim] [INFO]' in log
     given = (log_dir / 'system_params.yaml').read_text()
     assert 'hri_adaptive_controller/tasks' in given and '$(find-pkg-share' not in given
-    assert len(list(log_dir.glob('*.log'))) == len(LIVE_LOOP)
+    assert len(list(log_dir.glob('*.log'))) == len(SYSTEM_NODES)
 
 
 def test_a_node_that_exits_ends_the_system_with_exit_code_1(system, tmp_path):

@@ -26,6 +26,7 @@ setup(
         'console_scripts': [
             'event_manager = hri_adaptive_controller.event_manager_node:main',
             'controller = hri_adaptive_controller.controller_node:main',
+            'event_detector = hri_adaptive_controller.event_detector_node:main',
         ],
     },
 )

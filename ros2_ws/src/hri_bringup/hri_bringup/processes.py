@@ -45,11 +45,15 @@ LIVE_LOOP_EXECUTABLES: dict[str, tuple[str, str]] = {
     'scara_sim': ('scara_sim', 'scara_sim'),
     'event_manager': ('hri_adaptive_controller', 'event_manager'),
     'controller': ('hri_adaptive_controller', 'controller'),
+    'event_detector': ('hri_adaptive_controller', 'event_detector'),
     'recorder': ('hri_demo_learning', 'recorder'),
     'hand_sim': ('scara_sim', 'hand_sim'),
 }
 # What `start_live_loop` starts unless told otherwise (the recorder only with a bag to write).
 LIVE_LOOP = ('scara_sim', 'event_manager', 'controller', 'hand_sim')
+# What `ros2 run hri_bringup system` starts by default: the live loop, the events coming from
+# the event_detector's rules.
+SYSTEM_NODES = ('scara_sim', 'event_manager', 'controller', 'event_detector', 'hand_sim')
 # A line each executable logs once it is up (its parameters are read, its loop is running).
 READY_LINES: dict[str, str] = {
     'scara_sim': 'simulating at',
@@ -59,6 +63,7 @@ READY_LINES: dict[str, str] = {
     'learner': 'learned task',
     'event_manager': 'task(s) loaded',
     'controller': 'control on each /joint_states',
+    'event_detector': 'rule(s):',
 }
 
 

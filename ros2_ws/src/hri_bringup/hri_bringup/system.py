@@ -7,7 +7,7 @@ standard ROS 2 parameters file, one section per node:
 
     system:                  # this node
       ros__parameters:
-        nodes: [scara_sim, event_manager, controller, hand_sim]  # add recorder to record
+        nodes: [scara_sim, event_manager, controller, event_detector, hand_sim]  # + recorder
         log_dir: ""          # "" = <ROS log directory>/hri_system_<date-time>_<pid>
         echo_output: true    # the children's output on this stdout, lines prefixed [node]
         stop_timeout: 5.0    # s from SIGTERM to SIGKILL when the children are stopped
@@ -20,14 +20,15 @@ standard ROS 2 parameters file, one section per node:
         initial_task: follow
 
 Section names are the node names of LIVE_LOOP_EXECUTABLES (scara_sim, event_manager,
-controller, recorder, hand_sim), optionally with a leading '/', or wildcards such as `/**`
-(every child reads those). `$(find-pkg-share PACKAGE)` in a string value becomes PACKAGE's
-installed share directory. The system writes the file with those substitutions done to
-LOG_DIR/system_params.yaml and starts every child with `ros2 run PACKAGE EXECUTABLE
---ros-args --params-file LOG_DIR/system_params.yaml`: each child reads its own section over
-its package's defaults (config/<node>.yaml). A setting the `system` section leaves out keeps
-its value in the installed config/system.yaml, the one place the system's defaults are
-written; the settings are read from the file only (the ROS parameter is `config`).
+controller, event_detector, recorder, hand_sim), optionally with a leading '/', or
+wildcards such as `/**` (every child reads those). `$(find-pkg-share PACKAGE)` in a string
+value becomes PACKAGE's installed share directory. The system writes the file with those
+substitutions done to LOG_DIR/system_params.yaml and starts every child with `ros2 run
+PACKAGE EXECUTABLE --ros-args --params-file LOG_DIR/system_params.yaml`: each child reads its
+own section over its package's defaults (config/<node>.yaml). A setting the `system` section
+leaves out keeps its value in the installed config/system.yaml, the one place the system's
+defaults are written; the settings are read from the file only (the ROS parameter is
+`config`).
 
 The children inherit the environment (ROS_DOMAIN_ID, ...) and the working directory: a
 relative path in a section (tasks_dir, the recorder's output) is relative to the directory

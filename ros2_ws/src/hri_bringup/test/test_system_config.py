@@ -12,7 +12,7 @@ pytest.importorskip('rclpy')
 
 from ament_index_python.packages import get_package_share_directory  # noqa: E402
 
-from hri_bringup.processes import LIVE_LOOP  # noqa: E402
+from hri_bringup.processes import SYSTEM_NODES  # noqa: E402
 from hri_bringup.system import (  # noqa: E402
     PARAMETERS,
     SETTINGS,
@@ -39,7 +39,7 @@ def shipped_defaults() -> dict:
 def test_the_shipped_config_holds_every_default_of_the_system_node():
     settings = shipped_defaults()
     assert set(settings) == set(PARAMETERS) | set(SETTINGS)
-    assert settings['nodes'] == list(LIVE_LOOP)
+    assert settings['nodes'] == list(SYSTEM_NODES)
     assert settings['config'] == str(
         Path(get_package_share_directory('hri_bringup')) / 'config' / 'system.yaml')
 
@@ -51,7 +51,7 @@ def test_the_shipped_config_loads_table_one_with_follow_and_a_circling_hand():
     assert manager['initial_task'] == 'follow'
     assert sections['hand_sim']['ros__parameters']['profile'] == 'circle'
     assert system_settings(shipped_defaults(), sections, 'config') == {
-        'nodes': list(LIVE_LOOP), 'log_dir': '', 'echo_output': True, 'stop_timeout': 5.0}
+        'nodes': list(SYSTEM_NODES), 'log_dir': '', 'echo_output': True, 'stop_timeout': 5.0}
 
 
 def test_find_pkg_share_is_replaced_in_strings_and_lists(tmp_path):
@@ -68,7 +68,7 @@ def test_find_pkg_share_is_replaced_in_strings_and_lists(tmp_path):
 def test_a_file_may_leave_out_the_system_section(tmp_path):
     path = write(tmp_path, 'hand_sim:\n  ros__parameters:\n    profile: hold\n')
     settings = system_settings(shipped_defaults(), load_config(path), 'config')
-    assert settings['nodes'] == list(LIVE_LOOP)
+    assert settings['nodes'] == list(SYSTEM_NODES)
 
 
 def test_the_system_section_overrides_the_shipped_defaults(tmp_path):

@@ -13,7 +13,13 @@ gets them at once.
 from dataclasses import dataclass
 
 from geometry_msgs.msg import PointStamped, WrenchStamped
-from hri_interfaces.msg import ControllerState, TaskEvent, TaskParameters, TaskState
+from hri_interfaces.msg import (
+    ControllerState,
+    SeparationState,
+    TaskEvent,
+    TaskParameters,
+    TaskState,
+)
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
@@ -65,6 +71,7 @@ TARGET = Topic('/target', PointStamped, SENSOR_STREAM_QOS)
 TASK = Topic('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
 EVENTS = Topic('/hri/events', TaskEvent, EVENT_QOS)
 TASK_STATE = Topic('/hri/task_state', TaskState, TASK_STATE_QOS)
+SEPARATION = Topic('/hri/separation', SeparationState, MONITOR_QOS)
 CONTROLLER_STATE = Topic('/hri/controller_state', ControllerState, MONITOR_QOS)
 ROBOT_DESCRIPTION = Topic('/robot_description', String, ROBOT_DESCRIPTION_QOS)
 

@@ -16,6 +16,7 @@ import socket
 import struct
 import time
 
+import numpy as np
 import pytest
 import websockets.exceptions
 import websockets.sync.client
@@ -26,6 +27,7 @@ from sensor_msgs.msg import JointState
 from hri_bringup import live_view_node
 from hri_core import topics
 from hri_core.node_common import load_defaults
+from hri_core.robot_model import robot_model
 
 START_TIMEOUT = 15.0  # s for `ros2 run` to bring the live view up
 RECEIVE_TIMEOUT = 10.0  # s for the first joint state and a scene with the arm and the hand
@@ -158,7 +160,7 @@ def test_streams_the_topics_and_the_scene_to_a_foxglove_client(nodes):
     nodes('scara_sim', 'hand_sim', params={'profile': 'circle'})
     port = free_port()
     view = nodes('hri_bringup', 'live_view', params={'port': port})
-    assert view.wait_for_line(f'live view on ws://127.0.0.1:{port} streaming 12 topics',
+    assert view.wait_for_line(f'live view on ws://127.0.0.1:{port} streaming 13 topics',
                               START_TIMEOUT), view.log()
 
     with websockets.sync.client.connect(f'ws://127.0.0.1:{port}', subprotocols=SUBPROTOCOLS,
@@ -232,3 +234,38 @@ def test_a_port_in_use_or_a_bad_parameter_is_one_error_line_and_exit_1(nodes):
         errors = [line for line in log.splitlines() if '[ERROR]' in line]
         assert len(errors) == 1 and reason in errors[0], log
         assert 'Traceback' not in log
+
+
+@pytest.mark.integration
+def test_draws_the_arm_of_the_robot_description_in_3d(nodes):
+    """Beside arm_sim robot:=panda the scene's arm is the URDF's chain: a rod for each of its 7
+    joints and the pedestal from the base to joint 1 (0.333 m up), a ball at each joint and
+    the tool; the hand, in 3-D, with the task region as spheres (task_region stays empty
+    without an event_manager)."""
+    panda = robot_model('panda')
+    nodes('scara_sim', 'arm_sim', params={'robot': 'panda', 'teach_mode': True})
+    nodes('scara_sim', 'hand_sim', params={'profile': 'circle'})
+    port = free_port()
+    view = nodes('hri_bringup', 'live_view', params={'port': port})
+    assert view.wait_for_line(f'live view on ws://127.0.0.1:{port}', START_TIMEOUT), view.log()
+    with websockets.sync.client.connect(f'ws://127.0.0.1:{port}', subprotocols=SUBPROTOCOLS,
+                                        proxy=None, open_timeout=5.0,
+                                        max_queue=1024) as connection:
+        _, channels = read_channels(connection, {SCENE_TOPIC, '/robot_description'}, 5.0)
+        scene = channels[SCENE_TOPIC]
+        scene_schema = field_numbers(base64.b64decode(scene['schema']))
+        connection.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+            {'id': 1, 'channelId': scene['id']}]}))
+        entities: dict[str, dict] = {}
+        deadline = time.monotonic() + 2 * RECEIVE_TIMEOUT  # the Panda's URDF loads first
+        while entities.get('arm', {}).get('cylinders', 0) <= 2 or not entities.get('hand'):
+            frame = connection.recv(timeout=max(0.1, deadline - time.monotonic()))
+            if isinstance(frame, bytes) and frame[0] == MESSAGE_DATA_OPCODE:
+                entities = scene_entities(frame[13:], scene_schema)
+    pedestal = 1 if np.linalg.norm(panda.shoulder) > 0.0 else 0
+    assert entities['arm'] == {'cylinders': panda.dof + pedestal, 'spheres': panda.dof + 1}
+    assert (panda.dof, pedestal) == (7, 1)
+    assert entities['hand'] == {'spheres': 1}
+    assert entities['task_region'] == {}
+    assert "drawing panda of /robot_description: 7 joints, tool 'panda_hand_tcp'" in view.log()
+    assert 'Traceback' not in view.log()

@@ -13,6 +13,11 @@ app.foxglove.dev) and offers two kinds of channels:
   `transforms_topic` (foxglove.FrameTransforms) at `scene_rate_hz`, from the newest
   /joint_states, /target and /hri/task_state: the arm, the hand and the active task's desired
   region coloured by the event weight (hri_bringup.live_scene has the geometry).
+  The arm is the one /robot_description describes (its URDF through pinocchio, tool point at
+  `tool_frame` or the known robot's own), drawn in 3-D with the region as spheres round the
+  hand; with no /robot_description (or one that cannot be read: one warning), the planar SCARA
+  of `joints`, `l1` and `l2`, as scara_sim publishes none. The scene is built in the timer at
+  `scene_rate_hz`, never per message: the 1 kHz callbacks only keep the newest bytes.
 
 It logs one line once it serves ('live view on ws://HOST:PORT streaming N topics ...') and
 one when it stops. SIGINT or SIGTERM stop the server and end the node with exit code 0; a
@@ -65,7 +70,8 @@ NODE_NAME = 'live_view'
 SUITE_TOPICS: dict[str, topics.Topic] = {
     topic.name: topic for topic in vars(topics).values() if isinstance(topic, topics.Topic)}
 # What the scene is drawn from, streamed or not.
-SCENE_INPUTS = (topics.JOINT_STATES, topics.TARGET, topics.TASK_STATE)
+SCENE_INPUTS = (topics.JOINT_STATES, topics.TARGET, topics.TASK_STATE,
+                topics.ROBOT_DESCRIPTION)
 PARAMETERS = {
     'host': ParameterSpec(str, 'address the WebSocket server listens on (127.0.0.1: this '
                           'machine only)', read_only=True),
@@ -87,6 +93,9 @@ PARAMETERS = {
                         read_only=True),
     'l2': ParameterSpec(float, 'length of link 2 (m), as the robot', 0.01, 10.0,
                         read_only=True),
+    'tool_frame': ParameterSpec(str, "the tool point's link in /robot_description's URDF ('': "
+                                "the robot's own, for a robot the suite knows)",
+                                read_only=True),
     'region_display_radius': ParameterSpec(float, 'a task boundary beyond this distance '
                                            'from the hand is drawn dashed at it (m)',
                                            0.01, 10.0, read_only=True),
@@ -236,6 +245,9 @@ class LiveView(Node):
         self._frame = values['frame']
         self._joints = tuple(values['joints'])
         self._geometry = live_scene.ArmGeometry(l1=values['l1'], l2=values['l2'])
+        self._tool_frame = values['tool_frame']
+        # The arm of the newest /robot_description: (its bytes, the model or None).
+        self._description: tuple[bytes, object] | None = None
         self._display_radius = values['region_display_radius']
         # A channel logs to the server of its context only: a context of the node's own keeps
         # another server in the same process (a test) from seeing these channels.
@@ -328,13 +340,33 @@ class LiveView(Node):
             self._decoded[topic.name] = cached
         return cached[1]
 
-    def _scene_inputs(self):
-        """Joint angles, hand (x, y) and task region from the newest inputs (None if none)."""
+    def _described_arm(self):
+        """The arm of the newest /robot_description (a PinocchioModel), built once per new
+        description; None without one or for one that cannot be read (warned once)."""
+        data = self._latest.get(topics.ROBOT_DESCRIPTION.name)
+        if data is None:
+            return None
+        if self._description is None or self._description[0] is not data:
+            arm = None
+            try:
+                arm = live_scene.description_arm(self._newest(topics.ROBOT_DESCRIPTION).data,
+                                                 self._tool_frame)
+                self.get_logger().info(f'drawing {arm.name} of /robot_description: '
+                                       f'{arm.dof} joints, tool {arm.tool_frame!r}')
+            except ValueError as error:
+                self.get_logger().warning(f'cannot draw the arm of /robot_description '
+                                          f'({error}); drawing the planar SCARA')
+            self._description = (data, arm)
+        return self._description[1]
+
+    def _scene_inputs(self, joint_names: tuple[str, ...]):
+        """Positions of `joint_names`, hand (x, y, z) and task region from the newest inputs
+        (None if none)."""
         state = self._newest(topics.JOINT_STATES)
         q = None if state is None else live_scene.joint_angles(state.name, state.position,
-                                                              self._joints)
+                                                              joint_names)
         target = self._newest(topics.TARGET)
-        hand = None if target is None else (target.point.x, target.point.y)
+        hand = None if target is None else (target.point.x, target.point.y, target.point.z)
         task_state = self._newest(topics.TASK_STATE)
         region = None
         if (task_state is not None and task_state.task.name
@@ -345,17 +377,24 @@ class LiveView(Node):
         return q, hand, region
 
     def _publish_scene(self) -> None:
-        q, hand, region = self._scene_inputs()
+        arm = self._described_arm()
+        q, hand, region = self._scene_inputs(self._joints if arm is None else arm.joint_names)
         now = self.get_clock().now().nanoseconds
         stamp = Timestamp(now // 10**9, now % 10**9)
-        entities = live_scene.scene_entities(q, hand, region, self._geometry,
-                                             self._display_radius)
+        if arm is None:
+            entities = live_scene.scene_entities(q, hand, region, self._geometry,
+                                                 self._display_radius)
+            frames = None if q is None else live_scene.arm_frames(
+                q, self._geometry.l1, self._geometry.l2, self._frame)
+        else:
+            points = None if q is None else live_scene.chain_points(arm, q)
+            entities = live_scene.spatial_scene_entities(points, hand, region, self._geometry,
+                                                         self._display_radius)
+            frames = None if q is None else live_scene.chain_frames(arm, q, self._frame)
         self._scene_channel.log(
             SceneUpdate(entities=[foxglove_entity(e, self._frame, stamp) for e in entities]),
             log_time=now)
-        if q is not None:
-            frames = live_scene.arm_frames(q, self._geometry.l1, self._geometry.l2,
-                                           self._frame)
+        if frames is not None:
             self._transforms_channel.log(FrameTransforms(transforms=[
                 FrameTransform(timestamp=stamp, parent_frame_id=f.parent,
                                child_frame_id=f.child,

@@ -179,8 +179,8 @@ class Demonstrator(Node):
         point.x, point.y, point.z = (*self._reference.tolist(), 0.0)[:3]
         self.create_timer(1.0 / rate_hz, self._on_tick)
         self.get_logger().info(
-            f'{self._mode} demonstration of {self._arm.name} ({self._dimension}-D) around x_r '
-            f'= {self._reference.tolist()} m: waiting for /ee_position (up to '
+            f'{self._mode} demonstration around x_r = {self._reference.tolist()} m '
+            f'({self._arm.name}, {self._dimension}-D): waiting for /ee_position (up to '
             f'{self._wait_timeout:g} s)')
 
     def _on_position(self, msg: PointStamped) -> None:

@@ -23,6 +23,7 @@ import websockets.sync.client
 from rclpy.serialization import deserialize_message
 from rosbags.typesys import get_types_from_msg
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from hri_bringup import live_view_node
 from hri_core import topics
@@ -268,4 +269,37 @@ def test_draws_the_arm_of_the_robot_description_in_3d(nodes):
     assert entities['hand'] == {'spheres': 1}
     assert entities['task_region'] == {}
     assert "drawing panda of /robot_description: 7 joints, tool 'panda_hand_tcp'" in view.log()
+    assert 'Traceback' not in view.log()
+
+
+@pytest.mark.integration
+def test_a_robot_description_it_cannot_read_is_one_warning_and_the_scara_is_drawn(nodes,
+                                                                                  probe):
+    nodes('scara_sim', 'scara_sim')
+    broken = probe.publisher(topics.ROBOT_DESCRIPTION.name, String,
+                             topics.ROBOT_DESCRIPTION.qos)
+    broken.publish(String(data='<robot name="arm"><link name="a"/></robot>'))
+    port = free_port()
+    view = nodes('hri_bringup', 'live_view', params={'port': port})
+    assert view.wait_for_line('cannot draw the arm of /robot_description', START_TIMEOUT), \
+        view.log()
+    with websockets.sync.client.connect(f'ws://127.0.0.1:{port}', subprotocols=SUBPROTOCOLS,
+                                        proxy=None, open_timeout=5.0,
+                                        max_queue=1024) as connection:
+        _, channels = read_channels(connection, {SCENE_TOPIC}, 5.0)
+        scene = channels[SCENE_TOPIC]
+        scene_schema = field_numbers(base64.b64decode(scene['schema']))
+        connection.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+            {'id': 1, 'channelId': scene['id']}]}))
+        entities: dict[str, dict] = {}
+        deadline = time.monotonic() + RECEIVE_TIMEOUT
+        while not entities.get('arm'):
+            frame = connection.recv(timeout=max(0.1, deadline - time.monotonic()))
+            if isinstance(frame, bytes) and frame[0] == MESSAGE_DATA_OPCODE:
+                entities = scene_entities(frame[13:], scene_schema)
+    assert entities['arm'] == {'spheres': 3, 'cylinders': 2}  # the planar SCARA
+    warnings = [line for line in view.log().splitlines() if '[WARN]' in line]
+    assert len(warnings) == 1, view.log()
+    assert "robot 'arm' is not one the suite knows (scara, panda): give tool_frame" in \
+        warnings[0]
     assert 'Traceback' not in view.log()

@@ -86,7 +86,7 @@ PUSH_SETTINGS = {  # PushSettings fields
                                600.0, read_only=True),
 }
 # x_r when `reference` is unset, per robot: for the SCARA 0.269 m from where its
-# end-effector starts (scara_sim's initial_q); for the Panda 0.282 m from its tool at home
+# end-effector starts (scara_sim's initial_q); for the Panda 0.279 m from its tool at home
 # (0.307, 0, 0.487) m, forward, left and 0.19 m lower.
 DEFAULT_REFERENCES = {'scara': (0.45, 0.05), 'panda': (0.45, 0.15, 0.30)}
 PARAMETERS = {

@@ -12,6 +12,7 @@ import pytest
 
 from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
 from hri_adaptive_controller.closed_loop import (
+    LoopConditions,
     minimum_jerk_target,
     path_target,
     simulate,
@@ -37,8 +38,8 @@ DT = 1e-3
 
 
 def run(task, target, duration=5.0, theta_hat0=WRONG_THETA, monitor=True):
-    return simulate(TASKS, [(0.0, task)], target, duration, params=PARAMS,
-                    theta_hat0=theta_hat0, dt=DT, monitor=monitor)
+    return simulate(TASKS, [(0.0, task)], target, duration,
+                    LoopConditions(params=PARAMS, theta_hat0=theta_hat0, dt=DT, monitor=monitor))
 
 
 @pytest.fixture(scope='module')
@@ -157,8 +158,8 @@ def test_task_switches_faster_than_the_ramp_stay_safe():
     events = [(0.0, 'follow'), (2.0, 'avoid'), (2.2, 'follow_safe'), (2.3, 'follow'),
               (2.4, 'follow_safe'), (2.45, 'avoid'), (2.5, 'follow_safe')]
     target = minimum_jerk_target([0.45, 0.05], [0.40, 0.20], 3.0, 1.5)
-    result = simulate(TASKS, events, target, 8.0, params=PARAMS, theta_hat0=WRONG_THETA,
-                      monitor=False)
+    result = simulate(TASKS, events, target, 8.0,
+                      LoopConditions(params=PARAMS, theta_hat0=WRONG_THETA, monitor=False))
     assert_torque_safe(result)
     assert np.all((result.weight >= 0.0) & (result.weight <= 1.0))
     assert result.active_task[-1] == 'follow_safe' and result.phase[-1] == 'active'
@@ -192,11 +193,12 @@ def test_simulate_rejects_bad_input():
     with pytest.raises(ValueError, match='duration'):
         simulate(TASKS, [], still_target([0.4, 0.1]), 0.0)
     with pytest.raises(ValueError, match='initial_task'):
-        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, initial_task='dance')
+        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0,
+                 LoopConditions(initial_task='dance'))
     with pytest.raises(ValueError, match='target_period'):
-        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, target_period=0.0)
+        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, LoopConditions(target_period=0.0))
     with pytest.raises(ValueError, match='command_delay'):
-        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, command_delay=-1)
+        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, LoopConditions(command_delay=-1))
     with pytest.raises(ValueError, match='duration'):
         minimum_jerk_target([0.0, 0.0], [1.0, 1.0], 0.0, -1.0)
 
@@ -224,8 +226,9 @@ REACH_IN_SPEED = 0.5  # m/s, peak speed of a hand reaching in
 def run_rows(rows, events, target, duration, **kwargs):
     tasks = {name: shape for name, (shape, _) in rows.items()}
     gains = {name: k for name, (_, k) in rows.items()}
-    return simulate(tasks, events, target, duration, params=PARAMS, theta_hat0=WRONG_THETA,
-                    dt=DT, monitor=False, task_gains=gains, **kwargs)
+    return simulate(tasks, events, target, duration, LoopConditions(
+        params=PARAMS, theta_hat0=WRONG_THETA, dt=DT, monitor=False, task_gains=gains,
+        **kwargs))
 
 
 def reach_in(stop_distance, leave_at=None, leave_speed=0.2, away=(0.35, 0.0)):

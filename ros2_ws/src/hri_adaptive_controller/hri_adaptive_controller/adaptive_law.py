@@ -39,12 +39,21 @@ Units: q rad, qdot rad/s, tau N m, x m; theta = [pi1, pi2, pi3 (kg m^2), b1, b2 
 mlc1, mlc2 (kg m)] as in hri_core.dynamics.dynamic_parameters.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
+from hri_adaptive_controller.joint_limits import (
+    JointLimits,
+    ReachRound,
+    ReachRoundSettings,
+    barrier,
+    barrier_energy,
+    gate_feed_forward,
+)
 from hri_adaptive_controller.task_variable import (
     DampingSettings,
     JointReference,
@@ -97,6 +106,8 @@ class ControllerGains:
     damping: DampingSettings = field(default_factory=DampingSettings)
     theta_lower: tuple[float, ...] = DEFAULT_THETA_LOWER
     theta_upper: tuple[float, ...] = DEFAULT_THETA_UPPER
+    joint_limits: JointLimits | None = field(default_factory=JointLimits)
+    reach_round: ReachRoundSettings = field(default_factory=ReachRoundSettings)
 
     def __post_init__(self):
         ks = np.asarray(self.ks, dtype=float)
@@ -354,6 +365,10 @@ class AdaptiveController:
         self._box = tuple(zip(gains.theta_lower, gains.theta_upper, strict=True))
         self._threshold2 = gains.damping.threshold ** 2
         self._max_damping2 = gains.damping.max_damping ** 2
+        # Joint limits (joint_limits): the barrier needs Kp > 0 (its reference is g / Kp).
+        self._limits = gains.joint_limits if gains.kp > 0.0 else None
+        self._reach = (None if self._limits is None
+                       else ReachRound(gains.reach_round, self._limits, self._l1, self._l2))
         self.reset(theta_hat0)
 
     @property
@@ -373,6 +388,13 @@ class AdaptiveController:
             raise ValueError(f'theta_hat0 must be {PARAMETER_COUNT} finite values, got {theta}')
         self._theta_hat = np.clip(theta, self._lower, self._upper)
         self._theta = tuple(self._theta_hat.tolist())
+        if self._reach is not None:
+            self._reach.reset()
+
+    @property
+    def reaching_round(self) -> bool:
+        """Whether the reach-round blend is heading to (or at) the joint-space motion."""
+        return self._reach is not None and self._reach.engaged
 
     def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
         """The TaskDrive (eq. 12') of the task `shape` with gain k (m^2/s; 0 = not given), or
@@ -411,6 +433,55 @@ class AdaptiveController:
         drive = self.drive(shape, k)
         return 0.0 if drive is None else drive.task_gain
 
+    def _limited_reference(self, state, hand, drive, pinv, pinv_rate, feed, task, dt: float):
+        """qdot_r, qddot_r with the joint limits (joint_limits): the barrier, the gated
+        feed-forward and the reach-round blend; one code for step and step_lean.
+
+        state (q1, q2, dq1, dq2, x1, x2); hand x_d (2,) m; drive: the TaskDrive or None;
+        pinv J+ and pinv_rate dJ+/dt as (11, 12, 21, 22); feed: the feed-forward f xdot_d and
+        its rate (4,), task: the task velocity -a delta_eps + a v_rest and its rate (4,), m/s
+        and m/s^2; dt (s) advances the reach-round state. Returns (qr1, qr2, ar1, ar2, c, g1,
+        g2, near): c = 1 - sigma weights the task's force; g the barrier's gradient (N m);
+        near its proximity.
+        """
+        p11, p12, p21, p22 = pinv
+        r11, r12, r21, r22 = pinv_rate
+        ff1, ff2, zf1, zf2 = feed
+        vt1, vt2, zt1, zt2 = task
+        f1, f2 = p11 * ff1 + p12 * ff2, p21 * ff1 + p22 * ff2
+        fa1 = r11 * ff1 + r12 * ff2 + (p11 * zf1 + p12 * zf2)
+        fa2 = r21 * ff1 + r22 * ff2 + (p21 * zf1 + p22 * zf2)
+        t1, t2 = p11 * vt1 + p12 * vt2, p21 * vt1 + p22 * vt2
+        ta1 = r11 * vt1 + r12 * vt2 + (p11 * zt1 + p12 * zt2)
+        ta2 = r21 * vt1 + r22 * vt2 + (p21 * zt1 + p22 * zt2)
+        limits = self._limits
+        if limits is None:
+            return f1 + t1, f2 + t2, fa1 + ta1, fa2 + ta2, 1.0, 0.0, 0.0, 0.0
+        q1, q2, w1, w2, x1, x2 = state
+        g1, g2, gd1, gd2, near = barrier(q1, q2, w1, w2, limits)
+        if near > 0.0:
+            f1, f2, fa1, fa2 = gate_feed_forward(q1, q2, w1, w2, f1, f2, fa1, fa2, limits)
+        region = (None if drive is None or drive.open_outward
+                  else (drive.shape.d1, drive.shape.d2))
+        sigma, sigma_rate, u1, u2, ud1, ud2 = self._reach.update(
+            q1, q2, w1, w2, x1, x2, hand, region, near, dt)
+        c = 1.0 - sigma
+        qr1, qr2 = f1 + t1, f2 + t2
+        ar1 = c * (fa1 + ta1) + sigma_rate * (u1 - qr1) + sigma * ud1
+        ar2 = c * (fa2 + ta2) + sigma_rate * (u2 - qr2) + sigma * ud2
+        qr1, qr2 = c * qr1 + sigma * u1, c * qr2 + sigma * u2
+        if g1 != 0.0 or g2 != 0.0 or gd1 != 0.0 or gd2 != 0.0:
+            # The barrier's task-space velocity -J+^T g / Kp, through J+ like the task's.
+            inv_kp = 1.0 / self._gains.kp
+            y1, y2 = (p11 * g1 + p21 * g2) * inv_kp, (p12 * g1 + p22 * g2) * inv_kp
+            yd1 = (r11 * g1 + r21 * g2 + p11 * gd1 + p21 * gd2) * inv_kp
+            yd2 = (r12 * g1 + r22 * g2 + p12 * gd1 + p22 * gd2) * inv_kp
+            qr1 -= p11 * y1 + p12 * y2
+            qr2 -= p21 * y1 + p22 * y2
+            ar1 -= r11 * y1 + r12 * y2 + (p11 * yd1 + p12 * yd2)
+            ar2 -= r21 * y1 + r22 * y2 + (p21 * yd1 + p22 * yd2)
+        return qr1, qr2, ar1, ar2, c, g1, g2, near
+
     def step(self, q, dq, x_d, xdot_d, xddot_d, a: float, da: float,
              shape: TaskShape | None, dt: float, theta_true=None,
              friction=None, monitor: bool = True, k: float = 0.0,
@@ -448,26 +519,45 @@ class AdaptiveController:
         except ValueError as error:
             return self._fault(theta_hat, k, str(error))
         with np.errstate(all='ignore'):
-            s = dq - reference.qdot_r
-            y_d = regressor(q, dq, reference.qdot_r, reference.qddot_r, self._gravity)
+            floats = [float(v) for v in (*q, *dq, *reference.position)]
+            qr1, qr2, ar1, ar2, scale, g1, g2, near = self._limited_reference(
+                floats, tuple(x_d.tolist()), shaped, tuple(reference.pinv.ravel().tolist()),
+                tuple(reference.pinv_rate.ravel().tolist()),
+                (*reference.feed_forward.tolist(), *reference.feed_forward_rate.tolist()),
+                (*reference.task_velocity.tolist(), *reference.task_rate.tolist()), dt)
+            qdot_r, qddot_r = np.array([qr1, qr2]), np.array([ar1, ar2])
+            barrier_gradient = np.array([g1, g2])
+            s = dq - qdot_r
+            y_d = regressor(q, dq, qdot_r, qddot_r, self._gravity)
             tau_requested = adaptive_torque(s, reference.jacobian,
-                                            reference.weighted_task_variable, y_d, theta_hat,
-                                            self._ks, gains.kp)
-            theta_next = np.clip(
-                theta_hat + dt * parameter_update_rate(y_d, s, self._adaptation),
-                self._lower, self._upper)
-        if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(theta_next))
-                and np.all(np.isfinite(reference.qddot_r))):
+                                            scale * reference.weighted_task_variable, y_d,
+                                            theta_hat, self._ks, gains.kp) - barrier_gradient
+        if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(qddot_r))):
             return self._fault(theta_hat, k, 'non-finite torque or parameter update')
         tau, limited = limit_torque(tau_requested, gains.effort_limit)
+        # eq. 19, paused at a limit and while clamped (as step_lean).
+        pace = 0.0 if limited else dt * (1.0 - near)
+        with np.errstate(all='ignore'):
+            theta_next = np.clip(
+                theta_hat + pace * parameter_update_rate(y_d, s, self._adaptation),
+                self._lower, self._upper)
+        if not np.all(np.isfinite(theta_next)):
+            return self._fault(theta_hat, k, 'non-finite torque or parameter update')
         self._theta = tuple(theta_next.tolist())
+        reference = dataclasses.replace(reference, qdot_r=qdot_r, qddot_r=qddot_r)
         q_value = v_value = v_rate = None
         if monitor:
             q_value = 0.0 if shaped is None else task_potential(reference.distance, shaped)
             v_value = lyapunov(s, q, a, q_value, gains.kp, theta_hat, self._adaptation,
                                theta_true, self._gravity)
+            # With the barrier (joint_limits): B in V, and the task's and the barrier's
+            # task-space velocity together in eq. 22's Kp |.|^2 term.
+            effective = scale * reference.weighted_task_variable
+            if self._limits is not None:
+                v_value += barrier_energy(floats[0], floats[1], self._limits)
+                effective = effective + reference.pinv.T @ barrier_gradient / gains.kp
             v_rate = predicted_lyapunov_rate(
-                s, reference.weighted_task_variable, da, q_value, self._ks, gains.kp,
+                s, effective, da, q_value, self._ks, gains.kp,
                 (0.0, 0.0) if friction is None else friction)
         return ControlOutput(
             tau=tau, tau_requested=tau_requested, s=s, distance=reference.distance,
@@ -562,12 +652,10 @@ class AdaptiveController:
                 o1, o2 = a * r1, a * r2
                 p1 = da * r1 + a * (cr1 * along + (b11 * xv1 + b12 * xv2))
                 p2 = da * r2 + a * (cr2 * along + (b12 * xv1 + b22 * xv2))
-        v1, v2 = feed * vd1 - m1 + o1, feed * vd2 - m2 + o2
-        z1 = feed * ad1 + feed_rate * vd1 - n1 + p1
-        z2 = feed * ad2 + feed_rate * vd2 - n2 + p2
-        qr1, qr2 = p11 * v1 + p12 * v2, p21 * v1 + p22 * v2
-        ar1 = r11 * v1 + r12 * v2 + (p11 * z1 + p12 * z2)
-        ar2 = r21 * v1 + r22 * v2 + (p21 * z1 + p22 * z2)
+        qr1, qr2, ar1, ar2, scale, gb1, gb2, near = self._limited_reference(
+            (q1, q2, w1, w2, x1, x2), x_d, drive, (p11, p12, p21, p22), (r11, r12, r21, r22),
+            (feed * vd1, feed * vd2, feed * ad1 + feed_rate * vd1, feed * ad2 + feed_rate * vd2),
+            (o1 - m1, o2 - m2, p1 - n1, p2 - n2), dt)
         # Regressor Y_d (eq. 18; hri_core.dynamics.regressor), torque (eq. 16), update (eq. 19).
         sn1, sn2 = w1 - qr1, w2 - qr2
         cq2, sq2 = math.cos(q2), math.sin(q2)
@@ -579,24 +667,28 @@ class AdaptiveController:
         th1, th2, th3, th4, th5, th6, th7 = theta
         ks1, ks2 = self._ks_floats
         kp = self._gains.kp
-        tau1 = (-ks1 * sn1 - kp * (j11 * m1 + j21 * m2)
+        kc = kp * scale
+        tau1 = (-ks1 * sn1 - kc * (j11 * m1 + j21 * m2) - gb1
                 + (ar1 * th1 + y12 * th2 + ar2 * th3 + qr1 * th4 + gc1 * th6 + gc12 * th7))
-        tau2 = (-ks2 * sn2 - kp * (j12 * m1 + j22 * m2)
+        tau2 = (-ks2 * sn2 - kc * (j12 * m1 + j22 * m2) - gb2
                 + (y22 * th2 + y23 * th3 + qr2 * th5 + gc12 * th7))
+        peak = max(abs(tau1), abs(tau2))
+        limit = self._gains.effort_limit
+        limited = peak > limit
+        # eq. 19, paused where its premise fails: at a limit (the stop's force is outside
+        # the model) and while the torque is clamped (the arm does not get the law's torque).
+        pace = 0.0 if limited else dt * (1.0 - near)
         rates = (ar1 * sn1, y12 * sn1 + y22 * sn2, ar2 * sn1 + y23 * sn2, qr1 * sn1,
                  qr2 * sn2, gc1 * sn1, gc12 * (sn1 + sn2))
         theta_next = []
         for value, rate, gain, (low, high) in zip(theta, rates, self._adaptation_floats,
                                                   self._box, strict=True):
-            value = value - dt * (gain * rate)
+            value = value - pace * (gain * rate)
             theta_next.append(low if value < low else high if value > high else value)
         isfinite = math.isfinite
         if not (isfinite(tau1) and isfinite(tau2) and isfinite(ar1) and isfinite(ar2)
                 and all(map(isfinite, theta_next))):
             return self._lean_fault(theta, k, 'non-finite torque or parameter update')
-        peak = max(abs(tau1), abs(tau2))
-        limit = self._gains.effort_limit
-        limited = peak > limit
         tau = (tau1 * (limit / peak), tau2 * (limit / peak)) if limited else (tau1, tau2)
         self._theta = tuple(theta_next)
         q_value = v_value = v_rate = None
@@ -608,12 +700,17 @@ class AdaptiveController:
             m11, m12 = mi1 + 2.0 * mi2 * cq2, mi3 + mi2 * cq2
             v_value = (0.5 * (sn1 * (m11 * sn1 + m12 * sn2) + sn2 * (m12 * sn1 + mi3 * sn2))
                        + kp * a * q_value)
+            e1, e2 = kc * m1, kc * m2  # Kp (the task's and the barrier's velocity)
+            if self._limits is not None:
+                v_value += barrier_energy(q1, q2, self._limits)
+                e1 += p11 * gb1 + p21 * gb2
+                e2 += p12 * gb1 + p22 * gb2
             if theta_true is not None:
                 v_value += 0.5 * sum((true - hat) ** 2 / gain for true, hat, gain in zip(
                     model, theta, self._adaptation_floats, strict=True) if gain > 0.0)
             f1, f2 = (0.0, 0.0) if friction is None else friction
             v_rate = (-((ks1 + f1) * sn1 * sn1 + (ks2 + f2) * sn2 * sn2)
-                      - kp * (m1 * m1 + m2 * m2) + kp * da * q_value)
+                      - (e1 * e1 + e2 * e2) / kp + kp * da * q_value)
         return LeanOutput(tau, (tau1, tau2), (sn1, sn2), (qr1, qr2), distance, v_value,
                           q_value if with_potential else None, v_rate, theta, k, limited,
                           False, damping=lam2)

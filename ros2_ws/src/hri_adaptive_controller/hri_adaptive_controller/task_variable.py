@@ -198,7 +198,9 @@ class JointReference:
     distance |dx| (m); task_velocity: -a delta_eps + a v_rest (2,) m/s, the task part of
     v_r; weighted_task_variable: a delta_eps (2,) m/s (enters the torque law, eq. 16);
     jacobian J (2, 2) m/rad; pinv J+ (2, 2) rad/m; damping lambda^2 (m^2/rad^2);
-    task: the TaskVariable (None when no task is active).
+    task: the TaskVariable (None when no task is active); pinv_rate dJ+/dt (2, 2) rad/(m s);
+    feed_forward f xdot_d (2,) m/s and feed_forward_rate its time derivative (2,) m/s^2;
+    task_rate: the time derivative of task_velocity (2,) m/s^2.
     """
 
     qdot_r: np.ndarray
@@ -212,6 +214,10 @@ class JointReference:
     pinv: np.ndarray
     damping: float
     task: TaskVariable | None
+    pinv_rate: np.ndarray | None = None
+    feed_forward: np.ndarray | None = None
+    feed_forward_rate: np.ndarray | None = None
+    task_rate: np.ndarray | None = None
 
 
 def open_outward(shape: TaskShape, reach: float) -> bool:
@@ -696,4 +702,6 @@ def joint_velocity_reference(q, dq, x_d, xdot_d, xddot_d, weight: float, weight_
     return JointReference(
         qdot_r=qdot_r, qddot_r=qddot_r, position=x, dx=dx, distance=distance,
         task_velocity=returning - weighted, weighted_task_variable=weighted, jacobian=jac,
-        pinv=pinv, damping=lam2, task=task)
+        pinv=pinv, damping=lam2, task=task, pinv_rate=pinv_dot, feed_forward=feed * xdot_d,
+        feed_forward_rate=feed * xddot_d + feed_rate * xdot_d,
+        task_rate=returning_dot - weighted_dot)

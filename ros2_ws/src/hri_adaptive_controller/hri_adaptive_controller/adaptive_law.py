@@ -24,8 +24,12 @@ text, both needed for eq. 22 to follow from eq. 16-21:
 Safety: the torque is limited by scaling the whole vector (direction kept) so that
 max |tau_i| <= effort_limit, and any non-finite intermediate result gives zero torque and a
 fault flag (theta_hat is then left unchanged). theta_hat is integrated with explicit Euler and
-projected onto a box of physically plausible values (pi1, pi3 >= 1e-3 kg m^2, pi2, b1, b2 >= 0);
-projection onto a convex set that contains the true parameters never increases V.
+projected onto a bounded box of physically plausible values (DEFAULT_THETA_LOWER, _UPPER);
+projection onto a convex set that contains the true parameters never increases V. eq. 19 is
+paused (a dead zone in state) where its premise fails: scaled by 1 - w near a joint limit (w
+the barrier's proximity, joint_limits: at the stop its force is outside the model) and off
+while the torque is clamped (the drive does not apply the law's torque); the s-term of V is
+then not decreased by the update, and theta_hat stays where it was.
 
 Two paths compute the same step. `AdaptiveController.step` is the general numpy code, the
 reference (any caller, every argument checked). `AdaptiveController.step_lean` is the 1 kHz
@@ -71,10 +75,13 @@ from hri_core.potential import TaskShape
 PARAMETER_COUNT = 7
 PARAMETER_NAMES = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
 
-# Box for the projection of theta_hat: inertias positive, friction and pi2 = m2 l1 lc2 >= 0,
-# the gravity moments (unused by a horizontal arm) free.
-DEFAULT_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, -math.inf, -math.inf)
-DEFAULT_THETA_UPPER = (math.inf,) * PARAMETER_COUNT
+# Box for the projection of theta_hat (physical bounds): inertias positive, friction,
+# pi2 = m2 l1 lc2 and the mass moments >= 0; above, what a 2-link arm of this size (links up
+# to 0.5 m, up to 10 kg each) can have: pi1 <= 3, pi2, pi3 <= 1 kg m^2, b1, b2 <= 5 N m s/rad,
+# mlc1, mlc2 <= 10 kg m (scara_sim's arm: 0.66, 0.19, 0.13, 1.0, 0.5, 1.75, 0.54). A bounded
+# box keeps theta_hat bounded whatever the regressor sees (a stop's force, a saturated drive).
+DEFAULT_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, 0.0, 0.0)
+DEFAULT_THETA_UPPER = (3.0, 1.0, 1.0, 5.0, 5.0, 10.0, 10.0)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from hri_adaptive_controller.adaptive_law import (
 )
 from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
+from hri_adaptive_controller.joint_limits import JointLimits
 from hri_adaptive_controller.signal_hold import HandHold
 from hri_adaptive_controller.task_variable import pseudo_inverse_damping, task_potentials
 from hri_core.dynamics import (
@@ -163,7 +164,9 @@ class LoopConditions:
     target only every target_period s, as positions (the node's /target), through
     signal_hold.HandHold(target_filter_time, max_target_extrapolation); None: the exact
     target. command_delay (periods >= 0): the torque computed from the state at step k acts
-    from step k + command_delay on (zero before the first).
+    from step k + command_delay on (zero before the first). stops: the arm's joint limits
+    (joint_limits.JointLimits, its lower and upper; default scara_sim's), an inelastic stop as
+    scara_sim's: a joint at a limit keeps only velocity that leaves it; None: no stops.
     """
 
     params: ScaraParameters = field(default_factory=ScaraParameters)
@@ -182,6 +185,30 @@ class LoopConditions:
     target_filter_time: float = 0.05
     max_target_extrapolation: float = 0.05
     command_delay: int = 0
+    stops: JointLimits | None = field(default_factory=JointLimits)
+
+
+def recorded_target(times, positions) -> TargetTrajectory:
+    """A recorded hand: the latest sample at or before t of `positions` (N, 2|3) m at `times`
+    (N,) s (increasing); a lost frame (a NaN row) stays NaN, and the loop's hold
+    (LoopConditions.target_period) then offers nothing, like hand_sim publishing nothing.
+    Before the first sample, the first; velocity and acceleration are not known (NaN)."""
+    times = np.asarray(times, dtype=float)
+    xy = np.asarray(positions, dtype=float)[:, :2].copy()
+    if times.ndim != 1 or len(times) != len(xy) or len(times) == 0:
+        raise ValueError(f'need matching non-empty times and positions, got {times.shape} '
+                         f'and {xy.shape}')
+    seen = np.flatnonzero(np.all(np.isfinite(xy), axis=1))
+    if seen.size == 0:
+        raise ValueError('the recorded hand is never seen')
+    xy[:seen[0]] = xy[seen[0]]  # before the hand is first seen: where it is first seen
+    unknown = np.full(2, math.nan)
+
+    def sample(t: float) -> TargetSample:
+        index = max(int(np.searchsorted(times, t, side='right')) - 1, 0)
+        return xy[index].copy(), unknown.copy(), unknown.copy()
+
+    return sample
 
 
 class _Run:
@@ -249,7 +276,8 @@ class _Run:
         hand = self.hand
         if hand is not None:
             if t >= self.next_target - 1e-9 * self.conditions.dt:
-                hand.offer(tuple(x_d.tolist()), float(t))
+                if math.isfinite(x_d[0]) and math.isfinite(x_d[1]):  # a lost frame: nothing
+                    hand.offer(tuple(x_d.tolist()), float(t))
                 self.next_target += self.conditions.target_period
             held_x, held_v = hand.evaluate(float(t))
             x_d, xdot_d, xddot_d = np.array(held_x), np.array(held_v), np.zeros(2)
@@ -304,7 +332,17 @@ class _Run:
         state = rk4_step_floats((*q, *dq), applied.tolist(), dt, self.constants)
         if not all(map(math.isfinite, state)):
             raise ValueError(f'the arm\'s state became non-finite at t = {t:.3f} s: {state}')
-        self.q, self.dq = state[:2], state[2:]
+        q1, q2, w1, w2 = state
+        stops = c.stops
+        if stops is not None:  # scara_sim's inelastic stop (simulation.clamp_to_joint_limits)
+            (low1, low2), (high1, high2) = stops.lower, stops.upper
+            if q1 <= low1 or q1 >= high1:
+                w1 = 0.0 if (q1 <= low1 and w1 < 0.0) or (q1 >= high1 and w1 > 0.0) else w1
+                q1 = min(max(q1, low1), high1)
+            if q2 <= low2 or q2 >= high2:
+                w2 = 0.0 if (q2 <= low2 and w2 < 0.0) or (q2 >= high2 and w2 > 0.0) else w2
+                q2 = min(max(q2, low2), high2)
+        self.q, self.dq = (q1, q2), (w1, w2)
 
     def _record(self, i: int, out, weight, x_d, applied) -> None:
         c, q, rows, scalars = self.conditions, self.q, self.rows, self.scalars

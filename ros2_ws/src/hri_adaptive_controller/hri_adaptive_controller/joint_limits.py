@@ -49,10 +49,10 @@ q_f following q* through a slew limit and a critically damped second-order filte
 dq_f/dt continuous, so u's exact time derivative -Dcap k (qdot - dq_f/dt) is continuous and
 the torque does not step). The goal is the hand's nearest reachable point (follow tasks) or
 the point of the region's annulus towards the arm (d1 > 0), projected onto the reachable
-annulus [inner_radius, outer_radius] and into the joint box (q* clamped GOAL_MARGIN band
-inside the limits: the joint-space straight line stays in the convex box, away from every stop). The
-task's force is weighted (1 - sigma) with its Q in V; the joint motion needs no force of its
-own (V's s-term converges s, and qdot = qdot_r then moves q to q_f). While sigma ramps, V
+annulus and into the joint box (q* clamped GOAL_MARGIN band inside the limits: the
+joint-space straight line stays in the convex box, away from every stop). The task's force
+is weighted (1 - sigma) with its Q in V; the joint motion needs no force of its own (V's
+s-term converges s, and qdot = qdot_r then moves q to q_f). While sigma ramps, V
 gains sigma-rate terms like eq. 22's (da/dt) Q, bounded and over a finite time.
 Avoid tasks (open outward) never reach round: they move away from the hand.
 """
@@ -65,6 +65,9 @@ from hri_adaptive_controller.event_weight import EventWeightSchedule
 GOAL_MARGIN = 0.5
 """The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
 1/2: its force there is below the task's largest)."""
+
+CLAMP_COST = 1000.0
+"""Weight of the joint-box clamping against the joint distance when choosing an elbow."""
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
@@ -126,7 +129,7 @@ class ReachRoundSettings:
     filter_rate: float = 8.0
     slew: float = 2.0
     outer_margin: float = 0.03
-    inner_margin: float = 0.03
+    inner_margin: float = 0.01
     enabled: bool = True
 
     def __post_init__(self):
@@ -208,7 +211,8 @@ def workspace_radii(l1: float, l2: float, limits: JointLimits) -> tuple[float, f
 def inverse_kinematics(x1: float, x2: float, near1: float, near2: float, l1: float, l2: float,
                        limits: JointLimits) -> tuple[float, float]:
     """Joint angles (rad) that put the tip at (x1, x2) m or nearest to it, clamped GOAL_MARGIN
-    band inside the limits; of the two elbows, the one nearer to (near1, near2) after clamping."""
+    band inside the limits; of the two elbows, the one the box cuts least, then the one nearer
+    to (near1, near2)."""
     r2 = x1 * x1 + x2 * x2
     c2 = (r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
     c2 = min(max(c2, -1.0), 1.0)
@@ -219,9 +223,12 @@ def inverse_kinematics(x1: float, x2: float, near1: float, near2: float, l1: flo
         q1 = math.atan2(x2, x1) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
         # In (-pi, pi]: the nearest writing to a box centred on 0.
         q1 = math.remainder(q1, 2.0 * math.pi)
-        q1 = min(max(q1, limits.lower[0] + margin), limits.upper[0] - margin)
-        q2 = min(max(q2, limits.lower[1] + margin), limits.upper[1] - margin)
-        cost = (q1 - near1) ** 2 + (q2 - near2) ** 2
+        k1 = min(max(q1, limits.lower[0] + margin), limits.upper[0] - margin)
+        k2 = min(max(q2, limits.lower[1] + margin), limits.upper[1] - margin)
+        # A solution the box cuts short misses the point: the one that reaches first.
+        cost = (CLAMP_COST * ((k1 - q1) ** 2 + (k2 - q2) ** 2)
+                + (k1 - near1) ** 2 + (k2 - near2) ** 2)
+        q1, q2 = k1, k2
         if best is None or cost < best[0]:
             best = (cost, q1, q2)
     return best[1], best[2]
@@ -243,8 +250,7 @@ class ReachRound:
     """
 
     BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
-    CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
-    NEAR_BARRIER = 0.5  # barrier proximity above which a far goal counts as blocked
+    NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
     FAR_GOAL = 0.06  # m from the goal: far
 
     def __init__(self, settings: ReachRoundSettings, limits: JointLimits, l1: float,
@@ -308,13 +314,14 @@ class ReachRound:
             outside = (hand_radius - region[1] > self._outer - settings.outer_margin
                        or hand_radius + region[1] < self._inner + settings.inner_margin)
             if self._engaged:
-                wanted = (clearance < self._inner + self.CLEAR_CLEARANCE
-                          or (near > 0.2 and distance > 0.5 * self.FAR_GOAL)
-                          or outside)
+                # Stay on the joint-space motion until the arm is at the goal (leaving it
+                # earlier hands the arm back to the descent that was blocked).
+                wanted = (distance > 0.5 * self.FAR_GOAL or outside
+                          or clearance < self._inner + self.BLOCKED_CLEARANCE)
             else:
                 wanted = (clearance < self._inner + self.BLOCKED_CLEARANCE
                           or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL)
-                          or (outside and distance > self.FAR_GOAL))
+                          or outside)
             goal = (g1, g2)
         if wanted != self._engaged:
             self._engaged = wanted

@@ -170,10 +170,14 @@ DEFAULT_GAINS = ControllerGains(
     # K: each task's own (the learner's k; Table I's rows, which have none, get
     # hri_core.potential.default_task_gain): a1, a2 and K set the speed.
     task_gain=None,
-    # Approach floor: where the learned pull K |dP/dz| is below 0.1 m/s, the arm still moves
-    # towards the region at about 0.1 m/s and enters it (P rises from its region like
-    # (r - d)^3: without the floor the arm creeps towards the boundary forever; Table I's
-    # follow row moves at 0.3 mm/s 6 cm from its region), stopping region_margin inside it.
+    # Approach floor: where the learned pull K |dP/dz| is below the floor, the arm still moves
+    # towards the region at the floor's speed and enters it. The floor is the task's own pull
+    # 0.2 m out (task_variable.task_approach_speed), at most approach_speed = 0.1 m/s and at
+    # least 0.01 m/s: a demonstration n times slower approaches n times slower (K / 4: 3.98x
+    # the time from 0.25 m, pure loop), and Table I's rows (pull far above 0.1 m/s there) keep
+    # 0.1 m/s. Without a floor (P rises from its region like (r - d)^3) the arm creeps towards
+    # the boundary forever (Table I's follow row moves at 0.3 mm/s 6 cm from its region); with
+    # it, it stops region_margin inside the region.
     # 0.1 m/s: faster than a hand reaching in at 0.06 m/s, so avoid keeps its distance; in the
     # pure closed loop follow enters its region 2.0 s after the event (0.05 m/s: 3.1 s).
     # Set approach_speed to 0 for K |dP/dz| alone.

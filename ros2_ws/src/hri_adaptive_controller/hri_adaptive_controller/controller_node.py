@@ -140,8 +140,9 @@ PARAMETERS = {
     'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
-    'approach_speed': ParameterSpec(float, 'least speed towards the region where the pull '
-                                    'K |dP/dz| is weaker (m/s; 0: none)', low=0.0, high=2.0),
+    'approach_speed': ParameterSpec(float, 'most the approach floor may be (m/s; 0: none); '
+                                    "the floor is the task's own pull 0.2 m from its region",
+                                    low=0.0, high=2.0),
     'region_margin': ParameterSpec(float, 'how far inside the learned region the approach '
                                    'speed fades out (m)', low=0.0, high=0.1),
     'rest_gain': ParameterSpec(float, 'avoid tasks: rate of the return to the rest position '

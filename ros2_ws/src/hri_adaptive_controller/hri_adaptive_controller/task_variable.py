@@ -25,7 +25,11 @@ g(r) = K dP/dr (signed, r = |dx|, e = dx / r), the task velocity is
   arm crosses the region's boundary at about v_a and stops `region_margin` inside it. Not
   applied across a boundary at or beyond the workspace (d2 >= 2 reach) nor to S = -1 tasks
   (their ridge between the regions has no one direction towards the region). v_a = 0 gives
-  Q' = cap(K dP/dr).
+  Q' = cap(K dP/dr). For a follow-type task (not open outward) v_a is the task's own pull
+  K |dP/dr| at APPROACH_REFERENCE outside d2, within [MIN_APPROACH_SPEED, approach_speed]
+  (task_approach_speed): the demonstration's pace sets the approach too, so a task learned
+  from a demonstration four times slower (K / 4) takes four times as long; avoid tasks keep
+  approach_speed (leaving a hand is not slowed by a slow demonstration).
 
 Q'(r) is C2 in r except where the quintic blends meet (C2 too), and its derivative Q'' enters
 qddot_r (eq. 18) exactly, so qdot_r and the torque are continuous in time at region entry.
@@ -75,6 +79,7 @@ from hri_core.dynamics import forward_kinematics, jacobian, jacobian_derivative
 from hri_core.potential import (
     TaskShape,
     default_task_gain,
+    log_potential_slope,
     log_radial_slopes,
     potential_gradient,
     signed_log_potential_slope,
@@ -89,6 +94,15 @@ MAX_TASK_HESSIAN = 1e6
 CAP_BAND = 0.2
 """Soft band of the speed cap above max_task_speed, as a fraction of it: the task speed is
 K |dP/dz| up to max_task_speed and never more than (1 + CAP_BAND) max_task_speed."""
+
+APPROACH_REFERENCE = 0.2
+"""m outside a follow task's region where its pull sets its approach floor
+(task_approach_speed): the distance an approach is measured over, inside the arm's reach."""
+
+MIN_APPROACH_SPEED = 0.01
+"""m/s: the least approach floor, whatever the demonstration's pace: at it, 0.2 m take 20 s
+(the slowest demonstration the learner accepts still reaches its region; below it, the
+arm's friction and a 1 mm hand jitter would set the pace, not the task)."""
 
 RADIAL_FADE = 0.01
 """m: the approach term fades out within this distance of dx = 0, where e = dx/|dx| has no
@@ -226,6 +240,20 @@ def open_outward(shape: TaskShape, reach: float) -> bool:
     return shape.s == -1 or shape.d2 >= 2.0 * reach
 
 
+def task_approach_speed(shape: TaskShape, log_gain: float, approach_speed: float) -> float:
+    """The approach floor v_a (m/s) of a follow-type task: its own pull K |dP/dr| at
+    APPROACH_REFERENCE m outside its region, within [MIN_APPROACH_SPEED, approach_speed].
+
+    The demonstration's pace sets the floor as it sets the pull: a task learned from a
+    demonstration n times slower (K / n) approaches n times slower, down to
+    MIN_APPROACH_SPEED. log_gain: log K (K in m^2/s).
+    """
+    log_slope = float(log_potential_slope(np.array([shape.d2 + APPROACH_REFERENCE]),
+                                          shape)[0])
+    pull = math.exp(min(log_gain + log_slope, _LOG_SPEED_LIMIT))
+    return min(approach_speed, max(MIN_APPROACH_SPEED, pull))
+
+
 def task_drive(shape: TaskShape, k: float, max_task_speed: float, reach: float,
                approach_speed: float = 0.0, region_margin: float = 0.0,
                rest_gain: float = 0.0, rest_gate: float = 0.01) -> TaskDrive:
@@ -246,6 +274,8 @@ def task_drive(shape: TaskShape, k: float, max_task_speed: float, reach: float,
     log_gain = math.log(k) if k > 0.0 else default_task_gain(shape, v_max, reach)
     outward = open_outward(shape, reach)
     floor = approach_speed if shape.s == 1 and shape.d2 > shape.d1 else 0.0
+    if floor > 0.0 and not outward:
+        floor = task_approach_speed(shape, log_gain, floor)
     margin = min(region_margin, 0.25 * (shape.d2 - shape.d1)) if floor > 0.0 else 0.0
     return TaskDrive(shape, log_gain, v_max, floor, margin, outward, rest_gain, gate,
                      outer_floor=floor > 0.0 and not outward)

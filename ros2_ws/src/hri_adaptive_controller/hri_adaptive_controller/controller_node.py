@@ -43,6 +43,12 @@ Safety (the choices are argued in docs/design-notes.md):
   (`target_filter_time`); its acceleration is taken as 0; between targets the hand is held
   to first order (at most MAX_TARGET_EXTRAPOLATION) and each new /target is blended in over
   its message period (signal_hold.HandHold), so a fast hand does not step the task term;
+- a /target no hand could have reached (faster than `target_max_speed`, or off its predicted
+  path by more than `target_max_acceleration` allows: a marker swap) is held, not followed,
+  and counted in ControllerState.target_glitches; a place held samples keep to for 0.2 s is
+  taken as the hand's and glided to (target_filter); no /target accepted for
+  `target_timeout` s fades the task out over `task_fade_time` (status target_lost), and in
+  again when the hand returns;
 - the task's K comes with its TaskState (0: hri_core.potential.default_task_gain); an avoid
   task returns the arm to `rest_position`, by default where the arm was when the task became
   active (task_variable's module docstring).
@@ -80,7 +86,8 @@ from hri_adaptive_controller.event_weight import (
     WeightState,
 )
 from hri_adaptive_controller.joint_limits import JointLimits
-from hri_adaptive_controller.signal_hold import HandHold, TaskWeightHold
+from hri_adaptive_controller.signal_hold import TaskWeightHold
+from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_core import topics
 from hri_core.cdr import (
     POSITION,
@@ -181,6 +188,14 @@ PARAMETERS = {
                                     "the task's largest)", low=0.0, high=100.0),
     'reach_round': ParameterSpec(bool, 'blend in a joint-space motion where the straight '
                                  'task-space descent is blocked or the hand out of reach'),
+    'target_max_speed': ParameterSpec(float, 'a /target implying a faster hand is held as a '
+                                      'glitch (m/s)', low=0.1, high=100.0, read_only=True),
+    'target_max_acceleration': ParameterSpec(float, 'a /target off the predicted hand path by '
+                                             'more than this allows is held as a glitch '
+                                             '(m/s^2)', low=1.0, high=1e4, read_only=True),
+    'target_timeout': ParameterSpec(float, 'no /target accepted for this long: the task fades '
+                                    'out over task_fade_time (s)', low=0.01, high=3600.0,
+                                    read_only=True),
     'l1': ParameterSpec(float, 'link 1 length (m)', low=0.01, high=5.0, read_only=True),
     'l2': ParameterSpec(float, 'link 2 length (m)', low=0.01, high=5.0, read_only=True),
     'gravity': ParameterSpec(float, 'gravity in the arm plane (m/s^2; 0 horizontal)',
@@ -254,7 +269,12 @@ class Controller(Node):
                                      strict=False)
         self._target = None  # the latest hand position (x, y), m
         self._target_gate = StampGate(values['restart_jump'], values['restart_confirm'])
-        self._hand = HandHold(values['target_filter_time'], MAX_TARGET_EXTRAPOLATION)
+        self._hand = FilteredHand(TargetFilterSettings(
+            max_speed=values['target_max_speed'],
+            max_acceleration=values['target_max_acceleration'],
+            filter_time=values['target_filter_time'],
+            max_extrapolation=MAX_TARGET_EXTRAPOLATION, timeout=values['target_timeout'],
+            fade_time=values['task_fade_time']))
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
         # a(E, t) of the task in force; its payload: (shape or None, k).
@@ -468,8 +488,11 @@ class Controller(Node):
             self.get_logger().info('targets restarted behind the last one: following the new '
                                    'source')
             self._hand.reset()
+        if not self._hand.offer(stamp, (x, y)):
+            self._warn('target_glitch', f'target held: a jump to {[round(x, 3), round(y, 3)]} '
+                       f'no hand can make ({self._hand.glitches} held so far)')
+            return
         self._target = (x, y)  # plain floats: what the per-cycle step computes with
-        self._hand.offer(self._target, stamp)
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -611,18 +634,24 @@ class Controller(Node):
         shape = k = None
         if held is not None:
             key, (shape, k), task_weight, task_rate = held
-        if shape is None or link.weight == 0.0:
+        # The hand's presence (target_filter): faded out while no /target is accepted.
+        hand = self._hand.presence(self._joint_stamp)
+        if shape is None or link.weight == 0.0 or hand.weight == 0.0:
             weight, rate, shape = 0.0, 0.0, None
         else:
-            # a = a_task * a_link: both continuous ramps, so is their product.
-            weight = task_weight * link.weight
-            rate = task_rate * link.weight + task_weight * link.rate
+            # a = a_task * a_link * a_hand: continuous ramps, so is their product.
+            weight = task_weight * link.weight * hand.weight
+            rate = (task_rate * link.weight * hand.weight
+                    + task_weight * link.rate * hand.weight
+                    + task_weight * link.weight * hand.rate)
             if self._rest_key != key:
                 self._rest_key = key
                 if self._fixed_rest is None:
                     x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
                     self._rest = (float(x[0]), float(x[1]))
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
+        if hand.phase in (PHASE_FADING_OUT, PHASE_IDLE):
+            self._status = 'target_lost'
         self._weight = weight
         # The hand where it is at the joint state's time, from the stamps (receive times would
         # add the callbacks' delays, 2.5 mm per 5 ms at 0.5 m/s).
@@ -650,7 +679,7 @@ class Controller(Node):
             self._rate = (self._cycles - ticks) / (now - started)
             self._window = (now, self._cycles)
         msg = ControllerState(deadline_misses=self._misses, rate_hz=self._rate,
-                              input_age=self._input_age,
+                              input_age=self._input_age, target_glitches=self._hand.glitches,
                               status=self._status, effort=[float(v) for v in command],
                               theta_hat=[float(v) for v in self._law.theta_hat])
         msg.header.stamp = Time(nanoseconds=published).to_msg()

@@ -61,9 +61,9 @@ class RecordedMotion:
         return np.all(np.isfinite(self.positions), axis=1)
 
 
-def _header_line(rows: list[list[str]], index: int, what: str) -> list[str]:
+def _header_line(rows: list[list[str]], index: int, what: str, name: str) -> list[str]:
     if len(rows) <= index:
-        raise ValueError(f'not a Vicon CSV export: the file ends before its {what} line')
+        raise ValueError(f'{name} is not a Vicon CSV export: it ends before its {what} line')
     return rows[index]
 
 
@@ -100,19 +100,19 @@ def read_vicon_csv(path, segment: str = 'right_hand', placement: Placement = Pla
         raise ValueError(f'cannot read {path.name}: {error}') from None
     if not rows or [c.strip() for c in rows[0][:1]] != ['Objects']:
         raise ValueError(f"{path.name} is not a Vicon CSV export: line 1 is not 'Objects'")
-    rate_cells = [c for c in _header_line(rows, 1, 'frame-rate') if c.strip()]
+    rate_cells = [c for c in _header_line(rows, 1, 'frame-rate', path.name) if c.strip()]
     try:
         rate_hz = float(rate_cells[0])
     except (IndexError, ValueError):
         raise ValueError(f'{path.name}: line 2 must be the frame rate in Hz') from None
     if not (math.isfinite(rate_hz) and rate_hz > 0.0):
         raise ValueError(f'{path.name}: frame rate must be positive, got {rate_hz}')
-    column = _segment_column(_header_line(rows, 2, 'segment-name'), segment)
-    labels = [c.strip() for c in _header_line(rows, 3, 'column-label')]
+    column = _segment_column(_header_line(rows, 2, 'segment-name', path.name), segment)
+    labels = [c.strip() for c in _header_line(rows, 3, 'column-label', path.name)]
     if labels[:1] != ['Frame'] or tuple(labels[column:column + 6]) != SEGMENT_COLUMNS:
         raise ValueError(f"{path.name}: line 4 must read 'Frame,Sub Frame' and "
                          f"{','.join(SEGMENT_COLUMNS)} under segment '{segment}'")
-    units = [c.strip() for c in _header_line(rows, 4, 'unit')][column + 3:column + 6]
+    units = [c.strip() for c in _header_line(rows, 4, 'unit', path.name)][column + 3:column + 6]
     if units != ['mm'] * 3:
         raise ValueError(f"{path.name}: positions of '{segment}' must be in mm, got {units}")
     frames, points = [], []
@@ -223,3 +223,45 @@ def reach_fraction(positions, reach: ReachAnnulus) -> float:
         return 0.0
     radius = np.hypot(xy[:, 0], xy[:, 1])
     return float(np.mean((radius >= reach.inner) & (radius <= reach.outer)))
+
+
+AT_END = ('loop', 'stop', 'hold')
+
+
+class Replay:
+    """A take replayed at its recorded pace: which frame is due `elapsed` s after the start.
+
+    motion: the take (already in the base frame); placement: the transform it was placed with
+    (kept for the record). at_end: 'loop' (start again one frame period after the last frame),
+    'stop' (nothing more), or 'hold' (the last seen frame for good, its time advancing with
+    `elapsed`).
+    `due(elapsed)` gives (index, time of that frame since the start in s) of the newest frame
+    at or before `elapsed`, or None when none is due (after the end with 'stop'). The caller
+    publishes each frame time once, and nothing for a lost frame (`motion.valid[index]`).
+    """
+
+    def __init__(self, motion: RecordedMotion, at_end: str = 'loop',
+                 placement: Placement = Placement()):
+        if at_end not in AT_END:
+            raise ValueError(f"at_end must be one of {', '.join(AT_END)}, got {at_end!r}")
+        self.motion, self.at_end, self.placement = motion, at_end, placement
+        times = motion.times
+        period = float(np.median(np.diff(times))) if len(times) > 1 else 1.0 / motion.rate_hz
+        self.cycle = float(times[-1]) + period          # s, one pass when looping
+        self._last_seen = int(np.flatnonzero(motion.valid)[-1])
+
+    def due(self, elapsed: float) -> tuple[int, float] | None:
+        times = self.motion.times
+        if elapsed < 0.0:
+            return None
+        offset = 0.0
+        if elapsed > times[-1]:
+            if self.at_end == 'stop':
+                return None
+            if self.at_end == 'hold':
+                return self._last_seen, float(elapsed)
+            passes = math.floor(elapsed / self.cycle)
+            offset = passes * self.cycle
+            elapsed -= offset
+        index = int(np.searchsorted(times, elapsed, side='right')) - 1
+        return index, float(times[index] + offset)

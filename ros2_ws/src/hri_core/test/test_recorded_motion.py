@@ -9,6 +9,7 @@ import pytest
 from hri_core.recorded_motion import (
     Placement,
     ReachAnnulus,
+    Replay,
     choose_placement,
     reach_fraction,
     read_vicon_csv,
@@ -165,3 +166,29 @@ def test_placement_needs_a_seen_frame_and_a_sane_annulus():
         choose_placement(np.full((5, 3), np.nan), SCARA_REACH)
     with pytest.raises(ValueError, match='inner < outer'):
         ReachAnnulus(inner=0.7, outer=0.65)
+
+
+def three_frames(tmp_path, lost_last=False):
+    rows = [(1, {'right_hand': (400.0, 0.0, 0.0)}), (2, {'right_hand': (410.0, 0.0, 0.0)}),
+            (3, {} if lost_last else {'right_hand': (420.0, 0.0, 0.0)})]
+    return read_vicon_csv(write(tmp_path, vicon_text(rows)))
+
+
+def test_replay_loops_at_the_recorded_pace(tmp_path):
+    replay = Replay(three_frames(tmp_path), 'loop')
+    assert replay.cycle == pytest.approx(0.03)
+    assert replay.due(0.0) == (0, 0.0)
+    assert replay.due(0.015) == (1, pytest.approx(0.01))
+    assert replay.due(0.029) == (2, pytest.approx(0.02))
+    assert replay.due(0.031) == (0, pytest.approx(0.03))       # the second pass
+    assert replay.due(0.075) == (1, pytest.approx(0.07))      # the third
+
+
+def test_replay_stops_or_holds_the_last_seen_frame(tmp_path):
+    stop = Replay(three_frames(tmp_path), 'stop')
+    assert stop.due(0.02)[0] == 2 and stop.due(0.021) is None
+    hold = Replay(three_frames(tmp_path, lost_last=True), 'hold')
+    assert hold.due(0.02) == (2, pytest.approx(0.02))          # the lost frame is due ...
+    assert hold.due(0.5) == (1, 0.5)                           # ... then the last seen one
+    with pytest.raises(ValueError, match='at_end must be one of loop, stop, hold'):
+        Replay(three_frames(tmp_path), 'rewind')

@@ -65,6 +65,7 @@ from hri_adaptive_controller.task_variable import (
     TaskDrive,
     joint_velocity_reference,
     rest_term,
+    speed_cap,
     task_drive,
     task_potential,
     task_term,
@@ -73,6 +74,8 @@ from hri_core.dynamics import regressor
 from hri_core.potential import TaskShape
 
 PARAMETER_COUNT = 7
+FEED_FORWARD_RATIO = 2.0
+"""The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
 PARAMETER_NAMES = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
 
 # Box for the projection of theta_hat (physical bounds): inertias positive, friction,
@@ -375,6 +378,7 @@ class AdaptiveController:
         self._adaptation_floats = tuple(self._adaptation.tolist())
         self._box = tuple(zip(gains.theta_lower, gains.theta_upper, strict=True))
         self._threshold2 = gains.damping.threshold ** 2
+        self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._max_damping2 = gains.damping.max_damping ** 2
         # Joint limits (joint_limits): the barrier needs Kp > 0 (its reference is g / Kp).
         self._limits = gains.joint_limits if gains.kp > 0.0 else None
@@ -459,6 +463,17 @@ class AdaptiveController:
         r11, r12, r21, r22 = pinv_rate
         ff1, ff2, zf1, zf2 = feed
         vt1, vt2, zt1, zt2 = task
+        speed = math.hypot(ff1, ff2)
+        if speed > self._feed_speed:
+            # The hand's velocity fed forward at most FEED_FORWARD_RATIO v_max (the smooth
+            # cap of task_variable, C2): the arm is not asked to keep up with a hand faster
+            # than it may move (a toss at 3 m/s saturated the drives for 0.4 s).
+            capped, slope = speed_cap(speed, self._feed_speed)
+            ratio = capped / speed
+            n1, n2 = ff1 / speed, ff2 / speed
+            along = (n1 * zf1 + n2 * zf2) * (slope - ratio)
+            ff1, ff2, zf1, zf2 = (ratio * ff1, ratio * ff2, ratio * zf1 + n1 * along,
+                                  ratio * zf2 + n2 * along)
         f1, f2 = p11 * ff1 + p12 * ff2, p21 * ff1 + p22 * ff2
         fa1 = r11 * ff1 + r12 * ff2 + (p11 * zf1 + p12 * zf2)
         fa2 = r21 * ff1 + r22 * ff2 + (p21 * zf1 + p22 * zf2)

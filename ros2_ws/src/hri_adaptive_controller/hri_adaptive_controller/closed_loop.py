@@ -19,6 +19,7 @@ Targets are callables t -> (x_d, xdot_d, xddot_d) in m, m/s, m/s^2 (shapes (2,))
 default where the end-effector was when the task became active (as the controller node).
 """
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -33,7 +34,7 @@ from hri_adaptive_controller.adaptive_law import (
 from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
 from hri_adaptive_controller.joint_limits import JointLimits
-from hri_adaptive_controller.signal_hold import HandHold
+from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_adaptive_controller.task_variable import pseudo_inverse_damping, task_potentials
 from hri_core.dynamics import (
     ScaraParameters,
@@ -161,9 +162,11 @@ class LoopConditions:
     -> K (m^2/s; missing or 0 = default_task_gain); rest_position (2,) m or None;
     reference_step: run AdaptiveController.step (numpy, 12x slower) instead of step_lean (the
     node's path; the two agree to 1e-12). target_period (s) or None: the controller sees the
-    target only every target_period s, as positions (the node's /target), through
-    signal_hold.HandHold(target_filter_time, max_target_extrapolation); None: the exact
-    target. command_delay (periods >= 0): the torque computed from the state at step k acts
+    target only every target_period s, as positions (the node's /target), through the node's
+    glitch filter and hold (target_filter.FilteredHand with target_filter, its filter_time and
+    max_extrapolation set from target_filter_time and max_target_extrapolation), and a is
+    multiplied by the hand's presence weight (a lost hand fades the task out); None: the
+    exact target. command_delay (periods >= 0): the torque computed from the state at step k acts
     from step k + command_delay on (zero before the first). stops: the arm's joint limits
     (joint_limits.JointLimits, its lower and upper; default scara_sim's), an inelastic stop as
     scara_sim's: a joint at a limit keeps only velocity that leaves it; None: no stops.
@@ -185,6 +188,7 @@ class LoopConditions:
     target_filter_time: float = 0.05
     max_target_extrapolation: float = 0.05
     command_delay: int = 0
+    target_filter: TargetFilterSettings = field(default_factory=TargetFilterSettings)
     stops: JointLimits | None = field(default_factory=JointLimits)
 
 
@@ -236,8 +240,10 @@ class _Run:
         if int(c.command_delay) != c.command_delay or c.command_delay < 0:
             raise ValueError(f'command_delay must be an integer >= 0, got {c.command_delay}')
         self.conditions, self.tasks, self.target = c, tasks, target
-        self.hand = None if c.target_period is None else HandHold(c.target_filter_time,
-                                                                  c.max_target_extrapolation)
+        self.hand = None if c.target_period is None else FilteredHand(dataclasses.replace(
+            c.target_filter, filter_time=c.target_filter_time,
+            max_extrapolation=c.max_target_extrapolation))
+        self.presence = None
         self.next_target = 0.0
         self.limiter = EffortRateLimiter(c.gains.max_effort_rate)
         self.in_flight = [np.zeros(2)] * int(c.command_delay)
@@ -277,10 +283,13 @@ class _Run:
         if hand is not None:
             if t >= self.next_target - 1e-9 * self.conditions.dt:
                 if math.isfinite(x_d[0]) and math.isfinite(x_d[1]):  # a lost frame: nothing
-                    hand.offer(tuple(x_d.tolist()), float(t))
+                    hand.offer(float(t), tuple(x_d.tolist()))
                 self.next_target += self.conditions.target_period
-            held_x, held_v = hand.evaluate(float(t))
-            x_d, xdot_d, xddot_d = np.array(held_x), np.array(held_v), np.zeros(2)
+            held = hand.evaluate(float(t))
+            if held is None:  # no hand accepted yet: where the first sample is
+                held = (tuple(x_d.tolist()), (0.0, 0.0))
+            self.presence = hand.presence(float(t))
+            x_d, xdot_d, xddot_d = np.array(held[0]), np.array(held[1]), np.zeros(2)
         return x_d, xdot_d, xddot_d
 
     def step(self, i: int, t: float) -> None:
@@ -302,6 +311,14 @@ class _Run:
                 np.array(q), params.l1, params.l2)
         rest = self.rest
         x_d, xdot_d, xddot_d = self._hand_at(t)
+        presence = self.presence
+        if presence is not None and presence.weight < 1.0:
+            # a times the hand's presence (as the node): both C2 ramps, so is their product.
+            weight = weight._replace(
+                weight=weight.weight * presence.weight,
+                rate=weight.rate * presence.weight + weight.weight * presence.rate)
+            if weight.weight == 0.0:
+                shape = None
         k = self.gains_k.get(name, 0.0)
         if c.reference_step:
             out = self.controller.step(

@@ -43,12 +43,13 @@ through the hole round the base, a joint sits in its band while the goal is far,
 is out of reach), a joint-space motion towards an inverse-kinematics solution q* of the
 goal is blended in with a weight sigma (eq. 13's C2 ramp, event_weight):
 
-    qdot_r = (1 - sigma) qdot_r,task + sigma u,   u = -cap(k (q - q_f)),
+    qdot_r = (1 - sigma) qdot_r,task + sigma u,   u = dq_f/dt - cap(k (q - q_f)),
 
 q_f following q* through a slew limit and a critically damped second-order filter (q_f,
-dq_f/dt continuous, so u's exact time derivative -Dcap k (qdot - dq_f/dt) is continuous and
-the torque does not step). The goal is the hand's nearest reachable point (follow tasks) or
-the point of the region's annulus towards the arm (d1 > 0), projected onto the reachable
+d2q_f/dt2 continuous, so u's exact time derivative d2q_f/dt2 - Dcap k (qdot - dq_f/dt) is
+continuous and the torque does not step). The goal is the hand's nearest reachable point
+(follow tasks) or the point of the region's annulus towards the arm (d1 > 0), projected onto
+the reachable
 annulus and into the joint box (q* clamped GOAL_MARGIN band inside the limits: the
 joint-space straight line stays in the convex box, away from every stop). The task's force
 is weighted (1 - sigma) with its Q in V; the joint motion needs no force of its own (V's
@@ -123,11 +124,11 @@ class ReachRoundSettings:
     reach; enabled: False leaves sigma at 0.
     """
 
-    gain: float = 3.0
-    max_speed: float = 1.2
+    gain: float = 4.0
+    max_speed: float = 2.0
     blend_time: float = 0.5
     filter_rate: float = 8.0
-    slew: float = 2.0
+    slew: float = 3.0
     outer_margin: float = 0.03
     inner_margin: float = 0.01
     enabled: bool = True
@@ -250,6 +251,8 @@ class ReachRound:
     """
 
     BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
+    CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
+    STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
     NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
     FAR_GOAL = 0.06  # m from the goal: far
 
@@ -314,10 +317,16 @@ class ReachRound:
             outside = (hand_radius - region[1] > self._outer - settings.outer_margin
                        or hand_radius + region[1] < self._inner + settings.inner_margin)
             if self._engaged:
-                # Stay on the joint-space motion until the arm is at the goal (leaving it
+                # Stay on the joint-space motion until the arm is at the goal or the straight
+                # descent would get there: the path clear of the hole, no joint near a limit,
+                # the goal on the arm's elbow and within STRAIGHT_TURN of its joint 1 (leaving
                 # earlier hands the arm back to the descent that was blocked).
-                wanted = (distance > 0.5 * self.FAR_GOAL or outside
-                          or clearance < self._inner + self.BLOCKED_CLEARANCE)
+                t1, t2 = inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self.limits)
+                straight = (clearance >= self._inner + self.CLEAR_CLEARANCE
+                            and near < 0.5 * self.NEAR_BARRIER and t2 * q2 > 0.0
+                            and abs(t1 - q1) < self.STRAIGHT_TURN)
+                wanted = (outside or clearance < self._inner + self.BLOCKED_CLEARANCE
+                          or (distance > 0.5 * self.FAR_GOAL and not straight))
             else:
                 wanted = (clearance < self._inner + self.BLOCKED_CLEARANCE
                           or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL)
@@ -342,9 +351,12 @@ class ReachRound:
             q_in1 += min(max(t1 - q_in1, -step), step)
             q_in2 += min(max(t2 - q_in2, -step), step)
         omega = settings.filter_rate
-        # Critically damped second-order filter (semi-implicit Euler).
-        df1 += dt * (omega * omega * (q_in1 - f1) - 2.0 * omega * df1)
-        df2 += dt * (omega * omega * (q_in2 - f2) - 2.0 * omega * df2)
+        # Critically damped second-order filter (semi-implicit Euler); its acceleration is
+        # continuous (q_in is), so the feed-forward of dq_f steps nothing.
+        acc1 = omega * omega * (q_in1 - f1) - 2.0 * omega * df1
+        acc2 = omega * omega * (q_in2 - f2) - 2.0 * omega * df2
+        df1 += dt * acc1
+        df2 += dt * acc2
         f1 += dt * df1
         f2 += dt * df2
         self._filtered = (q_in1, q_in2, f1, f2, df1, df2)
@@ -356,11 +368,12 @@ class ReachRound:
         speed_max = settings.max_speed
         raw = k * norm
         if raw <= 1e-12:
-            return sigma, sigma_rate, -k * e1, -k * e2, -k * de1, -k * de2
+            return (sigma, sigma_rate, df1 - k * e1, df2 - k * e2, acc1 - k * de1,
+                    acc2 - k * de2)
         capped = speed_max * math.tanh(raw / speed_max)
         slope = 1.0 / math.cosh(raw / speed_max) ** 2 * k  # d capped / d norm
         scale = capped / norm  # u = -scale e
         along = (e1 * de1 + e2 * de2) / norm  # d norm / dt
         dscale = (slope - scale) / norm * along
-        return (sigma, sigma_rate, -scale * e1, -scale * e2,
-                -(scale * de1 + dscale * e1), -(scale * de2 + dscale * e2))
+        return (sigma, sigma_rate, df1 - scale * e1, df2 - scale * e2,
+                acc1 - (scale * de1 + dscale * e1), acc2 - (scale * de2 + dscale * e2))

@@ -125,10 +125,10 @@ class ReachRoundSettings:
     """
 
     gain: float = 4.0
-    max_speed: float = 2.0
+    max_speed: float = 1.0
     blend_time: float = 0.5
     filter_rate: float = 8.0
-    slew: float = 3.0
+    slew: float = 1.0
     outer_margin: float = 0.03
     inner_margin: float = 0.01
     enabled: bool = True
@@ -253,6 +253,7 @@ class ReachRound:
     BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
     CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
     STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
+    STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
     NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
     FAR_GOAL = 0.06  # m from the goal: far
 
@@ -319,12 +320,14 @@ class ReachRound:
             if self._engaged:
                 # Stay on the joint-space motion until the arm is at the goal or the straight
                 # descent would get there: the path clear of the hole, no joint near a limit,
-                # the goal on the arm's elbow and within STRAIGHT_TURN of its joint 1 (leaving
+                # the goal on the arm's elbow and within STRAIGHT_TURN of its joint 1, the arm
+                # off the stretched singularity (leaving
                 # earlier hands the arm back to the descent that was blocked).
                 t1, t2 = inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self.limits)
                 straight = (clearance >= self._inner + self.CLEAR_CLEARANCE
                             and near < 0.5 * self.NEAR_BARRIER and t2 * q2 > 0.0
-                            and abs(t1 - q1) < self.STRAIGHT_TURN)
+                            and abs(t1 - q1) < self.STRAIGHT_TURN
+                            and abs(q2) > self.STRETCHED)
                 wanted = (outside or clearance < self._inner + self.BLOCKED_CLEARANCE
                           or (distance > 0.5 * self.FAR_GOAL and not straight))
             else:

@@ -65,6 +65,7 @@ from hri_adaptive_controller.task_variable import (
     TaskDrive,
     joint_velocity_reference,
     rest_term,
+    retreat_term,
     speed_cap,
     task_drive,
     task_potential,
@@ -74,6 +75,8 @@ from hri_core.dynamics import regressor
 from hri_core.potential import TaskShape
 
 PARAMETER_COUNT = 7
+HAND_RATE = 40.0
+"""1/s: the hand-velocity filter of an avoid task's retreat (lag 2 / HAND_RATE = 50 ms)."""
 FEED_FORWARD_RATIO = 2.0
 """The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
 PARAMETER_NAMES = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
@@ -405,6 +408,7 @@ class AdaptiveController:
         self._theta = tuple(self._theta_hat.tolist())
         if self._reach is not None:
             self._reach.reset()
+        self._hand_velocity = (0.0, 0.0, 0.0, 0.0)
 
     @property
     def reaching_round(self) -> bool:
@@ -447,6 +451,22 @@ class AdaptiveController:
         """Task gain K (m^2/s) used for `shape` with gain k (0 for no task)."""
         drive = self.drive(shape, k)
         return 0.0 if drive is None else drive.task_gain
+
+    def _smooth_hand_velocity(self, xdot_d, dt: float):
+        """The hand's velocity through a critically damped second-order filter (HAND_RATE),
+        advanced by dt: (v1, v2, dv1/dt, dv2/dt). The estimate steps at each /target; the
+        avoid tasks' retreat (task_variable.retreat_term) acts on this one, whose rate is
+        continuous, so the torque does not step with the messages."""
+        v1, v2, a1, a2 = self._hand_velocity
+        omega = HAND_RATE
+        j1 = omega * omega * (xdot_d[0] - v1) - 2.0 * omega * a1
+        j2 = omega * omega * (xdot_d[1] - v2) - 2.0 * omega * a2
+        a1, a2 = a1 + dt * j1, a2 + dt * j2
+        v1, v2 = v1 + dt * a1, v2 + dt * a2
+        if not all(map(math.isfinite, (v1, v2, a1, a2))):
+            v1 = v2 = a1 = a2 = 0.0
+        self._hand_velocity = (v1, v2, a1, a2)
+        return self._hand_velocity
 
     def _limited_reference(self, state, hand, drive, pinv, pinv_rate, feed, task, dt: float):
         """qdot_r, qddot_r with the joint limits (joint_limits): the barrier, the gated
@@ -537,6 +557,9 @@ class AdaptiveController:
             return self._fault(theta_hat, k, 'non-finite joint state, target or da/dt')
         q, dq, x_d, xdot_d, xddot_d = measurements
         gains = self._gains
+        hand = self._smooth_hand_velocity(tuple(xdot_d.tolist()), dt)
+        if shaped is not None and shaped.open_outward:  # as step_lean
+            xdot_d, xddot_d = np.array(hand[:2]), np.array(hand[2:])
         try:
             with np.errstate(all='ignore'):
                 reference = joint_velocity_reference(
@@ -544,13 +567,21 @@ class AdaptiveController:
                     gains.damping, rest)
         except ValueError as error:
             return self._fault(theta_hat, k, str(error))
+        task_velocity, task_rate = reference.task_velocity, reference.task_rate
+        if shaped is not None and shaped.open_outward:
+            xv1, xv2 = (reference.jacobian @ dq).tolist()
+            (dx1, dx2), (hv1, hv2, ha1, ha2) = reference.dx.tolist(), hand
+            e1, e2, de1, de2 = retreat_term(dx1, dx2, xv1 - hv1, xv2 - hv2, hv1, hv2, ha1,
+                                            ha2, shaped)
+            task_velocity = task_velocity + a * np.array([e1, e2])
+            task_rate = task_rate + da * np.array([e1, e2]) + a * np.array([de1, de2])
         with np.errstate(all='ignore'):
             floats = [float(v) for v in (*q, *dq, *reference.position)]
             qr1, qr2, ar1, ar2, scale, g1, g2, near = self._limited_reference(
                 floats, tuple(x_d.tolist()), shaped, tuple(reference.pinv.ravel().tolist()),
                 tuple(reference.pinv_rate.ravel().tolist()),
                 (*reference.feed_forward.tolist(), *reference.feed_forward_rate.tolist()),
-                (*reference.task_velocity.tolist(), *reference.task_rate.tolist()), dt)
+                (*task_velocity.tolist(), *task_rate.tolist()), dt)
             qdot_r, qddot_r = np.array([qr1, qr2]), np.array([ar1, ar2])
             barrier_gradient = np.array([g1, g2])
             s = dq - qdot_r
@@ -608,6 +639,7 @@ class AdaptiveController:
         q1, q2 = q
         w1, w2 = dq
         l1, l2 = self._l1, self._l2
+        hand = self._smooth_hand_velocity(xdot_d, dt)
         # Kinematics: x, J, dJ/dt (hri_core.dynamics.forward_kinematics, jacobian, ...).
         s1, c1 = math.sin(q1), math.cos(q1)
         s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
@@ -653,6 +685,11 @@ class AdaptiveController:
         xd1, xd2 = x_d
         vd1, vd2 = xdot_d
         ad1, ad2 = xddot_d
+        if drive is not None and drive.open_outward:
+            # An avoid task reads the hand's velocity through the filter (its rate is
+            # continuous): the estimate steps at each /target, and the arm, kept outside d1
+            # by the retreat, sits where the rest term's rate reads it.
+            vd1, vd2, ad1, ad2 = hand
         x1, x2 = l1 * c1 + l2 * c12, l1 * s1 + l2 * s12
         dx1, dx2 = x1 - xd1, x2 - xd2
         distance = math.hypot(dx1, dx2)
@@ -675,9 +712,11 @@ class AdaptiveController:
                 r1, r2, cr1, cr2, gw1, gw2, b11, b12, b22 = rest_term(
                     dx1, dx2, x1 - rx1, x2 - rx2, drive)
                 along = gw1 * u1 + gw2 * u2
+                e1, e2, de1, de2 = retreat_term(dx1, dx2, u1, u2, vd1, vd2, ad1, ad2, drive)
+                r1, r2 = r1 + e1, r2 + e2
                 o1, o2 = a * r1, a * r2
-                p1 = da * r1 + a * (cr1 * along + (b11 * xv1 + b12 * xv2))
-                p2 = da * r2 + a * (cr2 * along + (b12 * xv1 + b22 * xv2))
+                p1 = da * r1 + a * (cr1 * along + (b11 * xv1 + b12 * xv2) + de1)
+                p2 = da * r2 + a * (cr2 * along + (b12 * xv1 + b22 * xv2) + de2)
         qr1, qr2, ar1, ar2, scale, gb1, gb2, near = self._limited_reference(
             (q1, q2, w1, w2, x1, x2), x_d, drive, (p11, p12, p21, p22), (r11, r12, r21, r22),
             (feed * vd1, feed * vd2, feed * ad1 + feed_rate * vd1, feed * ad2 + feed_rate * vd2),

@@ -104,6 +104,12 @@ MIN_APPROACH_SPEED = 0.01
 (the slowest demonstration the learner accepts still reaches its region; below it, the
 arm's friction and a 1 mm hand jitter would set the pace, not the task)."""
 
+RETREAT_REACH = 0.1
+"""m outside an avoid task's d1 where its retreat from an approaching hand starts to act."""
+
+RETREAT_SPEED = 0.05
+"""m/s: the retreat's smooth positive part of the hand's approach speed is quadratic below."""
+
 RADIAL_FADE = 0.01
 """m: the approach term fades out within this distance of dx = 0, where e = dx/|dx| has no
 direction (an inner boundary d1 > 0 pushes the arm out from there)."""
@@ -436,6 +442,45 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     b22 = w * (radial * n2 * n2 + tangential * (1.0 - n2 * n2))
     gw1, gw2 = (dw * dx1 / r, dw * dx2 / r) if r > 0.0 else (0.0, 0.0)
     return w * c1, w * c2, c1, c2, gw1, gw2, b11, b12, b22
+
+
+def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: float,
+                 ad1: float, ad2: float, drive: TaskDrive):
+    """An avoid task's retreat from an approaching hand, v_away = g(r) p(e . xdot_d) e, and
+    its time derivative, in floats: (v1, v2, dv1, dv2) m/s, m/s^2.
+
+    dx = x - x_d (m), e = dx / r; u = xdot - xdot_d (m/s); xdot_d, xddot_d the hand's velocity
+    and acceleration. p(c) is the smooth positive part of the hand's speed towards the arm
+    (C1: c^2 / (2 RETREAT_SPEED) up to RETREAT_SPEED, then c - RETREAT_SPEED / 2; capped
+    smoothly at 2 max_task_speed), g(r) the
+    quintic smoothstep from 1 at r <= d1 to 0 at d1 + RETREAT_REACH. Zero for follow tasks.
+    The arm backs away as fast as the hand comes (on top of the potential's push, which
+    starts only inside d1), so a hand that chases the arm at the arm's own speed no longer
+    gains on it.
+    """
+    shape = drive.shape
+    if not drive.open_outward or shape.s != 1 or shape.d1 <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    r = math.hypot(dx1, dx2)
+    if r == 0.0 or r >= shape.d1 + RETREAT_REACH:
+        return 0.0, 0.0, 0.0, 0.0
+    e1, e2 = dx1 / r, dx2 / r
+    c = e1 * vd1 + e2 * vd2
+    if c <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    band = RETREAT_SPEED
+    p, dp = (c * c / (2.0 * band), c / band) if c < band else (c - 0.5 * band, 1.0)
+    # At most 2 v_max, as the follow tasks' feed-forward (adaptive_law.FEED_FORWARD_RATIO).
+    p, slope = speed_cap(p, 2.0 * drive.max_task_speed)
+    dp *= slope
+    g, dg = _smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
+    dg = -dg / RETREAT_REACH
+    radial = e1 * u1 + e2 * u2  # dr/dt
+    de1, de2 = (u1 - e1 * radial) / r, (u2 - e2 * radial) / r  # de/dt
+    dc = de1 * vd1 + de2 * vd2 + e1 * ad1 + e2 * ad2
+    rate = dg * radial * p + g * dp * dc  # d(g p)/dt
+    gp = g * p
+    return gp * e1, gp * e2, rate * e1 + gp * de1, rate * e2 + gp * de2
 
 
 def _clip_hessian(value: float) -> float:

@@ -151,6 +151,9 @@ def barrier(q1: float, q2: float, dq1: float, dq2: float, limits: JointLimits):
     near = max_i w(u_i) in [0, 1] (0 outside every band, 1 at a limit).
     """
     band, kb = limits.band, limits.barrier_torque
+    (low1, low2), (high1, high2) = limits.lower, limits.upper
+    if low1 + band <= q1 <= high1 - band and low2 + band <= q2 <= high2 - band:
+        return 0.0, 0.0, 0.0, 0.0, 0.0  # outside every band (the usual case)
     out = []
     near = 0.0
     for q, dq, low, high in ((q1, dq1, limits.lower[0], limits.upper[0]),
@@ -267,6 +270,9 @@ class ReachRound:
         self._time = 0.0
         self._schedule = EventWeightSchedule(self.settings.blend_time)
         self._engaged = False
+        self._switched = -math.inf  # time of the last switch
+        self._resting = True  # sigma is 0 with no ramp to evaluate
+        self._full = False  # sigma is 1 with no ramp to evaluate
         self._filtered = None  # (q_in1, q_in2, qf1, qf2, dqf1, dqf2)
 
     @property
@@ -307,6 +313,7 @@ class ReachRound:
         settings = self.settings
         self._time += dt
         now = self._time
+        target = None  # the joint goal, when worked out for the decision below
         if not settings.enabled or region is None:
             wanted = False
             goal = None
@@ -321,9 +328,10 @@ class ReachRound:
                 # Stay on the joint-space motion until the arm is at the goal or the straight
                 # descent would get there: the path clear of the hole, no joint near a limit,
                 # the goal on the arm's elbow and within STRAIGHT_TURN of its joint 1, the arm
-                # off the stretched singularity (leaving
-                # earlier hands the arm back to the descent that was blocked).
+                # off the stretched singularity (leaving earlier hands the arm back to the
+                # descent that was blocked).
                 t1, t2 = inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self.limits)
+                target = (t1, t2)
                 straight = (clearance >= self._inner + self.CLEAR_CLEARANCE
                             and near < 0.5 * self.NEAR_BARRIER and t2 * q2 > 0.0
                             and abs(t1 - q1) < self.STRAIGHT_TURN
@@ -335,21 +343,31 @@ class ReachRound:
                           or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL)
                           or outside)
             goal = (g1, g2)
+        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
+            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
         if wanted != self._engaged:
-            self._engaged = wanted
+            self._engaged, self._switched = wanted, now
             self._schedule.request('round' if wanted else None, now)
-        weight = self._schedule.evaluate(now)
-        sigma, sigma_rate = weight.weight, weight.rate
+            self._resting = self._full = False
+        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
+            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        if self._engaged and self._full:  # sigma at 1 and staying there
+            sigma, sigma_rate = 1.0, 0.0
+        else:
+            weight = self._schedule.evaluate(now)
+            sigma, sigma_rate = weight.weight, weight.rate
+            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
         if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
             self._filtered = None
+            self._resting = True
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         state = self._filtered
         if state is None:
             state = (q1, q2, q1, q2, 0.0, 0.0)
         q_in1, q_in2, f1, f2, df1, df2 = state
         if goal is not None:
-            t1, t2 = inverse_kinematics(goal[0], goal[1], f1, f2, self._l1, self._l2,
-                                        self.limits)
+            t1, t2 = target if target is not None else inverse_kinematics(
+                goal[0], goal[1], q1, q2, self._l1, self._l2, self.limits)
             step = settings.slew * dt
             q_in1 += min(max(t1 - q_in1, -step), step)
             q_in2 += min(max(t2 - q_in2, -step), step)

@@ -62,6 +62,7 @@ import math
 from dataclasses import dataclass
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule
+from hri_adaptive_controller.task_variable import _smoothstep
 
 GOAL_MARGIN = 0.5
 """The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
@@ -72,16 +73,6 @@ CLAMP_COST = 1000.0
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
-
-
-def _smoothstep(u: float) -> tuple[float, float]:
-    """Quintic smoothstep s(u) and ds/du (0 below u = 0, 1 above u = 1)."""
-    if u <= 0.0:
-        return 0.0, 0.0
-    if u >= 1.0:
-        return 1.0, 0.0
-    v = 1.0 - u
-    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
 
 
 @dataclass(frozen=True)

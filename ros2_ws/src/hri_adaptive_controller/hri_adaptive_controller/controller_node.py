@@ -43,11 +43,18 @@ Safety (the choices are argued in docs/design.md):
   (`target_filter_time`); its acceleration is taken as 0; between targets the hand is held
   to first order (at most MAX_TARGET_EXTRAPOLATION) and each new /target is blended in over
   its message period (signal_hold.HandHold), so a fast hand does not step the task term;
+- a /target no hand could have reached (faster than `target_max_speed`, or off its predicted
+  path by more than `target_max_acceleration` allows: a marker swap) is held, not followed,
+  and counted in ControllerState.target_glitches; a place held samples keep to for 0.2 s is
+  taken as the hand's and glided to (target_filter); no /target accepted for
+  `target_timeout` s fades the task out over `task_fade_time` (status target_lost), and in
+  again when the hand returns;
 - the task's K comes with its TaskState (0: hri_core.potential.default_task_gain); an avoid
   task returns the arm to `rest_position`, by default where the arm was when the task became
   active (task_variable's module docstring).
 """
 
+import dataclasses
 import math
 import sys
 import time
@@ -58,6 +65,7 @@ from hri_interfaces.msg import ControllerState, TaskState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
@@ -77,7 +85,9 @@ from hri_adaptive_controller.event_weight import (
     EventWeightSchedule,
     WeightState,
 )
-from hri_adaptive_controller.signal_hold import HandHold, TaskWeightHold
+from hri_adaptive_controller.joint_limits import JointLimits
+from hri_adaptive_controller.signal_hold import TaskWeightHold
+from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_core import topics
 from hri_core.cdr import (
     POSITION,
@@ -137,8 +147,9 @@ PARAMETERS = {
     'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
-    'approach_speed': ParameterSpec(float, 'least speed towards the region where the pull '
-                                    'K |dP/dz| is weaker (m/s; 0: none)', low=0.0, high=2.0),
+    'approach_speed': ParameterSpec(float, 'most the approach floor may be (m/s; 0: none); '
+                                    "the floor is the task's own pull 0.2 m from its region",
+                                    low=0.0, high=2.0),
     'region_margin': ParameterSpec(float, 'how far inside the learned region the approach '
                                    'speed fades out (m)', low=0.0, high=0.1),
     'rest_gain': ParameterSpec(float, 'avoid tasks: rate of the return to the rest position '
@@ -167,13 +178,36 @@ PARAMETERS = {
                                         low=0.001, high=5.0, read_only=True),
     'max_target_distance': ParameterSpec(float, 'targets farther than this from the base are '
                                          'dropped (m)', low=0.1, high=100.0),
+    'joint_lower_limits': ParameterSpec(list, 'lower joint limits (rad); checked against '
+                                        "scara_sim's when it runs", size=2, read_only=True),
+    'joint_upper_limits': ParameterSpec(list, 'upper joint limits (rad)', size=2,
+                                        read_only=True),
+    'joint_limit_band': ParameterSpec(float, 'the barrier and the feed-forward gate act this '
+                                      'near a joint limit (rad)', low=0.01, high=1.0),
+    'barrier_torque': ParameterSpec(float, "the barrier's torque at a joint limit (N m; above "
+                                    "the task's largest)", low=0.0, high=100.0),
+    'reach_round': ParameterSpec(bool, 'blend in a joint-space motion where the straight '
+                                 'task-space descent is blocked or the hand out of reach'),
+    'target_max_speed': ParameterSpec(float, 'a /target implying a faster hand is held as a '
+                                      'glitch (m/s)', low=0.1, high=100.0, read_only=True),
+    'target_max_acceleration': ParameterSpec(float, 'a /target off the predicted hand path by '
+                                             'more than this allows is held as a glitch '
+                                             '(m/s^2)', low=1.0, high=1e4, read_only=True),
+    'target_timeout': ParameterSpec(float, 'no /target accepted for this long: the task fades '
+                                    'out over task_fade_time (s)', low=0.01, high=3600.0,
+                                    read_only=True),
     'l1': ParameterSpec(float, 'link 1 length (m)', low=0.01, high=5.0, read_only=True),
     'l2': ParameterSpec(float, 'link 2 length (m)', low=0.01, high=5.0, read_only=True),
     'gravity': ParameterSpec(float, 'gravity in the arm plane (m/s^2; 0 horizontal)',
                              low=0.0, high=20.0, read_only=True),
 }
 GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
-                   'region_margin', 'effort_limit', 'max_effort_rate', 'rest_gain', 'rest_gate')
+                   'region_margin', 'effort_limit', 'max_effort_rate', 'rest_gain', 'rest_gate',
+                   'joint_limit_band', 'barrier_torque', 'reach_round')
+SIM_NODE = 'scara_sim'  # whose joint limits the controller's are checked against
+SIM_LIMITS = ('joint_lower_limits', 'joint_upper_limits')
+SIM_CHECK_PERIOD = 1.0  # s between looks for the sim's parameter service
+SIM_CHECK_TRIES = 30  # looks before the check is given up (no sim: a real arm)
 
 
 def gains_from(values: dict) -> ControllerGains:
@@ -184,7 +218,30 @@ def gains_from(values: dict) -> ControllerGains:
         region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
         effort_limit=values['effort_limit'], rest_gain=values['rest_gain'],
         rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
-        damping=DEFAULT_GAINS.damping)
+        damping=DEFAULT_GAINS.damping,
+        joint_limits=JointLimits(tuple(values['joint_lower_limits']),
+                                 tuple(values['joint_upper_limits']),
+                                 values['joint_limit_band'], values['barrier_torque']),
+        reach_round=dataclasses.replace(DEFAULT_GAINS.reach_round,
+                                        enabled=values['reach_round']))
+
+
+def limits_mismatch(ours, theirs) -> str:
+    """'' when the joint limits `ours` and `theirs` ((lower (2,), upper (2,)) rad) agree to
+    1e-9 rad, else a one-line description of the difference."""
+    (low, high), (sim_low, sim_high) = ours, theirs
+    if all(abs(a - b) <= 1e-9 for a, b in zip((*low, *high), (*sim_low, *sim_high),
+                                               strict=True)):
+        return ''
+    return (f'joint limits {list(low)} .. {list(high)} rad differ from {SIM_NODE}\'s '
+            f'{list(sim_low)} .. {list(sim_high)} rad')
+
+
+def narrower_limits(ours, theirs):
+    """The joint range both allow: (lower (2,), upper (2,)) rad."""
+    (low, high), (sim_low, sim_high) = ours, theirs
+    return (tuple(max(a, b) for a, b in zip(low, sim_low, strict=True)),
+            tuple(min(a, b) for a, b in zip(high, sim_high, strict=True)))
 
 
 class Controller(Node):
@@ -212,7 +269,12 @@ class Controller(Node):
                                      strict=False)
         self._target = None  # the latest hand position (x, y), m
         self._target_gate = StampGate(values['restart_jump'], values['restart_confirm'])
-        self._hand = HandHold(values['target_filter_time'], MAX_TARGET_EXTRAPOLATION)
+        self._hand = FilteredHand(TargetFilterSettings(
+            max_speed=values['target_max_speed'],
+            max_acceleration=values['target_max_acceleration'],
+            filter_time=values['target_filter_time'],
+            max_extrapolation=MAX_TARGET_EXTRAPOLATION, timeout=values['target_timeout'],
+            fade_time=values['task_fade_time']))
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
         # a(E, t) of the task in force; its payload: (shape or None, k).
@@ -272,6 +334,49 @@ class Controller(Node):
             f'effort_limit={values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
         request_realtime(self, values['realtime_priority'])
         self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])
+        # The joint limits are checked against the sim's once its parameter service is up.
+        self._sim_client = AsyncParameterClient(self, SIM_NODE)
+        self._sim_tries = 0
+        self._sim_timer = self.create_timer(SIM_CHECK_PERIOD, self._look_for_sim)
+
+    # -- the sim's joint limits ---------------------------------------------------------------
+    def _look_for_sim(self) -> None:
+        self._sim_tries += 1
+        if self._sim_client.services_are_ready():
+            self._sim_timer.cancel()
+            self._sim_client.get_parameters(list(SIM_LIMITS), callback=self._on_sim_limits)
+        elif self._sim_tries >= SIM_CHECK_TRIES:
+            self._sim_timer.cancel()
+            self.get_logger().info(f'no {SIM_NODE}: joint limits not checked against a sim')
+
+    def _on_sim_limits(self, future) -> None:
+        try:
+            values = [list(v.double_array_value) for v in future.result().values]
+        except Exception as error:  # noqa: BLE001 a failed request must not stop control
+            self.get_logger().warning(f'{SIM_NODE}\'s joint limits unreadable: {error!r}')
+            return
+        if len(values) != 2 or any(len(v) != 2 for v in values):
+            self.get_logger().warning(f'{SIM_NODE}\'s joint limits unreadable: {values}')
+            return
+        ours = (tuple(self._values['joint_lower_limits']),
+                tuple(self._values['joint_upper_limits']))
+        problem = limits_mismatch(ours, tuple(map(tuple, values)))
+        if not problem:
+            self.get_logger().info(f'joint limits agree with {SIM_NODE}\'s')
+            return
+        low, high = narrower_limits(ours, tuple(map(tuple, values)))
+        merged = {**self._values, 'joint_lower_limits': list(low),
+                  'joint_upper_limits': list(high)}
+        try:
+            self._law = AdaptiveController(gains_from(merged), self._law.theta_hat,
+                                           merged['l1'], merged['l2'], merged['gravity'])
+        except ValueError as error:
+            self.get_logger().error(f'{problem}; the range both allow is unusable '
+                                    f'({error}): keeping ours')
+            return
+        self._values = merged
+        self.get_logger().error(f'{problem}: using the range both allow, {list(low)} .. '
+                                f'{list(high)} rad')
 
     # -- inputs ----------------------------------------------------------------------------
     def _warn(self, kind: str, text: str) -> None:
@@ -383,8 +488,11 @@ class Controller(Node):
             self.get_logger().info('targets restarted behind the last one: following the new '
                                    'source')
             self._hand.reset()
+        if not self._hand.offer(stamp, (x, y)):
+            self._warn('target_glitch', f'target held: a jump to {[round(x, 3), round(y, 3)]} '
+                       f'no hand can make ({self._hand.glitches} held so far)')
+            return
         self._target = (x, y)  # plain floats: what the per-cycle step computes with
-        self._hand.offer(self._target, stamp)
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -526,18 +634,24 @@ class Controller(Node):
         shape = k = None
         if held is not None:
             key, (shape, k), task_weight, task_rate = held
-        if shape is None or link.weight == 0.0:
+        # The hand's presence (target_filter): faded out while no /target is accepted.
+        hand = self._hand.presence(self._joint_stamp)
+        if shape is None or link.weight == 0.0 or hand.weight == 0.0:
             weight, rate, shape = 0.0, 0.0, None
         else:
-            # a = a_task * a_link: both continuous ramps, so is their product.
-            weight = task_weight * link.weight
-            rate = task_rate * link.weight + task_weight * link.rate
+            # a = a_task * a_link * a_hand: continuous ramps, so is their product.
+            weight = task_weight * link.weight * hand.weight
+            rate = (task_rate * link.weight * hand.weight
+                    + task_weight * link.rate * hand.weight
+                    + task_weight * link.weight * hand.rate)
             if self._rest_key != key:
                 self._rest_key = key
                 if self._fixed_rest is None:
                     x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
                     self._rest = (float(x[0]), float(x[1]))
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
+        if hand.phase in (PHASE_FADING_OUT, PHASE_IDLE):
+            self._status = 'target_lost'
         self._weight = weight
         # The hand where it is at the joint state's time, from the stamps (receive times would
         # add the callbacks' delays, 2.5 mm per 5 ms at 0.5 m/s).
@@ -565,7 +679,7 @@ class Controller(Node):
             self._rate = (self._cycles - ticks) / (now - started)
             self._window = (now, self._cycles)
         msg = ControllerState(deadline_misses=self._misses, rate_hz=self._rate,
-                              input_age=self._input_age,
+                              input_age=self._input_age, target_glitches=self._hand.glitches,
                               status=self._status, effort=[float(v) for v in command],
                               theta_hat=[float(v) for v in self._law.theta_hat])
         msg.header.stamp = Time(nanoseconds=published).to_msg()

@@ -164,10 +164,16 @@ class HandHold:
         self._hold.reset()
         self._stamp = None
 
-    def offer(self, position: Sequence[float], stamp: float) -> None:
-        """A hand position (2,) m stamped `stamp` s (later than the previous one)."""
+    def offer(self, position: Sequence[float], stamp: float, blend_time: float = 0.0,
+              restart_velocity: bool = False) -> None:
+        """A hand position (2,) m stamped `stamp` s (later than the previous one); its jump is
+        blended over at least `blend_time` s (a far sample: target_filter);
+        restart_velocity: the velocity estimate starts again from this sample (a re-anchor:
+        the difference to the old place is no velocity)."""
+        if restart_velocity:
+            self._velocity.reset()
         velocity = self._velocity.update(position, stamp).tolist()
-        period = _message_period(self._stamp, stamp, self._max_hold)
+        period = max(_message_period(self._stamp, stamp, self._max_hold), blend_time)
         self._stamp = stamp
         self._hold.offer(stamp, position, velocity, period)
 

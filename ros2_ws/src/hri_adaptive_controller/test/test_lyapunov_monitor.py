@@ -2,8 +2,8 @@
 
 An avoid task's reference drops eq. 14's hand-velocity feed-forward, so dV/dt has the term
 -Kp a^2 delta_eps^T xdot_d besides eq. 22's (adaptive_law's docstring). These tests run the
-control step on the simulated arm (RK4 at 1 ms, the true friction) while a hand reaches in at
-0.2 m/s, and compare the monitor with a central difference of V along the run.
+control step on the simulated arm (RK4 at 1 ms, the true friction) while a hand reaches in,
+and compare the monitor with a central difference of V along the run.
 """
 
 import math
@@ -35,15 +35,15 @@ Q0 = (0.0, math.pi / 2)  # end-effector at (0.35, 0.30) m
 HAND_SPEED = 0.2  # m/s, peak
 
 
-def pure_loop(shape, start, end, duration):
+def pure_loop(shape, start, end, duration, hand_speed=HAND_SPEED):
     """Run the control step on the arm with a hand moving from `start` to `end` (offsets from
-    the end-effector, m; minimum jerk from t = 0.2 s at HAND_SPEED peak), the task active
+    the end-effector, m; minimum jerk from t = 0.2 s at `hand_speed` peak), the task active
     with a = 1 throughout. Returns (V, predicted dV/dt, distance, undamped and unlimited,
     hand speed) per 1 ms step."""
     controller = AdaptiveController(DEFAULT_GAINS, THETA, PARAMS.l1, PARAMS.l2)
     tip = np.array(forward_kinematics_pair(*Q0, PARAMS.l1, PARAMS.l2))
     start, end = tip + np.asarray(start), tip + np.asarray(end)
-    move_time = 1.875 * float(np.linalg.norm(end - start)) / HAND_SPEED
+    move_time = 1.875 * float(np.linalg.norm(end - start)) / hand_speed
     hand = minimum_jerk_target(start, end, 0.2, move_time)
     constants = float_constants(PARAMS)
     friction = (PARAMS.b1, PARAMS.b2)
@@ -68,18 +68,21 @@ def central_difference(values):
 
 
 def test_monitor_matches_the_change_of_v_while_a_hand_reaches_into_an_avoid_task():
-    # The hand starts 0.25 m away (outside d1 = 0.183 m) and reaches to 0.10 m of the
-    # end-effector's start: it pushes the arm out through d1.
-    v, rate, distance, exact, hand_speed = pure_loop(AVOID, (0.0, -0.25), (0.0, -0.10), 1.6)
+    # The hand starts 0.15 m away (inside d1 = 0.183 m) and reaches in to 0.02 m of the
+    # end-effector's start at 0.4 m/s, faster than the arm's retreat: it pushes the arm, and
+    # V rises while it does (the hand does work on the task).
+    speed = 0.4
+    v, rate, distance, exact, hand_speed = pure_loop(AVOID, (0.0, -0.15), (0.0, -0.02), 1.6,
+                                                     speed)
     measured, predicted = central_difference(v), rate[1:-1]
-    pushed = ((distance[1:-1] < AVOID.d1) & (hand_speed[1:-1] > 0.5 * HAND_SPEED)
+    pushed = ((distance[1:-1] < AVOID.d1) & (hand_speed[1:-1] > 0.5 * speed)
               & (exact[:-2] > 0) & (exact[1:-1] > 0) & (exact[2:] > 0))
     assert np.count_nonzero(pushed) >= 100  # the hand pushes the arm for 0.1 s or more
     scale = np.max(np.abs(measured[pushed]))
     assert scale > 0.05  # V changes fast: the check is not of a resting arm
-    # Without the feed-forward term the prediction is off by up to a tenth of dV/dt here;
-    # with it, by the 1 ms step's discretisation only.
-    assert np.max(np.abs(measured[pushed] - predicted[pushed])) <= 0.01 * scale
+    # Without the feed-forward term the prediction is off by a large part of dV/dt here;
+    # with it, by the 1 ms step's discretisation and the hand filter's lag only.
+    assert np.max(np.abs(measured[pushed] - predicted[pushed])) <= 0.02 * scale
 
 
 def test_monitor_matches_the_change_of_v_while_a_follow_task_follows_a_hand():

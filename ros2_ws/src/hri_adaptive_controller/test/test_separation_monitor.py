@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
 
-from hri_adaptive_controller.closed_loop import simulate, still_target
+from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_target
 from hri_adaptive_controller.separation_monitor import SeparationMonitor
 from hri_core.node_common import load_defaults
 from hri_core.separation import ProtectiveSeparation, separation_sample
@@ -60,11 +60,12 @@ def stop_from_peak_speed(hand) -> tuple[float, float, float]:
     for no task, over the event_manager's default ramp_time. Stopped: below 1 mm/s for good."""
     follow = {'follow': load_task_file(paper_tasks() / 'follow.yaml').shape}
     ramp_time = load_defaults('hri_adaptive_controller', 'event_manager')['ramp_time']
-    run = simulate(follow, [], still_target(hand), 2.0, initial_task='follow', monitor=False)
+    conditions = LoopConditions(initial_task='follow', ramp_time=ramp_time, monitor=False)
+    run = simulate(follow, [], still_target(hand), 2.0, conditions)
     speed = np.linalg.norm(np.gradient(run.position, run.time, axis=0), axis=1)
     peak = int(np.argmax(speed))
     run = simulate(follow, [(run.time[peak], None)], still_target(hand), run.time[peak] + 3.0,
-                   initial_task='follow', ramp_time=ramp_time, monitor=False)
+                   conditions)
     speed = np.linalg.norm(np.gradient(run.position, run.time, axis=0), axis=1)
     moving = np.flatnonzero(speed[peak:] >= 1e-3)
     steps = moving[-1] + 1 if moving.size else 0

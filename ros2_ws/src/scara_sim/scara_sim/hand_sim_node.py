@@ -1,14 +1,25 @@
-"""The `hand_sim` node: the human hand on /target, from a scripted profile.
+"""The `hand_sim` node: the human hand on /target, from a scripted profile or a recording.
 
 Publishes geometry_msgs/PointStamped (frame `base_frame`, m) on /target at `rate_hz`, the
 position of `profiles.hand_position` for the profile named by `profile` (hold, approach,
 retreat, back_and_forth, circle, waypoints) and its parameters `start`, `end`, `speed`,
 `period`, `radius`, `start_delay`, `waypoints`. The profile's clock starts when the node
 does; changing any profile parameter at run time (validated) restarts it.
+
+`profile: recording` replays a Vicon Nexus CSV export (`recording`, hri_core.recorded_motion)
+at its recorded pace: the segment `segment`, moved into the base frame by p_base =
+Rz(`yaw`) p_room + `translation` (or, with `auto_place`, by the placement that puts most of
+the take's horizontal path within the `reach` annulus), its times multiplied by `time_scale`;
+at the end it loops, stops or holds the last frame (`at_end`). Each tick publishes the newest
+frame due, stamped with the time it was recorded at (the replay's start plus the frame's
+time), x, y and z; a lost frame publishes nothing. A file that cannot be read ends the node
+at start with one line and exit code 1 (refused at run time with the reason).
 """
 
+import math
 import sys
 import time
+from dataclasses import replace
 
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import SetParametersResult
@@ -25,15 +36,25 @@ from hri_core.node_common import (
     load_defaults,
     run_node,
 )
+from hri_core.recorded_motion import (
+    AT_END,
+    Placement,
+    ReachAnnulus,
+    Replay,
+    choose_placement,
+    read_vicon_csv,
+)
 from scara_sim.profiles import HAND_PROFILES, HandProfile, hand_position
 
 PACKAGE = 'scara_sim'
 NODE_NAME = 'hand_sim'
+RECORDING = 'recording'
+SOURCES = (*HAND_PROFILES, RECORDING)
 PARAMETERS = {
     'rate_hz': ParameterSpec(float, 'publish rate of /target (Hz)', 1.0, 1000.0,
                              read_only=True),
-    'profile': ParameterSpec(str, 'hand motion: ' + ', '.join(HAND_PROFILES),
-                             choices=HAND_PROFILES),
+    'profile': ParameterSpec(str, 'hand motion: ' + ', '.join(SOURCES),
+                             choices=SOURCES),
     'start': ParameterSpec(list, 'start point [x, y] (m); centre of the circle',
                            size=2),
     'end': ParameterSpec(list, 'end point [x, y] (m)', size=2),
@@ -49,13 +70,30 @@ PARAMETERS = {
     'pauses': ParameterSpec(list, 'waypoints profile: time at the end of each move (s); '
                             'unset: none', optional=True),
     'base_frame': ParameterSpec(str, 'frame of /target', read_only=True),
+    'recording': ParameterSpec(str, 'recording profile: Vicon Nexus CSV export to replay'),
+    'segment': ParameterSpec(str, 'recording profile: segment to replay (right_hand, '
+                             'left_hand, head, ...)'),
+    'translation': ParameterSpec(list, 'recording profile: room-to-base translation [x, y, z] '
+                                 '(m), p_base = Rz(yaw) p_room + translation', size=3),
+    'yaw': ParameterSpec(float, 'recording profile: room-to-base rotation about z (rad)',
+                         -2.0 * math.pi, 2.0 * math.pi),
+    'auto_place': ParameterSpec(bool, 'recording profile: place the take so that most of its '
+                                'horizontal path is within `reach` (translation, yaw unused)'),
+    'reach': ParameterSpec(list, 'recording profile: inner and outer radius of the arm\'s '
+                           'reach for auto_place (m)', size=2),
+    'time_scale': ParameterSpec(float, 'recording profile: recorded time multiplier (2: half '
+                                'speed)', 0.01, 100.0),
+    'at_end': ParameterSpec(str, 'recording profile: at the end ' + ' | '.join(AT_END),
+                            choices=AT_END),
 }
+RECORDING_PARAMETERS = ('recording', 'segment', 'translation', 'yaw', 'auto_place', 'reach',
+                        'time_scale', 'at_end')
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
-                      'waypoints', 'segment_speeds', 'pauses')
+                      'waypoints', 'segment_speeds', 'pauses', *RECORDING_PARAMETERS)
 
 
 class HandSim(Node):
-    """Publishes the scripted hand position at rate_hz."""
+    """Publishes the scripted or recorded hand position at rate_hz."""
 
     def __init__(self):
         super().__init__(NODE_NAME)
@@ -63,10 +101,11 @@ class HandSim(Node):
         rate_hz = values['rate_hz']
         self._frame = values['base_frame']
         try:
-            self._profile = self._profile_from({})
+            self._source = self._source_from({})
         except ValueError as error:
-            raise StartupError(f'bad parameters: {error}') from None
-        self._started = time.monotonic()
+            what = 'recording' if values['profile'] == RECORDING else 'parameters'
+            raise StartupError(f'bad {what}: {error}') from None
+        self._restart_clock()
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publisher = self.create_publisher(PointStamped, topics.TARGET.name,
@@ -78,7 +117,12 @@ class HandSim(Node):
         self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on '
                                f'{self._publisher.topic_name}')
 
-    def _profile_from(self, overrides: dict) -> HandProfile:
+    def _restart_clock(self) -> None:
+        self._started = time.monotonic()
+        self._started_ns = self.get_clock().now().nanoseconds
+        self._last_frame_time = None  # the recorded time of the last frame published
+
+    def _source_from(self, overrides: dict) -> HandProfile | Replay:
         def value(name):
             if name in overrides:
                 return overrides[name]
@@ -87,6 +131,8 @@ class HandSim(Node):
             except ParameterUninitializedException:  # an optional parameter left unset
                 return None
 
+        if value('profile') == RECORDING:
+            return self._replay_from(value)
         return HandProfile(
             name=value('profile'), start=tuple(value('start')), end=tuple(value('end')),
             speed=value('speed'), period=value('period'), radius=value('radius'),
@@ -94,8 +140,33 @@ class HandSim(Node):
             segment_speeds=tuple(value('segment_speeds') or ()),
             pauses=tuple(value('pauses') or ()))
 
+    @staticmethod
+    def _replay_from(value) -> Replay:
+        """The replay the recording parameters ask for; ValueError with the reason."""
+        if not value('recording'):
+            raise ValueError('profile recording needs the parameter recording (a Vicon CSV '
+                             'export)')
+        motion = read_vicon_csv(value('recording'), value('segment'),
+                                time_scale=value('time_scale'))
+        if value('auto_place'):
+            inner, outer = value('reach')
+            placement = choose_placement(motion.positions, ReachAnnulus(inner, outer))
+        else:
+            placement = Placement(tuple(float(v) for v in value('translation')),
+                                  float(value('yaw')))
+        return Replay(replace(motion, positions=placement.apply(motion.positions)),
+                      value('at_end'), placement)
+
     def _describe(self) -> str:
-        p = self._profile
+        p = self._source
+        if isinstance(p, Replay):
+            m = p.motion
+            where = p.placement
+            return (f'recording ({self.get_parameter("recording").value}, {m.segment}, '
+                    f'{len(m.times)} frames over {m.times[-1]:.1f} s, '
+                    f'{100.0 * (1.0 - m.valid.mean()):.1f} % lost; translation '
+                    f'{[round(v, 3) for v in where.translation]} m, yaw {where.yaw:.3f} rad; '
+                    f'at end {p.at_end})')
         details = {'hold': f'at {list(p.start)}',
                    'approach': f'{list(p.start)} -> {list(p.end)} at {p.speed} m/s',
                    'retreat': f'{list(p.end)} -> {list(p.start)} at {p.speed} m/s',
@@ -109,21 +180,41 @@ class HandSim(Node):
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
         try:
-            self._profile_from({p.name: p.value for p in parameters})
+            self._source_from({p.name: p.value for p in parameters})
         except (ValueError, TypeError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters) -> None:
         if any(p.name in PROFILE_PARAMETERS for p in parameters):
-            self._profile = self._profile_from({})
-            self._started = time.monotonic()
+            self._source = self._source_from({})
+            self._restart_clock()
             self.get_logger().info(f'hand profile restarted: {self._describe()}')
 
     def _publish(self) -> None:
-        x, y = hand_position(self._profile, time.monotonic() - self._started)
+        if isinstance(self._source, Replay):
+            self._publish_frame()
+            return
+        x, y = hand_position(self._source, time.monotonic() - self._started)
         stamp = self.get_clock().now().seconds_nanoseconds()
         self._publisher.publish(self._template.encode((float(x), float(y), 0.0), stamp=stamp))
+
+    def _publish_frame(self) -> None:
+        """The newest recorded frame due, once, stamped when it was recorded; nothing for a
+        lost frame."""
+        started = self._started_ns
+        due = self._source.due((self.get_clock().now().nanoseconds - started) * 1e-9)
+        if due is None or due[1] == self._last_frame_time:
+            return
+        index, frame_time = due
+        self._last_frame_time = frame_time
+        motion = self._source.motion
+        if not motion.valid[index]:
+            return
+        stamp = started + int(round(frame_time * 1e9))
+        x, y, z = motion.positions[index]
+        self._publisher.publish(self._template.encode(
+            (float(x), float(y), float(z)), stamp=(stamp // 1_000_000_000, stamp % 1_000_000_000)))
 
 
 def main(args=None):

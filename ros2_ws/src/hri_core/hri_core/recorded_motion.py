@@ -1,0 +1,267 @@
+"""Recorded human motion: a Vicon Nexus CSV export read into a hand path in the base frame.
+
+No ROS here. The export (data/human-motion/README.md) has a header of five lines:
+
+    Objects
+    100                                   <- frame rate, Hz
+    ,,Global Angle right_hand:right_hand,,,,,,Global Angle ...   <- segment names, 6 columns each
+    Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ,...
+    ,,rad,rad,rad,mm,mm,mm,...
+
+then one frame a line. TX, TY, TZ are the segment's position in the room frame in mm (Z up);
+a frame where the cameras lost the segment has empty cells there, read as a NaN row.
+
+The room-to-base transform is p_base = Rz(yaw) p_room + translation (m, rad): the hand path
+as the robot's base frame sees it. `choose_placement` picks that transform for a take never
+seen before, so that most of its horizontal path lies inside a planar arm's reach annulus.
+"""
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+SEGMENT_PREFIX = 'Global Angle '
+SEGMENT_COLUMNS = ('RX', 'RY', 'RZ', 'TX', 'TY', 'TZ')
+MM = 1e-3
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Room-to-base transform: p_base = Rz(yaw) p_room + translation; translation (3,) m,
+    yaw rad (rotation about the room's vertical z axis)."""
+
+    translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    yaw: float = 0.0
+
+    def apply(self, points) -> np.ndarray:
+        """Room-frame points (N, 3) m -> base-frame points (N, 3) m (NaN rows stay NaN)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return points @ rotation.T + np.asarray(self.translation, dtype=float)
+
+
+@dataclass(frozen=True)
+class RecordedMotion:
+    """One segment of a take: times (N,) s from the first frame (already time-scaled) and
+    positions (N, 3) m in the base frame; a lost frame is a NaN row. rate_hz: the recorded
+    frame rate; segment: the segment's name."""
+
+    times: np.ndarray
+    positions: np.ndarray
+    rate_hz: float
+    segment: str
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Boolean mask (N,) of frames where the segment was seen."""
+        return np.all(np.isfinite(self.positions), axis=1)
+
+
+def _header_line(rows: list[list[str]], index: int, what: str, name: str) -> list[str]:
+    if len(rows) <= index:
+        raise ValueError(f'{name} is not a Vicon CSV export: it ends before its {what} line')
+    return rows[index]
+
+
+def _segment_column(names: list[str], segment: str) -> int:
+    """First column of `segment` (e.g. 'right_hand') in the segment-name line."""
+    wanted = f'{SEGMENT_PREFIX}{segment}:{segment}'
+    present = []
+    for column, cell in enumerate(names):
+        cell = cell.strip()
+        if cell.startswith(SEGMENT_PREFIX):
+            present.append(cell[len(SEGMENT_PREFIX):].split(':')[0])
+            if cell == wanted:
+                return column
+    raise ValueError(f"no segment '{segment}' in the file (segments: "
+                     f"{', '.join(present) or 'none'})")
+
+
+def read_vicon_csv(path, segment: str = 'right_hand', placement: Placement = Placement(),
+                   time_scale: float = 1.0) -> RecordedMotion:
+    """Read one segment's path from a Vicon Nexus CSV export.
+
+    path: the .csv file; segment: segment name ('right_hand', 'left_hand', 'head', ...);
+    placement: room-to-base transform; time_scale: recorded time multiplier (2.0 plays the
+    take at half speed). Raises ValueError with a one-line reason for a file that is not such
+    an export (wrong header, missing segment, no frames, non-numeric cells, bad frame rate).
+    """
+    if not (math.isfinite(time_scale) and time_scale > 0.0):
+        raise ValueError(f'time_scale must be a positive finite number, got {time_scale}')
+    path = Path(path)
+    try:
+        with path.open(newline='', encoding='utf-8-sig') as stream:
+            rows = list(csv.reader(stream))
+    except (OSError, UnicodeDecodeError, csv.Error) as error:
+        raise ValueError(f'cannot read {path.name}: {error}') from None
+    if not rows or [c.strip() for c in rows[0][:1]] != ['Objects']:
+        raise ValueError(f"{path.name} is not a Vicon CSV export: line 1 is not 'Objects'")
+    rate_cells = [c for c in _header_line(rows, 1, 'frame-rate', path.name) if c.strip()]
+    try:
+        rate_hz = float(rate_cells[0])
+    except (IndexError, ValueError):
+        raise ValueError(f'{path.name}: line 2 must be the frame rate in Hz') from None
+    if not (math.isfinite(rate_hz) and rate_hz > 0.0):
+        raise ValueError(f'{path.name}: frame rate must be positive, got {rate_hz}')
+    column = _segment_column(_header_line(rows, 2, 'segment-name', path.name), segment)
+    labels = [c.strip() for c in _header_line(rows, 3, 'column-label', path.name)]
+    if labels[:1] != ['Frame'] or tuple(labels[column:column + 6]) != SEGMENT_COLUMNS:
+        raise ValueError(f"{path.name}: line 4 must read 'Frame,Sub Frame' and "
+                         f"{','.join(SEGMENT_COLUMNS)} under segment '{segment}'")
+    units = [c.strip() for c in _header_line(rows, 4, 'unit', path.name)][column + 3:column + 6]
+    if units != ['mm'] * 3:
+        raise ValueError(f"{path.name}: positions of '{segment}' must be in mm, got {units}")
+    frames, points = [], []
+    for line_number, row in enumerate(rows[5:], start=6):
+        if not any(cell.strip() for cell in row):
+            continue                                   # a trailing blank line
+        cells = [c.strip() for c in row[column + 3:column + 6]]
+        try:
+            frames.append(float(row[0]))
+            points.append([float(c) if c else math.nan for c in cells]
+                          if len(cells) == 3 else [math.nan] * 3)
+        except ValueError:
+            raise ValueError(f'{path.name} line {line_number}: non-numeric cell') from None
+    if not frames:
+        raise ValueError(f'{path.name} holds no frames')
+    frames = np.asarray(frames)
+    if not np.all(np.isfinite(frames)) or np.any(np.diff(frames) <= 0.0):
+        raise ValueError(f'{path.name}: frame numbers must increase')
+    positions = np.asarray(points) * MM
+    positions[~np.all(np.isfinite(positions), axis=1)] = math.nan   # partly lost = lost
+    if not np.any(np.isfinite(positions[:, 0])):
+        raise ValueError(f"{path.name}: segment '{segment}' is never seen")
+    times = (frames - frames[0]) / rate_hz * time_scale
+    return RecordedMotion(times, placement.apply(positions), rate_hz, segment)
+
+
+@dataclass(frozen=True)
+class ReachAnnulus:
+    """Where a planar arm on the base frame's origin reaches: inner..outer radius (m), a
+    margin (m) kept from both edges, and the half-angle (rad) of the sector round +x the
+    path is asked to stay in (a joint-1 range narrower than a full turn)."""
+
+    inner: float
+    outer: float
+    margin: float = 0.03
+    half_angle: float = math.radians(120.0)
+
+    def __post_init__(self):
+        if not (0.0 <= self.inner < self.outer and self.margin >= 0.0
+                and self.inner + 2.0 * self.margin < self.outer
+                and 0.0 < self.half_angle <= math.pi):
+            raise ValueError(f'need 0 <= inner < outer with room for the margins, and '
+                             f'0 < half_angle <= pi, got {self}')
+
+
+def _cleaned_horizontal(positions: np.ndarray, max_step: float) -> np.ndarray:
+    """Seen frames' x, y (M, 2) without isolated jumps: a frame farther than max_step (m)
+    from the median of its neighbours (a marker swap) is dropped."""
+    xy = positions[np.all(np.isfinite(positions), axis=1), :2]
+    if len(xy) < 5:
+        return xy
+    padded = np.pad(xy, ((2, 2), (0, 0)), mode='edge')
+    windows = np.stack([padded[i:i + len(xy)] for i in range(5)])
+    median = np.median(windows, axis=0)
+    return xy[np.linalg.norm(xy - median, axis=1) <= max_step]
+
+
+def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
+                     max_points: int = 600) -> Placement:
+    """A room-to-base transform that puts most of a take's horizontal path inside `reach`.
+
+    positions: (N, 3) room-frame path, m (NaN rows allowed). The base is placed on a grid
+    (`grid` m) round the path; for each place, the yaw turns the path's circular-mean
+    bearing onto +x, and the score is the fraction of the path inside the annulus (with
+    its margin) and the sector; ties go to the path nearest the annulus's mid-radius and
+    the +x axis (the least swinging round the base).
+    Marker-swap frames are dropped first; at most `max_points` frames are scored. The
+    translation's z is 0 (heights stay as recorded). Raises ValueError if no frame is seen.
+    """
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    xy = _cleaned_horizontal(positions, max_step=0.15)
+    if len(xy) == 0:
+        raise ValueError('the path has no seen frame to place')
+    xy = xy[np.linspace(0, len(xy) - 1, min(len(xy), max_points)).astype(int)]
+    low, high = xy.min(axis=0) - reach.outer, xy.max(axis=0) + reach.outer
+    gx = np.arange(low[0], high[0] + grid, grid)
+    gy = np.arange(low[1], high[1] + grid, grid)
+    centres = np.stack(np.meshgrid(gx, gy, indexing='ij'), axis=-1).reshape(-1, 2)
+    inner, outer = reach.inner + reach.margin, reach.outer - reach.margin
+    middle = 0.5 * (inner + outer)
+    best = (-math.inf, None, 0.0)
+    for chunk in np.array_split(centres, max(1, len(centres) // 2000)):
+        offset = xy[None, :, :] - chunk[:, None, :]           # (C, M, 2)
+        radius = np.hypot(offset[..., 0], offset[..., 1])
+        bearing = np.arctan2(offset[..., 1], offset[..., 0])
+        mean_bearing = np.arctan2(np.sin(bearing).sum(1), np.cos(bearing).sum(1))
+        turned = np.angle(np.exp(1j * (bearing - mean_bearing[:, None])))
+        inside = (radius >= inner) & (radius <= outer) & (np.abs(turned) <= reach.half_angle)
+        spread = (np.mean(np.abs(radius - middle), axis=1) / (outer - inner)
+                  + np.mean(np.abs(turned), axis=1) / math.pi)
+        score = inside.mean(axis=1) - 1e-3 * spread
+        index = int(np.argmax(score))
+        if score[index] > best[0]:
+            best = (float(score[index]), chunk[index], float(mean_bearing[index]))
+    _, centre, bearing = best
+    yaw = -bearing
+    c, s = math.cos(yaw), math.sin(yaw)
+    shift = -np.array([c * centre[0] - s * centre[1], s * centre[0] + c * centre[1]])
+    return Placement((float(shift[0]), float(shift[1]), 0.0), float(yaw))
+
+
+def reach_fraction(positions, reach: ReachAnnulus) -> float:
+    """Fraction of the seen frames of a base-frame path (N, 3) m inside `reach` (its
+    radii, without the margin); NaN rows are not counted."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    xy = positions[np.all(np.isfinite(positions), axis=1), :2]
+    if len(xy) == 0:
+        return 0.0
+    radius = np.hypot(xy[:, 0], xy[:, 1])
+    return float(np.mean((radius >= reach.inner) & (radius <= reach.outer)))
+
+
+AT_END = ('loop', 'stop', 'hold')
+
+
+class Replay:
+    """A take replayed at its recorded pace: which frame is due `elapsed` s after the start.
+
+    motion: the take (already in the base frame); placement: the transform it was placed with
+    (kept for the record). at_end: 'loop' (start again one frame period after the last frame),
+    'stop' (nothing more), or 'hold' (the last seen frame for good, its time advancing with
+    `elapsed`).
+    `due(elapsed)` gives (index, time of that frame since the start in s) of the newest frame
+    at or before `elapsed`, or None when none is due (after the end with 'stop'). The caller
+    publishes each frame time once, and nothing for a lost frame (`motion.valid[index]`).
+    """
+
+    def __init__(self, motion: RecordedMotion, at_end: str = 'loop',
+                 placement: Placement = Placement()):
+        if at_end not in AT_END:
+            raise ValueError(f"at_end must be one of {', '.join(AT_END)}, got {at_end!r}")
+        self.motion, self.at_end, self.placement = motion, at_end, placement
+        times = motion.times
+        period = float(np.median(np.diff(times))) if len(times) > 1 else 1.0 / motion.rate_hz
+        self.cycle = float(times[-1]) + period          # s, one pass when looping
+        self._last_seen = int(np.flatnonzero(motion.valid)[-1])
+
+    def due(self, elapsed: float) -> tuple[int, float] | None:
+        times = self.motion.times
+        if elapsed < 0.0:
+            return None
+        offset = 0.0
+        if elapsed > times[-1]:
+            if self.at_end == 'stop':
+                return None
+            if self.at_end == 'hold':
+                return self._last_seen, float(elapsed)
+            passes = math.floor(elapsed / self.cycle)
+            offset = passes * self.cycle
+            elapsed -= offset
+        index = int(np.searchsorted(times, elapsed, side='right')) - 1
+        return index, float(times[index] + offset)

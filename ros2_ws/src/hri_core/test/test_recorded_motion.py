@@ -1,0 +1,194 @@
+"""Unit tests of hri_core.recorded_motion: Vicon CSV reading, transform, placement."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hri_core.recorded_motion import (
+    Placement,
+    ReachAnnulus,
+    Replay,
+    choose_placement,
+    reach_fraction,
+    read_vicon_csv,
+)
+
+TAKES = sorted((Path(__file__).resolve().parents[4] / 'data' / 'human-motion').glob('*.csv'))
+SCARA_REACH = ReachAnnulus(inner=0.222, outer=0.65)      # l1 0.35, l2 0.30, |q2| <= 2.46 rad
+SEGMENTS = ('head', 'right_hand')
+
+
+def vicon_text(rows, segments=SEGMENTS, rate='100', units='mm'):
+    """A small export: rows are (frame, {segment: (x, y, z) mm or None for lost})."""
+    names = ',,' + ','.join(f'Global Angle {s}:{s},,,,,' for s in segments)
+    labels = 'Frame,Sub Frame,' + ','.join('RX,RY,RZ,TX,TY,TZ' for _ in segments)
+    unit_line = ',,' + ','.join(f'rad,rad,rad,{units},{units},{units}' for _ in segments)
+    lines = ['\ufeffObjects', rate, names, labels, unit_line]
+    for frame, points in rows:
+        cells = [str(frame), '0']
+        for segment in segments:
+            point = points.get(segment)
+            cells += ['0.1', '0.2', '0.3'] if point is not None else ['', '', '']
+            cells += [f'{v:.6f}' for v in point] if point is not None else ['', '', '']
+        lines.append(','.join(cells))
+    return '\n'.join(lines) + '\n\n'
+
+
+def write(tmp_path, text, name='take.csv'):
+    path = tmp_path / name
+    path.write_text(text, encoding='utf-8')
+    return path
+
+
+def test_reads_positions_in_metres_with_lost_frames_as_nan(tmp_path):
+    rows = [(31, {'head': (0, 0, 1500), 'right_hand': (100.0, -200.0, 900.0)}),
+            (32, {'head': (0, 0, 1500)}),
+            (33, {'head': (0, 0, 1500), 'right_hand': (110.0, -200.0, 905.0)})]
+    motion = read_vicon_csv(write(tmp_path, vicon_text(rows)))
+    assert motion.rate_hz == 100.0 and motion.segment == 'right_hand'
+    np.testing.assert_allclose(motion.times, [0.0, 0.01, 0.02])
+    np.testing.assert_allclose(motion.positions[0], [0.1, -0.2, 0.9])
+    assert np.all(np.isnan(motion.positions[1]))
+    assert motion.valid.tolist() == [True, False, True]
+    head = read_vicon_csv(write(tmp_path, vicon_text(rows)), segment='head')
+    np.testing.assert_allclose(head.positions[:, 2], 1.5)
+
+
+def test_transform_and_time_scale(tmp_path):
+    rows = [(1, {'right_hand': (1000.0, 0.0, 500.0)}), (2, {'right_hand': (1000.0, 10.0, 500.0)})]
+    placement = Placement(translation=(0.1, 0.2, -0.5), yaw=math.pi / 2)
+    motion = read_vicon_csv(write(tmp_path, vicon_text(rows)), placement=placement,
+                            time_scale=4.0)
+    np.testing.assert_allclose(motion.times, [0.0, 0.04])
+    # Rz(90 deg) (1, 0, 0.5) = (0, 1, 0.5); + (0.1, 0.2, -0.5)
+    np.testing.assert_allclose(motion.positions[0], [0.1, 1.2, 0.0], atol=1e-12)
+    np.testing.assert_allclose(motion.positions[1], [0.09, 1.2, 0.0], atol=1e-12)
+
+
+@pytest.mark.parametrize('text, reason', [
+    ('', "line 1 is not 'Objects'"),
+    ('Objects\n', 'ends before its frame-rate line'),
+    ('Objects\nfast\n', 'frame rate in Hz'),
+    ('Objects\n-100\n', 'frame rate must be positive'),
+    (vicon_text([], segments=('head',)), "no segment 'right_hand'.*segments: head"),
+    (vicon_text([]), 'holds no frames'),
+    (vicon_text([(1, {})]), 'never seen'),
+    (vicon_text([(1, {'right_hand': (1, 2, 3)})], units='cm'), 'must be in mm'),
+    (vicon_text([(1, {'right_hand': (1, 2, 3)})]).replace('0.100000', '0.1')
+     .replace('1.000000', 'one'), 'line 6: non-numeric cell'),
+    (vicon_text([(2, {'right_hand': (1, 2, 3)}), (1, {'right_hand': (1, 2, 3)})]),
+     'frame numbers must increase'),
+    (vicon_text([(1, {'right_hand': (1, 2, 3)})]).replace('TX,TY,TZ\n', 'AX,AY,AZ\n'),
+     "line 4 must read 'Frame,Sub Frame'"),
+])
+def test_a_bad_file_gives_a_one_line_reason(tmp_path, text, reason):
+    with pytest.raises(ValueError, match=reason) as caught:
+        read_vicon_csv(write(tmp_path, text))
+    assert '\n' not in str(caught.value)
+
+
+def test_missing_file_and_bad_time_scale(tmp_path):
+    with pytest.raises(ValueError, match='cannot read absent.csv'):
+        read_vicon_csv(tmp_path / 'absent.csv')
+    rows = [(1, {'right_hand': (1, 2, 3)})]
+    with pytest.raises(ValueError, match='time_scale must be a positive'):
+        read_vicon_csv(write(tmp_path, vicon_text(rows)), time_scale=0.0)
+
+
+def test_binary_garbage_is_a_one_line_reason(tmp_path):
+    path = tmp_path / 'garbage.csv'
+    path.write_bytes(np.random.default_rng(5).integers(0, 256, 4000, dtype=np.uint8).tobytes())
+    with pytest.raises(ValueError, match='garbage.csv'):
+        read_vicon_csv(path)
+
+
+@pytest.mark.parametrize('take', TAKES, ids=lambda p: p.stem)
+def test_every_shipped_take_reads(take):
+    motion = read_vicon_csv(take)
+    assert motion.rate_hz == 100.0
+    assert len(motion.times) > 600
+    assert np.all(np.diff(motion.times) > 0.0)
+    seen = motion.positions[motion.valid]
+    assert np.all(np.abs(seen) < 5.0)                   # metres, not millimetres
+    assert motion.valid.mean() > 0.9
+
+
+def test_shipped_takes_are_all_present():
+    assert len(TAKES) == 8
+    assert (TAKES[0].parent / 'LICENSE').read_text().startswith('MIT License')
+
+
+def random_walk_path(seed, length=1500, spread=1.4):
+    """A hand-like room-frame path: a smooth random walk about 1.4 m across, 1-2 m from the
+    room origin, with lost frames and one marker swap."""
+    rng = np.random.default_rng(seed)
+    steps = np.cumsum(rng.normal(0.0, 1.0, (length, 2)), axis=0)
+    steps = np.apply_along_axis(lambda v: np.convolve(v, np.ones(50) / 50, 'same'), 0, steps)
+    steps = (steps - steps.min(0)) / np.ptp(steps, axis=0).max() * spread
+    path = np.column_stack([steps + rng.uniform(-2.0, 2.0, 2), np.full(length, 0.9)])
+    path[rng.choice(length, 40, replace=False)] = np.nan
+    path[700] += (3.0, -2.0, 0.0)                       # one frame metres away
+    return path
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3, 4])
+def test_placement_puts_most_of_an_unseen_path_in_reach(seed):
+    path = random_walk_path(seed)
+    placement = choose_placement(path, SCARA_REACH)
+    placed = placement.apply(path)
+    assert reach_fraction(placed, SCARA_REACH) >= 0.6
+    # the path faces the arm: its circular-mean bearing is +x
+    xy = placed[np.all(np.isfinite(placed), axis=1), :2]
+    bearing = np.angle(np.mean(np.exp(1j * np.arctan2(xy[:, 1], xy[:, 0]))))
+    assert abs(bearing) < 0.3
+    np.testing.assert_allclose(placed[:, 2][np.isfinite(placed[:, 2])], 0.9)
+
+
+def test_a_path_that_fits_is_placed_wholly_in_reach():
+    angle = np.linspace(-1.0, 1.0, 400)
+    arc = np.column_stack([0.45 * np.cos(angle) + 3.0, 0.45 * np.sin(angle) - 1.0,
+                           np.zeros(400)])
+    placed = choose_placement(arc, SCARA_REACH).apply(arc)
+    assert reach_fraction(placed, SCARA_REACH) == 1.0
+
+
+@pytest.mark.parametrize('take', TAKES, ids=lambda p: p.stem)
+def test_placement_of_the_shipped_takes(take):
+    motion = read_vicon_csv(take)
+    placed = choose_placement(motion.positions, SCARA_REACH).apply(motion.positions)
+    assert reach_fraction(placed, SCARA_REACH) >= 0.65
+
+
+def test_placement_needs_a_seen_frame_and_a_sane_annulus():
+    with pytest.raises(ValueError, match='no seen frame'):
+        choose_placement(np.full((5, 3), np.nan), SCARA_REACH)
+    with pytest.raises(ValueError, match='inner < outer'):
+        ReachAnnulus(inner=0.7, outer=0.65)
+
+
+def three_frames(tmp_path, lost_last=False):
+    rows = [(1, {'right_hand': (400.0, 0.0, 0.0)}), (2, {'right_hand': (410.0, 0.0, 0.0)}),
+            (3, {} if lost_last else {'right_hand': (420.0, 0.0, 0.0)})]
+    return read_vicon_csv(write(tmp_path, vicon_text(rows)))
+
+
+def test_replay_loops_at_the_recorded_pace(tmp_path):
+    replay = Replay(three_frames(tmp_path), 'loop')
+    assert replay.cycle == pytest.approx(0.03)
+    assert replay.due(0.0) == (0, 0.0)
+    assert replay.due(0.015) == (1, pytest.approx(0.01))
+    assert replay.due(0.029) == (2, pytest.approx(0.02))
+    assert replay.due(0.031) == (0, pytest.approx(0.03))       # the second pass
+    assert replay.due(0.075) == (1, pytest.approx(0.07))      # the third
+
+
+def test_replay_stops_or_holds_the_last_seen_frame(tmp_path):
+    stop = Replay(three_frames(tmp_path), 'stop')
+    assert stop.due(0.02)[0] == 2 and stop.due(0.021) is None
+    hold = Replay(three_frames(tmp_path, lost_last=True), 'hold')
+    assert hold.due(0.02) == (2, pytest.approx(0.02))          # the lost frame is due ...
+    assert hold.due(0.5) == (1, 0.5)                           # ... then the last seen one
+    with pytest.raises(ValueError, match='at_end must be one of loop, stop, hold'):
+        Replay(three_frames(tmp_path), 'rewind')

@@ -16,10 +16,11 @@ from hri_bringup import live_view_node
 from hri_core import topics
 from hri_core.node_common import PARAMETER_TYPES, load_defaults
 from hri_demo_learning import learner_node, recorder_node
-from scara_sim import demonstrator_node, hand_sim_node, scara_sim_node
+from scara_sim import arm_sim_node, demonstrator_node, hand_sim_node, scara_sim_node
 
 TABLE_NODES = [
     ('scara_sim', scara_sim_node),
+    ('scara_sim', arm_sim_node),
     ('scara_sim', hand_sim_node),
     ('scara_sim', demonstrator_node),
     ('hri_adaptive_controller', controller_node),

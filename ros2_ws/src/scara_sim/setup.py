@@ -19,11 +19,12 @@ setup(
     zip_safe=True,
     maintainer='HRI demo maintainers',
     maintainer_email='maintainers@hri-demo.example.org',
-    description='Simulated 2-link SCARA, scripted human hand and scripted demonstrator.',
+    description='Simulated SCARA and URDF arms, scripted human hand and scripted demonstrator.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'scara_sim = scara_sim.scara_sim_node:main',
+            'arm_sim = scara_sim.arm_sim_node:main',
             'hand_sim = scara_sim.hand_sim_node:main',
             'demonstrator = scara_sim.demonstrator_node:main',
         ],

@@ -16,7 +16,7 @@ from geometry_msgs.msg import PointStamped, WrenchStamped
 from hri_interfaces.msg import ControllerState, TaskEvent, TaskParameters, TaskState
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 
 # What a publisher of a measured stream offers (joint states, end-effector, hand position).
 SENSOR_STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -31,6 +31,9 @@ EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 # The active task, a and da/dt: a late controller gets the latest state at once.
 TASK_STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# The robot's URDF: published once, kept for late joiners (as robot_state_publisher does).
+ROBOT_DESCRIPTION_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Learned tasks: every one reaches late joiners (keep_last >= 16).
 LEARNED_TASKS_QOS = QoSProfile(depth=16, history=HistoryPolicy.KEEP_LAST,
                                reliability=ReliabilityPolicy.RELIABLE,
@@ -63,6 +66,7 @@ TASK = Topic('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
 EVENTS = Topic('/hri/events', TaskEvent, EVENT_QOS)
 TASK_STATE = Topic('/hri/task_state', TaskState, TASK_STATE_QOS)
 CONTROLLER_STATE = Topic('/hri/controller_state', ControllerState, MONITOR_QOS)
+ROBOT_DESCRIPTION = Topic('/robot_description', String, ROBOT_DESCRIPTION_QOS)
 
 # What the recorder writes by default: everything the learner and the reports read.
 DEMONSTRATION_TOPICS = (JOINT_STATES, EE_POSITION, DEMO_REFERENCE, TARGET, HUMAN_WRENCH)

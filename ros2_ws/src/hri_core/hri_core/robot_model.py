@@ -1,0 +1,576 @@
+"""One interface for every arm the suite drives: kinematics of its tool point and the
+linear-in-parameters dynamics of eq. 15 and 18.
+
+`RobotModel` gives, for a serial arm of n joints:
+
+* joint_names (n,); limits: position (rad or m), velocity (rad/s or m/s), effort (N m or N);
+* the tool point's position in the base frame, x(q) (3,) in m, its Jacobian J(q) = dx/dq
+  (3, n) and the bias J'(q, dq) dq (3,) in m/s^2 (eq. 14 and the reference acceleration of
+  eq. 18 need both);
+* the terms of eq. 15 with viscous friction, M(q) ddq + C(q, dq) dq + F dq + g(q) = tau:
+  M (n, n) kg m^2, C (n, n) with Mdot - 2 C skew-symmetric (Christoffel form), F dq (n,) and
+  g(q) (n,) in N m;
+* the regressor of eq. 18, Y(q, dq, dq_r, ddq_r) (n, p) with
+  Y theta = M ddq_r + C(q, dq) dq_r + F dq_r + g(q), the nominal theta (p,) and a box of
+  physically possible values for it (theta_lower, theta_upper), for the projection of the
+  adaptive law's estimate;
+* reach: an upper bound of the tool point's distance from `shoulder` (3,), the origin of the
+  first moving joint, over every configuration (the sum of the chain's fixed joint-to-joint
+  distances and the last joint to the tool point; exact for the SCARA, l1 + l2).
+
+Two implementations:
+
+* `ScaraModel`: the planar SCARA of hri_core.dynamics (analytic, the fast path); its tool
+  point moves in the plane z = 0 of the base frame, so J's third row and z are zero.
+* `PinocchioModel`: any serial arm from a URDF through pinocchio. Joints that are not between
+  the base and the tool frame (a gripper's fingers) are locked at their neutral position, their
+  links' inertia carried by the link they hang from. theta stacks each moving link's ten
+  inertial parameters (pinocchio's order: m, m c_x, m c_y, m c_z, Ixx, Ixy, Iyy, Ixz, Iyz, Izz,
+  the inertia about the joint frame's origin) and then each joint's viscous friction (the
+  URDF's <dynamics damping>). The regressor of eq. 18 comes from pinocchio's joint torque
+  regressor Y_pin(q, v, a; gravity) (Y_pin theta = RNEA, quadratic in v, linear in a and in
+  gravity): because the Christoffel C satisfies C(q, v) w = C(q, w) v,
+  Y = 1/4 [Y_pin(q, dq + dq_r, 2 ddq_r; 2 g) - Y_pin(q, dq - dq_r, -2 ddq_r; -2 g)] exactly
+  (two calls on two copies of the model with gravity scaled by +-2).
+
+`robot_model('scara')`, `robot_model('panda')` (the Franka Emika Panda of the
+example-robot-data package, tool frame `panda_hand_tcp`, the point between the fingertips,
+fingers locked closed) or `robot_model(urdf_file=PATH, tool_frame=NAME)` builds one. Every
+bad input (an unreadable URDF, an unknown frame, a wrong shape) raises ValueError with a
+one-line reason. No ROS import.
+"""
+
+import contextlib
+import math
+import os
+import tempfile
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from hri_core import dynamics
+from hri_core.dynamics import ScaraParameters
+
+__all__ = [
+    'JointLimits',
+    'PANDA_TOOL_FRAME',
+    'PinocchioModel',
+    'ROBOT_NAMES',
+    'RobotModel',
+    'ScaraModel',
+    'generic_model',
+    'panda_urdf_path',
+    'robot_model',
+    'scara_urdf',
+]
+
+ROBOT_NAMES = ('scara', 'panda')
+PANDA_TOOL_FRAME = 'panda_hand_tcp'
+# Franka's 'ready' pose (rad): elbow bent, hand down in front of the base.
+PANDA_HOME = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
+PANDA_URDF = 'cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/panda.urdf'
+STANDARD_GRAVITY = (0.0, 0.0, -9.81)  # m/s^2 in the base frame, z up
+# theta's box (PinocchioModel): a link's mass at least this fraction of its URDF mass.
+MASS_FLOOR = 0.01
+INERTIA_NAMES = ('m', 'mcx', 'mcy', 'mcz', 'Ixx', 'Ixy', 'Iyy', 'Ixz', 'Iyz', 'Izz')
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Per-joint limits, each (n,): lower, upper positions (rad or m), velocity (rad/s or
+    m/s), effort (N m or N). Raises ValueError if the shapes differ or lower > upper."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+    def __post_init__(self):
+        arrays = [np.array(getattr(self, name), dtype=float)
+                  for name in ('lower', 'upper', 'velocity', 'effort')]
+        if len({array.shape for array in arrays}) != 1 or arrays[0].ndim != 1:
+            raise ValueError(f'joint limits must be 4 vectors of one length, got shapes '
+                             f'{[array.shape for array in arrays]}')
+        if np.any(np.isnan(np.concatenate(arrays))) or np.any(arrays[0] > arrays[1]):
+            raise ValueError(f'joint limits: lower {arrays[0].tolist()} must be <= upper '
+                             f'{arrays[1].tolist()}')
+        for name, array in zip(('lower', 'upper', 'velocity', 'effort'), arrays, strict=True):
+            array.flags.writeable = False
+            object.__setattr__(self, name, array)
+
+
+class RobotModel(ABC):
+    """Kinematics and dynamics of a serial arm of `dof` joints (see the module docstring).
+
+    Attributes set by the implementations: name, joint_names (tuple of n str), limits
+    (JointLimits), parameter_names (p str), theta (p,) nominal parameters, theta_lower and
+    theta_upper (p,) the box of physically possible ones, reach (m), shoulder (3,) m,
+    urdf (str, the URDF text of the arm, as /robot_description carries it).
+    Every method takes single states, joint vectors of shape (n,).
+    """
+
+    name: str
+    joint_names: tuple[str, ...]
+    limits: JointLimits
+    parameter_names: tuple[str, ...]
+    theta: np.ndarray
+    theta_lower: np.ndarray
+    theta_upper: np.ndarray
+    reach: float
+    shoulder: np.ndarray
+    urdf: str
+    tool_frame: str
+    home: np.ndarray
+
+    @property
+    def dof(self) -> int:
+        """Number of joints n."""
+        return len(self.joint_names)
+
+    def joint_vector(self, value, what: str) -> np.ndarray:
+        """`value` as a finite float array (n,); ValueError with the reason otherwise."""
+        array = np.asarray(value, dtype=float)
+        if array.shape != (self.dof,):
+            raise ValueError(f'{what} must have shape ({self.dof},), got {array.shape}')
+        if not np.all(np.isfinite(array)):
+            raise ValueError(f'{what} must be finite, got {array.tolist()}')
+        return array
+
+    @abstractmethod
+    def tool_position(self, q) -> np.ndarray:
+        """Tool point x(q) in the base frame (3,), m."""
+
+    @abstractmethod
+    def tool_jacobian(self, q) -> np.ndarray:
+        """J(q) = dx/dq (3, n), m/rad (m/m for a prismatic joint)."""
+
+    @abstractmethod
+    def tool_acceleration_bias(self, q, dq) -> np.ndarray:
+        """J'(q, dq) dq (3,), m/s^2: the tool's acceleration at ddq = 0."""
+
+    @abstractmethod
+    def mass_matrix(self, q) -> np.ndarray:
+        """M(q) (n, n), symmetric positive definite."""
+
+    @abstractmethod
+    def coriolis_matrix(self, q, dq) -> np.ndarray:
+        """C(q, dq) (n, n), Christoffel form (Mdot - 2 C skew-symmetric)."""
+
+    @abstractmethod
+    def gravity_torque(self, q) -> np.ndarray:
+        """g(q) (n,), N m."""
+
+    @abstractmethod
+    def friction_torque(self, dq) -> np.ndarray:
+        """Viscous friction F dq (n,), N m."""
+
+    @abstractmethod
+    def regressor(self, q, dq, dq_r, ddq_r) -> np.ndarray:
+        """Y(q, dq, dq_r, ddq_r) (n, p) of eq. 18: Y theta = M ddq_r + C dq_r + F dq_r + g."""
+
+
+# The SCARA --------------------------------------------------------------------------------
+
+# scara_sim's defaults (config/scara_sim.yaml): joint limits and effort limit. The velocity
+# limit is the speed range hri_core's dynamics tests cover; scara_sim enforces none.
+SCARA_LIMITS = JointLimits(lower=np.array([-2.30, -2.46]), upper=np.array([2.30, 2.46]),
+                           velocity=np.array([3.0, 3.0]), effort=np.array([20.0, 20.0]))
+# The projection box of the controller's theta_hat (adaptive_law.DEFAULT_THETA_*): inertias
+# positive, pi2 = m2 l1 lc2 and friction >= 0, the gravity moments free.
+SCARA_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, -math.inf, -math.inf)
+DEFAULT_SCARA = ScaraParameters()
+
+
+class ScaraModel(RobotModel):
+    """The planar 2-link SCARA of hri_core.dynamics: analytic, the fast path.
+
+    params: ScaraParameters (gravity, if any, along -y of the arm plane, as in dynamics.py);
+    limits: JointLimits (default: scara_sim's). The tool point is at z = 0.
+    """
+
+    def __init__(self, params: ScaraParameters = DEFAULT_SCARA,
+                 limits: JointLimits = SCARA_LIMITS):
+        if limits.lower.shape != (2,):
+            raise ValueError(f'the SCARA has 2 joints, got limits for {limits.lower.size}')
+        self.name = 'scara'
+        self.params = params
+        self.joint_names = ('joint1', 'joint2')
+        self.limits = limits
+        self.parameter_names = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
+        self.theta = dynamics.dynamic_parameters(params)
+        self.theta_lower = np.array(SCARA_THETA_LOWER)
+        self.theta_upper = np.full(7, math.inf)
+        self.reach = params.l1 + params.l2
+        self.shoulder = np.zeros(3)
+        self.urdf = scara_urdf(params, limits)
+        self.tool_frame = 'tip'
+        self.home = np.clip([0.0, math.pi / 2], limits.lower, limits.upper)
+
+    def tool_position(self, q) -> np.ndarray:
+        x, y = dynamics.forward_kinematics(self.joint_vector(q, 'q'), self.params.l1,
+                                           self.params.l2)
+        return np.array([x, y, 0.0])
+
+    def tool_jacobian(self, q) -> np.ndarray:
+        planar = dynamics.jacobian(self.joint_vector(q, 'q'), self.params.l1, self.params.l2)
+        return np.vstack([planar, np.zeros((1, 2))])
+
+    def tool_acceleration_bias(self, q, dq) -> np.ndarray:
+        rate = dynamics.jacobian_derivative(self.joint_vector(q, 'q'),
+                                            self.joint_vector(dq, 'dq'), self.params.l1,
+                                            self.params.l2)
+        return np.append(rate @ dq, 0.0)
+
+    def mass_matrix(self, q) -> np.ndarray:
+        return dynamics.mass_matrix(self.joint_vector(q, 'q'), self.params)
+
+    def coriolis_matrix(self, q, dq) -> np.ndarray:
+        return dynamics.coriolis_matrix(self.joint_vector(q, 'q'), self.joint_vector(dq, 'dq'),
+                                        self.params)
+
+    def gravity_torque(self, q) -> np.ndarray:
+        return dynamics.gravity_torque(self.joint_vector(q, 'q'), self.params)
+
+    def friction_torque(self, dq) -> np.ndarray:
+        return dynamics.friction_torque(self.joint_vector(dq, 'dq'), self.params)
+
+    def regressor(self, q, dq, dq_r, ddq_r) -> np.ndarray:
+        return dynamics.regressor(self.joint_vector(q, 'q'), self.joint_vector(dq, 'dq'),
+                                  self.joint_vector(dq_r, 'dq_r'),
+                                  self.joint_vector(ddq_r, 'ddq_r'), self.params.gravity)
+
+
+def _scara_link(name: str, mass: float, centre_of_mass: float, inertia: float) -> str:
+    """A URDF link whose centre of mass is `centre_of_mass` m along x; `inertia` (kg m^2)
+    about each axis through it (only the z axis matters to the planar arm)."""
+    centre_of_mass, mass, inertia = float(centre_of_mass), float(mass), float(inertia)
+    return (f'  <link name="{name}">\n    <inertial>\n'
+            f'      <origin xyz="{centre_of_mass!r} 0 0" rpy="0 0 0"/>\n'
+            f'      <mass value="{mass!r}"/>\n'
+            f'      <inertia ixx="{inertia!r}" ixy="0" ixz="0" iyy="{inertia!r}" iyz="0" '
+            f'izz="{inertia!r}"/>\n    </inertial>\n  </link>\n')
+
+
+def _scara_joint(index: int, parent: str, offset: float, limits: JointLimits,
+                 damping: float) -> str:
+    """Revolute joint `index` (1 or 2) about z, `offset` m along the parent's x axis."""
+    i = index - 1
+    lower, upper, effort, velocity = (float(getattr(limits, name)[i])
+                                      for name in ('lower', 'upper', 'effort', 'velocity'))
+    return (f'  <joint name="joint{index}" type="revolute">\n'
+            f'    <parent link="{parent}"/>\n    <child link="link{index}"/>\n'
+            f'    <origin xyz="{offset!r} 0 0" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>\n'
+            f'    <limit lower="{lower!r}" upper="{upper!r}" effort="{effort!r}" '
+            f'velocity="{velocity!r}"/>\n'
+            f'    <dynamics damping="{float(damping)!r}" friction="0"/>\n  </joint>\n')
+
+
+def scara_urdf(params: ScaraParameters = DEFAULT_SCARA,
+               limits: JointLimits = SCARA_LIMITS) -> str:
+    """The URDF of the SCARA of `params`: links `base`, `link1`, `link2`, joints `joint1`,
+    `joint2` about z (the base frame's z up, the arm in the plane z = 0), the tool frame `tip`
+    l2 along link 2. Viscous friction as <dynamics damping>. The URDF has no gravity: with
+    the usual gravity along -z the arm is horizontal (params.gravity = 0)."""
+    return ('<?xml version="1.0"?>\n<robot name="scara">\n  <link name="base"/>\n'
+            + _scara_link('link1', params.m1, params.lc1, params.i1)
+            + _scara_link('link2', params.m2, params.lc2, params.i2)
+            + '  <link name="tip"/>\n'
+            + _scara_joint(1, 'base', 0.0, limits, params.b1)
+            + _scara_joint(2, 'link1', float(params.l1), limits, params.b2)
+            + '  <joint name="tip_joint" type="fixed">\n    <parent link="link2"/>\n'
+            f'    <child link="tip"/>\n    <origin xyz="{float(params.l2)!r} 0 0" rpy="0 0 0"/>\n'
+            '  </joint>\n</robot>\n')
+
+
+# Any URDF through pinocchio ---------------------------------------------------------------
+
+@contextlib.contextmanager
+def _stderr_captured(lines: list[str]):
+    """Collect what C++ code writes to file descriptor 2 (urdfdom's parse errors) into
+    `lines` instead of the terminal: the caller turns it into one line of its own."""
+    with tempfile.TemporaryFile(mode='w+b') as sink:
+        saved = os.dup(2)
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            lines.extend(line.strip() for line in sink.read().decode(errors='replace')
+                         .splitlines() if line.strip())
+
+
+def _read_urdf(pin, urdf_text: str):
+    """pinocchio's model of `urdf_text`; ValueError with urdfdom's first reason if it fails."""
+    if not isinstance(urdf_text, str) or not urdf_text.strip():
+        raise ValueError('the URDF is empty')
+    errors: list[str] = []
+    try:
+        with _stderr_captured(errors):
+            return pin.buildModelFromXML(urdf_text)
+    except Exception as error:  # noqa: BLE001 pinocchio raises ValueError or RuntimeError
+        reasons = [line.removeprefix('Error:').strip() for line in errors
+                   if line.startswith('Error:')]
+        reason = reasons[0] if reasons else str(error).splitlines()[0]
+        raise ValueError(f'not a valid URDF: {reason}') from None
+
+
+class PinocchioModel(RobotModel):
+    """Any serial arm from its URDF text, through pinocchio (see the module docstring).
+
+    urdf_text: the URDF (str); tool_frame: the name of the link or frame whose origin is the
+    tool point; name: what the model is called in messages; gravity: (3,) m/s^2 in the base
+    frame (default 9.81 along -z). Raises ValueError with a one-line reason for an unreadable
+    URDF, an unknown tool frame, no moving joint before it, or a joint other than a 1-DoF
+    revolute or prismatic one (a `continuous` joint included) between the base and the tool.
+    """
+
+    def __init__(self, urdf_text: str, tool_frame: str, name: str = 'urdf',
+                 gravity=STANDARD_GRAVITY):
+        import pinocchio as pin  # a heavy import, only for the models that need it
+
+        self._pin = pin
+        full = _read_urdf(pin, urdf_text)
+        if not full.existFrame(tool_frame):
+            frames = [frame.name for frame in full.frames][1:]
+            raise ValueError(f'no frame {tool_frame!r} in the URDF of {name}; its frames: '
+                             f'{", ".join(frames[:20])}{" ..." if len(frames) > 20 else ""}')
+        chain = set(full.supports[full.frames[full.getFrameId(tool_frame)].parentJoint])
+        locked = [joint for joint in range(1, full.njoints) if joint not in chain]
+        model = (pin.buildReducedModel(full, locked, _neutral_within_limits(pin, full))
+                 if locked else full)
+        if model.nv == 0:
+            raise ValueError(f'no moving joint between the base and {tool_frame!r} in {name}')
+        for joint, joint_name in zip(model.joints[1:], model.names[1:], strict=True):
+            if joint.nq != 1 or joint.nv != 1:
+                raise ValueError(f'joint {joint_name!r} of {name} ({joint.shortname()}) is not '
+                                 'a 1-DoF revolute or prismatic joint with limits')
+        gravity = np.array(gravity, dtype=float)
+        if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+            raise ValueError(f'gravity must be 3 finite values (m/s^2), got {gravity.tolist()}')
+        self.model = model
+        self.model.gravity = pin.Motion(gravity, np.zeros(3))
+        self.data = model.createData()
+        # Two copies for the two-call regressor, with gravity scaled by +2 and -2.
+        self._regressor_models = []
+        for scale in (2.0, -2.0):
+            copy = pin.Model(model)
+            copy.gravity = pin.Motion(scale * gravity, np.zeros(3))
+            self._regressor_models.append((copy, copy.createData()))
+        self.tool_frame = tool_frame
+        self.tool_frame_id = model.getFrameId(tool_frame)
+        self.name = name
+        self.urdf = urdf_text
+        self.joint_names = tuple(model.names[1:])
+        self.limits = JointLimits(lower=model.lowerPositionLimit.copy(),
+                                  upper=model.upperPositionLimit.copy(),
+                                  velocity=model.velocityLimit.copy(),
+                                  effort=model.effortLimit.copy())
+        self.damping = model.damping.copy()
+        self.parameter_names = tuple(
+            [f'{link}.{parameter}' for link in model.names[1:] for parameter in INERTIA_NAMES]
+            + [f'{joint}.damping' for joint in self.joint_names])
+        self.theta = np.concatenate(
+            [inertia.toDynamicParameters() for inertia in model.inertias[1:]] + [self.damping])
+        self.theta_lower, self.theta_upper = self._parameter_box()
+        self.shoulder, self.reach = self._reach()
+        self.home = _neutral_within_limits(pin, model)
+        middle = 0.5 * (self.limits.lower + self.limits.upper)
+        bounded = np.isfinite(middle)
+        self.home[bounded] = middle[bounded]
+        self._world_aligned = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        self._zero = np.zeros(model.nv)
+
+    def _parameter_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """theta's box: each mass >= MASS_FLOOR of its URDF value, the diagonal inertias
+        Ixx, Iyy, Izz and the friction >= 0; first moments and products of inertia free.
+        A box holds every physical theta but not only those (a physical inertia also has a
+        positive definite pseudo-inertia matrix, which no box describes)."""
+        per_link = len(INERTIA_NAMES)
+        lower = np.full(self.theta.size, -math.inf)
+        upper = np.full(self.theta.size, math.inf)
+        links = self.dof * per_link
+        lower[0:links:per_link] = MASS_FLOOR * self.theta[0:links:per_link]
+        for diagonal in ('Ixx', 'Iyy', 'Izz'):
+            lower[INERTIA_NAMES.index(diagonal):links:per_link] = 0.0
+        lower[links:] = 0.0
+        return lower, upper
+
+    def _reach(self) -> tuple[np.ndarray, float]:
+        """(shoulder, reach): the first joint's origin (3,) m at q = neutral and the sum of
+        the fixed distances along the chain from it to the tool point (m)."""
+        pin, model, data = self._pin, self.model, self.data
+        pin.forwardKinematics(model, data, _neutral_within_limits(pin, model))
+        pin.updateFramePlacements(model, data)
+        points = [data.oMi[joint].translation.copy() for joint in range(1, model.njoints)]
+        points.append(data.oMf[self.tool_frame_id].translation.copy())
+        steps = np.diff(np.array(points), axis=0)
+        return points[0], float(np.sum(np.linalg.norm(steps, axis=1)))
+
+    def tool_position(self, q) -> np.ndarray:
+        pin = self._pin
+        pin.forwardKinematics(self.model, self.data, self.joint_vector(q, 'q'))
+        return pin.updateFramePlacement(self.model, self.data,
+                                        self.tool_frame_id).translation.copy()
+
+    def tool_jacobian(self, q) -> np.ndarray:
+        return self._pin.computeFrameJacobian(self.model, self.data, self.joint_vector(q, 'q'),
+                                              self.tool_frame_id, self._world_aligned)[:3]
+
+    def tool_wrench_jacobian(self, q) -> np.ndarray:
+        """The frame Jacobian (6, n), linear rows then angular, base-frame axes at the tool
+        point: J6^T [f; m] is the joint torque of a wrench (N, N m) held at the tool."""
+        return self._pin.computeFrameJacobian(self.model, self.data, self.joint_vector(q, 'q'),
+                                              self.tool_frame_id, self._world_aligned).copy()
+
+    def tool_acceleration_bias(self, q, dq) -> np.ndarray:
+        pin = self._pin
+        pin.forwardKinematics(self.model, self.data, self.joint_vector(q, 'q'),
+                              self.joint_vector(dq, 'dq'), self._zero)
+        return pin.getFrameClassicalAcceleration(self.model, self.data, self.tool_frame_id,
+                                                 self._world_aligned).linear.copy()
+
+    def mass_matrix(self, q) -> np.ndarray:
+        upper = np.triu(self._pin.crba(self.model, self.data, self.joint_vector(q, 'q')))
+        return upper + np.triu(upper, 1).T
+
+    def coriolis_matrix(self, q, dq) -> np.ndarray:
+        return self._pin.computeCoriolisMatrix(self.model, self.data, self.joint_vector(q, 'q'),
+                                               self.joint_vector(dq, 'dq')).copy()
+
+    def gravity_torque(self, q) -> np.ndarray:
+        return self._pin.computeGeneralizedGravity(self.model, self.data,
+                                                   self.joint_vector(q, 'q')).copy()
+
+    def friction_torque(self, dq) -> np.ndarray:
+        return self.damping * self.joint_vector(dq, 'dq')
+
+    def regressor(self, q, dq, dq_r, ddq_r) -> np.ndarray:
+        q, dq = self.joint_vector(q, 'q'), self.joint_vector(dq, 'dq')
+        dq_r, ddq_r = self.joint_vector(dq_r, 'dq_r'), self.joint_vector(ddq_r, 'ddq_r')
+        return self.regressor_unchecked(q, dq, dq_r, ddq_r)
+
+    def regressor_unchecked(self, q, dq, dq_r, ddq_r) -> np.ndarray:
+        """regressor() for inputs the caller has checked ((n,) finite floats): the 1 kHz
+        path. Y_pin is quadratic in the velocity and linear in the acceleration and gravity
+        together, so the two calls' difference keeps C(q, dq) dq_r, M ddq_r and g(q)."""
+        (plus, plus_data), (minus, minus_data) = self._regressor_models
+        regress = self._pin.computeJointTorqueRegressor
+        rigid = 0.25 * (regress(plus, plus_data, q, dq + dq_r, 2.0 * ddq_r)
+                        - regress(minus, minus_data, q, dq - dq_r, -2.0 * ddq_r))
+        return np.hstack([rigid, np.diag(dq_r)])
+
+    def forward_dynamics(self, q, dq, tau) -> np.ndarray:
+        """ddq (n,) = M^-1 (tau - C dq - F dq - g) by pinocchio's ABA; inputs unchecked."""
+        return self._pin.aba(self.model, self.data, q, dq, tau - self.damping * dq)
+
+    def inverse_mass_matrix(self, q) -> np.ndarray:
+        """M(q)^-1 (n, n) by pinocchio's computeMinverse; q unchecked."""
+        upper = np.triu(self._pin.computeMinverse(self.model, self.data, q))
+        return upper + np.triu(upper, 1).T
+
+    def potential_energy(self, q) -> float:
+        """Gravitational potential energy (J) whose gradient is g(q)."""
+        return float(self._pin.computePotentialEnergy(self.model, self.data,
+                                                      self.joint_vector(q, 'q')))
+
+    def kinetic_energy(self, q, dq) -> float:
+        """1/2 dq^T M(q) dq (J)."""
+        dq = self.joint_vector(dq, 'dq')
+        return float(0.5 * dq @ self.mass_matrix(q) @ dq)
+
+    def with_inertias(self, link_scales, damping) -> 'PinocchioModel':
+        """A copy whose link i has its mass and rotational inertia scaled by link_scales[i]
+        (centre of mass unchanged) and whose joints have viscous friction `damping` (n,),
+        N m s/rad: a perturbed 'true' arm for a simulator. Limits and URDF text stay."""
+        scales = np.asarray(link_scales, dtype=float)
+        damping = np.asarray(damping, dtype=float)
+        if scales.shape != (self.dof,) or np.any(scales <= 0.0) or damping.shape != (
+                self.dof,) or np.any(damping < 0.0):
+            raise ValueError(f'link scales must be {self.dof} values > 0 and damping '
+                             f'{self.dof} values >= 0, got {scales.tolist()}, '
+                             f'{damping.tolist()}')
+        pin = self._pin
+        copy = object.__new__(PinocchioModel)
+        copy.__dict__.update(self.__dict__)
+        copy.model = pin.Model(self.model)
+        for joint, scale in enumerate(scales, start=1):
+            inertia = copy.model.inertias[joint]
+            copy.model.inertias[joint] = pin.Inertia(scale * inertia.mass, inertia.lever,
+                                                     scale * inertia.inertia)
+        copy.model.damping = damping.copy()
+        copy.data = copy.model.createData()
+        copy._regressor_models = []
+        for scale in (2.0, -2.0):
+            twin = pin.Model(copy.model)
+            twin.gravity = pin.Motion(scale * copy.model.gravity.linear, np.zeros(3))
+            copy._regressor_models.append((twin, twin.createData()))
+        copy.damping = damping.copy()
+        copy.theta = np.concatenate(
+            [inertia.toDynamicParameters() for inertia in copy.model.inertias[1:]] + [damping])
+        return copy
+
+
+def generic_model(model: RobotModel) -> 'PinocchioModel':
+    """`model` itself if it is a PinocchioModel, else the PinocchioModel of its URDF and tool
+    frame (the SCARA's, horizontal: gravity along -z), with its home pose."""
+    if isinstance(model, PinocchioModel):
+        return model
+    generic = PinocchioModel(model.urdf, model.tool_frame, name=model.name)
+    generic.home = np.array(model.home)
+    return generic
+
+
+def _neutral_within_limits(pin, model) -> np.ndarray:
+    """pinocchio's neutral configuration clipped into the joint limits (a gripper's fingers
+    at their closed stop)."""
+    return np.clip(pin.neutral(model), model.lowerPositionLimit, model.upperPositionLimit)
+
+
+# Names ------------------------------------------------------------------------------------
+
+def panda_urdf_path() -> Path:
+    """The Panda's URDF inside the installed example-robot-data package (a data-only package:
+    its files sit under the environment's cmeel.prefix/share). ValueError if missing."""
+    try:
+        path = Path(metadata.distribution('example-robot-data').locate_file(PANDA_URDF))
+    except metadata.PackageNotFoundError:
+        raise ValueError('robot panda needs the example-robot-data package (requirements.lock)'
+                         ) from None
+    if not path.is_file():
+        raise ValueError(f'the Panda URDF is not at {path}')
+    return path
+
+
+def robot_model(robot: str = '', urdf_file: str = '', tool_frame: str = '') -> RobotModel:
+    """The model of `robot` (one of ROBOT_NAMES) or of the URDF file `urdf_file` with its tool
+    point at `tool_frame` (required with urdf_file; for the Panda it may rename the default
+    PANDA_TOOL_FRAME). Exactly one of robot and urdf_file. ValueError with the reason."""
+    if bool(robot) == bool(urdf_file):
+        raise ValueError('give either a robot name '
+                         f'({", ".join(ROBOT_NAMES)}) or a urdf_file, not both or neither')
+    if robot == 'scara':
+        if tool_frame not in ('', 'tip'):
+            raise ValueError(f"the SCARA's tool frame is 'tip', not {tool_frame!r}")
+        return ScaraModel()
+    if robot == 'panda':
+        model = PinocchioModel(panda_urdf_path().read_text(), tool_frame or PANDA_TOOL_FRAME,
+                               name='panda')
+        model.home = np.array(PANDA_HOME)
+        return model
+    if robot:
+        raise ValueError(f'unknown robot {robot!r}; expected one of {", ".join(ROBOT_NAMES)} '
+                         'or a urdf_file')
+    if not tool_frame:
+        raise ValueError('a urdf_file needs a tool_frame (the link whose origin is the tool)')
+    try:
+        text = Path(urdf_file).read_text()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f'cannot read urdf_file {urdf_file!r}: {error.strerror or error}'
+                         ) from None
+    return PinocchioModel(text, tool_frame, name=Path(urdf_file).stem)
+

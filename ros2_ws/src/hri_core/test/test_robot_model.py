@@ -1,0 +1,223 @@
+"""hri_core.robot_model: the Panda's regressor identity, the generic SCARA against the
+analytic one, Jacobian and J'dq against finite differences, and the one-line errors.
+
+States are seeded random: q uniform within the joint limits, velocities and accelerations of
+a few rad/s and rad/s^2. TOLERANCE bounds |a - b| <= TOLERANCE (1 + |b|) element-wise.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hri_core.dynamics import ScaraParameters
+from hri_core.robot_model import (
+    PANDA_TOOL_FRAME,
+    PinocchioModel,
+    ScaraModel,
+    robot_model,
+    scara_urdf,
+)
+
+TOLERANCE = 1e-9
+STATE_COUNT = 40
+SEED = 33
+MAX_SPEED = 2.0  # rad/s
+MAX_ACCELERATION = 10.0  # rad/s^2
+STEP = 1e-6  # s or rad, central differences
+DIFFERENCE_TOLERANCE = 1e-7  # central differences: O(STEP^2) truncation, O(eps/STEP) rounding
+SCARA_SETS = {
+    'horizontal': ScaraParameters(),
+    'vertical': ScaraParameters(gravity=9.81),
+    'other_arm': ScaraParameters(l1=0.5, l2=0.4, lc1=0.2, lc2=0.35, m1=6.0, m2=1.5, i1=0.1,
+                                 i2=0.02, b1=2.0, b2=0.1, gravity=1.62),
+}
+
+
+@pytest.fixture(scope='module')
+def panda():
+    return robot_model('panda')
+
+
+def random_states(model, count=STATE_COUNT, seed=SEED):
+    """`count` tuples (q, dq, dq_r, ddq_r), each (n,), q within the joint limits."""
+    rng = np.random.default_rng(seed)
+    n = model.dof
+    for _ in range(count):
+        yield (rng.uniform(model.limits.lower, model.limits.upper),
+               rng.uniform(-MAX_SPEED, MAX_SPEED, n), rng.uniform(-MAX_SPEED, MAX_SPEED, n),
+               rng.uniform(-MAX_ACCELERATION, MAX_ACCELERATION, n))
+
+
+def assert_close(actual, expected, what, tolerance=TOLERANCE):
+    np.testing.assert_allclose(actual, expected, rtol=tolerance, atol=tolerance, err_msg=what)
+
+
+def model_torque(model, q, dq, dq_r, ddq_r):
+    """M ddq_r + C(q, dq) dq_r + F dq_r + g(q) from the model's own matrices."""
+    return (model.mass_matrix(q) @ ddq_r + model.coriolis_matrix(q, dq) @ dq_r
+            + model.friction_torque(dq_r) + model.gravity_torque(q))
+
+
+def test_panda_has_seven_joints_and_the_urdf_limits(panda):
+    assert panda.joint_names == tuple(f'panda_joint{i}' for i in range(1, 8))
+    np.testing.assert_array_equal(panda.limits.effort, [87.0] * 4 + [12.0] * 3)
+    assert panda.tool_frame == PANDA_TOOL_FRAME
+    assert panda.theta.size == 7 * 10 + 7
+    assert np.all(panda.theta >= panda.theta_lower)
+    assert np.all(panda.theta <= panda.theta_upper)
+
+
+def test_panda_regressor_identity(panda):
+    """Y theta = M ddq_r + C dq_r + F dq_r + g to 1e-9 on random Panda states, and Y depends
+    on dq_r (the C term is not dropped)."""
+    for q, dq, dq_r, ddq_r in random_states(panda):
+        where = f'q={q}, dq={dq}, dq_r={dq_r}, ddq_r={ddq_r}'
+        torque = panda.regressor(q, dq, dq_r, ddq_r) @ panda.theta
+        assert_close(torque, model_torque(panda, q, dq, dq_r, ddq_r), f'Y theta at {where}')
+    assert not np.allclose(panda.regressor(q, dq, dq_r, ddq_r),
+                           panda.regressor(q, 2.0 * dq, dq_r, ddq_r))
+
+
+def test_panda_regressor_against_rnea(panda):
+    """At dq_r = dq the regressor gives pinocchio's inverse dynamics (RNEA) plus friction."""
+    import pinocchio as pin
+
+    for q, dq, _, ddq in random_states(panda, count=10):
+        expected = pin.rnea(panda.model, panda.data, q, dq, ddq) + panda.damping * dq
+        assert_close(panda.regressor(q, dq, dq, ddq) @ panda.theta, expected, f'RNEA at q={q}')
+
+
+def test_panda_coriolis_makes_mdot_minus_2c_skew(panda):
+    for q, dq, _, _ in random_states(panda, count=10):
+        mdot = (panda.mass_matrix(q + STEP * dq) - panda.mass_matrix(q - STEP * dq)) / (2 * STEP)
+        n = mdot - 2.0 * panda.coriolis_matrix(q, dq)
+        assert_close(n + n.T, np.zeros_like(n), f'Mdot - 2C at q={q}', DIFFERENCE_TOLERANCE)
+
+
+@pytest.mark.parametrize('name', ['panda', 'scara'])
+def test_jacobian_matches_finite_differences(name, panda):
+    model = panda if name == 'panda' else ScaraModel()
+    for q, _, _, _ in random_states(model, count=10):
+        columns = [(model.tool_position(q + STEP * e) - model.tool_position(q - STEP * e))
+                   / (2 * STEP) for e in np.eye(model.dof)]
+        assert_close(model.tool_jacobian(q), np.array(columns).T, f'J at q={q}',
+                     DIFFERENCE_TOLERANCE)
+
+
+@pytest.mark.parametrize('name', ['panda', 'scara'])
+def test_acceleration_bias_matches_finite_differences(name, panda):
+    """J'(q, dq) dq = d/dt (J(q) dq) at fixed dq along q(t) = q + t dq."""
+    model = panda if name == 'panda' else ScaraModel()
+    for q, dq, _, _ in random_states(model, count=10):
+        rate = (model.tool_jacobian(q + STEP * dq) - model.tool_jacobian(q - STEP * dq)) / (
+            2 * STEP)
+        assert_close(model.tool_acceleration_bias(q, dq), rate @ dq, f"J'dq at q={q}",
+                     DIFFERENCE_TOLERANCE)
+
+
+@pytest.fixture(params=list(SCARA_SETS.values()), ids=list(SCARA_SETS))
+def scara_pair(request):
+    """(analytic, generic) models of one SCARA; the generic one from scara_urdf, gravity
+    along -y of the arm plane as in hri_core.dynamics."""
+    params = request.param
+    generic = PinocchioModel(scara_urdf(params), 'tip', name='scara',
+                             gravity=(0.0, -params.gravity, 0.0))
+    return ScaraModel(params), generic
+
+
+def test_generic_scara_equals_the_analytic_one(scara_pair):
+    analytic, generic = scara_pair
+    assert generic.joint_names == analytic.joint_names
+    np.testing.assert_array_equal(generic.limits.lower, analytic.limits.lower)
+    np.testing.assert_array_equal(generic.limits.effort, analytic.limits.effort)
+    assert generic.reach == pytest.approx(analytic.reach, abs=1e-12)
+    for q, dq, dq_r, ddq_r in random_states(analytic):
+        where = f'q={q}, dq={dq}'
+        for method, args in (('tool_position', (q,)), ('tool_jacobian', (q,)),
+                             ('tool_acceleration_bias', (q, dq)), ('mass_matrix', (q,)),
+                             ('coriolis_matrix', (q, dq)), ('gravity_torque', (q,)),
+                             ('friction_torque', (dq,))):
+            assert_close(getattr(generic, method)(*args), getattr(analytic, method)(*args),
+                         f'{method} at {where}')
+        assert_close(generic.regressor(q, dq, dq_r, ddq_r) @ generic.theta,
+                     analytic.regressor(q, dq, dq_r, ddq_r) @ analytic.theta,
+                     f'Y theta at {where}, dq_r={dq_r}, ddq_r={ddq_r}')
+
+
+def test_a_one_percent_heavier_link_breaks_the_scara_match():
+    params = SCARA_SETS['horizontal']
+    heavier = dataclasses.replace(params, m2=1.01 * params.m2)
+    generic = PinocchioModel(scara_urdf(heavier), 'tip')
+    q = np.array([0.3, 1.0])
+    assert np.max(np.abs(generic.mass_matrix(q) - ScaraModel(params).mass_matrix(q))) > 1e-4
+
+
+def test_scara_regressor_identity_and_theta_box():
+    model = ScaraModel(SCARA_SETS['vertical'])
+    for q, dq, dq_r, ddq_r in random_states(model, count=10):
+        assert_close(model.regressor(q, dq, dq_r, ddq_r) @ model.theta,
+                     model_torque(model, q, dq, dq_r, ddq_r), f'Y theta at q={q}')
+    assert np.all(model.theta >= model.theta_lower)
+
+
+def test_with_inertias_scales_masses_and_damping(panda):
+    scales = np.linspace(0.9, 1.1, 7)
+    heavier = panda.with_inertias(scales, np.full(7, 0.5))
+    masses = heavier.theta[0:70:10]
+    np.testing.assert_allclose(masses, scales * panda.theta[0:70:10], rtol=1e-12)
+    np.testing.assert_array_equal(heavier.damping, np.full(7, 0.5))
+    np.testing.assert_array_equal(panda.damping, np.full(7, 0.003))  # the original is kept
+    q, dq, dq_r, ddq_r = next(random_states(panda))
+    assert_close(heavier.regressor(q, dq, dq_r, ddq_r) @ heavier.theta,
+                 model_torque(heavier, q, dq, dq_r, ddq_r), 'Y theta of the scaled arm')
+    with pytest.raises(ValueError, match='link scales must be 7 values > 0'):
+        panda.with_inertias(np.zeros(7), np.zeros(7))
+
+
+@pytest.mark.parametrize(('kwargs', 'reason'), [
+    ({'robot': 'kuka'}, "unknown robot 'kuka'"),
+    ({}, 'give either a robot name'),
+    ({'robot': 'panda', 'urdf_file': 'x.urdf'}, 'give either a robot name'),
+    ({'urdf_file': 'x.urdf'}, 'a urdf_file needs a tool_frame'),
+    ({'urdf_file': '/no/such.urdf', 'tool_frame': 'tip'}, 'cannot read urdf_file'),
+    ({'robot': 'panda', 'tool_frame': 'no_link'}, "no frame 'no_link' in the URDF of panda"),
+    ({'robot': 'scara', 'tool_frame': 'hand'}, "the SCARA's tool frame is 'tip'"),
+])
+def test_bad_names_give_one_line(kwargs, reason):
+    with pytest.raises(ValueError, match=reason) as error:
+        robot_model(**kwargs)
+    assert '\n' not in str(error.value)
+
+
+@pytest.mark.parametrize(('text', 'reason'), [
+    ('not xml', 'not a valid URDF: '),
+    ('<robot name="r"><link name="a"/><joint name="j" type="revolute"><parent link="a"/>'
+     '<child link="b"/></joint><link name="b"/></robot>', 'does not specify limits'),
+    ('<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="continuous">'
+     '<parent link="a"/><child link="b"/></joint></robot>', "joint 'j' .* is not a 1-DoF"),
+    ('<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="fixed">'
+     '<parent link="a"/><child link="b"/></joint></robot>', 'no moving joint between the base'),
+])
+def test_bad_urdfs_give_one_line(text, reason, tmp_path):
+    path = tmp_path / 'arm.urdf'
+    path.write_text(text)
+    with pytest.raises(ValueError, match=reason) as error:
+        robot_model(urdf_file=str(path), tool_frame='b')
+    assert '\n' not in str(error.value)
+
+
+def test_urdf_file_loads_like_the_name(panda, tmp_path):
+    path = tmp_path / 'panda.urdf'
+    path.write_text(panda.urdf)
+    same = robot_model(urdf_file=str(path), tool_frame=PANDA_TOOL_FRAME)
+    q = np.array([0.1, -0.5, 0.2, -2.0, 0.3, 1.5, 0.7])
+    np.testing.assert_array_equal(same.tool_position(q), panda.tool_position(q))
+    assert same.name == 'panda'
+
+
+def test_wrong_shapes_and_non_finite_states(panda):
+    with pytest.raises(ValueError, match=r'q must have shape \(7,\)'):
+        panda.tool_position(np.zeros(6))
+    with pytest.raises(ValueError, match='dq_r must be finite'):
+        panda.regressor(np.zeros(7), np.zeros(7), np.full(7, np.nan), np.zeros(7))

@@ -1,0 +1,149 @@
+"""The `arm_sim` node: any serial arm from its URDF, simulated at 1 kHz under joint torques.
+
+`-p robot:=panda` (the Franka Panda of example-robot-data, tool point `panda_hand_tcp`),
+`robot:=scara` (the default: the SCARA of scara_sim as a URDF) or `-p urdf_file:=PATH -p
+tool_frame:=NAME` (urdf_file, when given, replaces robot) chooses the arm
+(hri_core.robot_model). The arm simulated is the URDF's with each link's mass and inertia and
+each joint's viscous friction scaled by seeded factors within +-`perturbation`
+(arm_simulation.true_arm), integrated with RK4 on pinocchio's ABA in fixed steps of
+1/rate_hz s, gravity along -z, joint limits as inelastic stops, efforts clipped at the URDF's
+limits (arm_simulation.ArmSimulator). Stepping, publishing, timeouts and fault handling are
+scara_sim's (sim_node_common.SteppedSimNode):
+
+* /joint_states (sensor_msgs/JointState): the URDF's joint names; position (rad), velocity
+  (rad/s), effort = the drive torque applied (N m), every step;
+* /ee_position (geometry_msgs/PointStamped, frame `base_frame`): the tool point (m), x, y, z;
+* /robot_description (std_msgs/String, reliable, transient-local): the URDF text, once.
+
+Inputs (reliable, depth 10):
+* /effort_controller/commands (std_msgs/Float64MultiArray, one torque per joint, N m):
+  clipped at the effort limits and applied; none for `command_timeout` s: zero torque;
+* /human/wrench (geometry_msgs/WrenchStamped, frame `base_frame` or empty): force (N) and
+  torque (N m) held at the tool point, base-frame axes, applied as J6^T w; ignored after
+  `wrench_timeout` s without a new one.
+Bad parameters (an unknown robot, an unreadable URDF, an unknown tool frame, an initial_q of
+the wrong length or outside the limits): one error line, exit code 1.
+"""
+
+import sys
+
+import numpy as np
+from geometry_msgs.msg import WrenchStamped
+
+from hri_core import topics
+from hri_core.node_common import (
+    CPU_WAKEUP_LATENCY,
+    REALTIME_PRIORITY,
+    ParameterSpec,
+    StartupError,
+    declare_parameters,
+    load_defaults,
+)
+from hri_core.robot_model import generic_model, robot_model
+from scara_sim.arm_simulation import ArmSimulator, true_arm
+from scara_sim.sim_node_common import SteppedSimNode, run_sim_node
+from scara_sim.simulation import joint_command_floats
+
+PACKAGE = 'scara_sim'
+NODE_NAME = 'arm_sim'
+
+PARAMETERS = {
+    'robot': ParameterSpec(str, 'the arm: scara or panda (ignored when urdf_file is given)',
+                           read_only=True),
+    'urdf_file': ParameterSpec(str, 'URDF of the arm to simulate ("": the robot parameter)',
+                               read_only=True),
+    'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the '
+                                "robot's own; required with urdf_file)", read_only=True),
+    'rate_hz': ParameterSpec(float, 'integration step and publish rate (Hz); step = '
+                             '1/rate_hz', 1000.0, 10000.0, read_only=True),
+    'max_catch_up_steps': ParameterSpec(
+        int, 'most steps one timer tick may run to catch up with real time; the rest are '
+        'dropped and counted', 1, 10000, read_only=True),
+    'realtime_priority': REALTIME_PRIORITY,
+    'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
+    'initial_q': ParameterSpec(list, "joint positions at start (rad; unset: the robot's home "
+                               'pose)', read_only=True, optional=True),
+    'perturbation': ParameterSpec(float, 'the simulated arm: link masses, inertias and joint '
+                                  'friction scaled by factors within 1 +- this',
+                                  0.0, 0.5, read_only=True),
+    'perturbation_seed': ParameterSpec(int, 'seed of the perturbation factors', 0, 2 ** 31 - 1,
+                                       read_only=True),
+    'damping': ParameterSpec(list, "viscous friction of each joint before the perturbation "
+                             "(N m s/rad; unset: the URDF's <dynamics damping>)",
+                             read_only=True, optional=True),
+    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque',
+                                     0.005, 60.0),
+    'wrench_timeout': ParameterSpec(float, 'no /human/wrench for this long (s): zero wrench',
+                                    0.005, 60.0),
+    'base_frame': ParameterSpec(str, 'frame of /ee_position and of /human/wrench',
+                                read_only=True),
+    'report_period': ParameterSpec(float, 'how often (s) late or dropped steps are reported',
+                                   0.1, 3600.0),
+}
+
+
+class ArmSim(SteppedSimNode):
+    """Integrates the arm of its URDF and publishes its state at rate_hz."""
+
+    command_topics = {'effort': topics.EFFORT_COMMANDS}
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
+        self.read_stepping_settings(values)
+        try:
+            sim = self._simulator(values)
+        except ValueError as error:
+            raise StartupError(f'bad parameters: {error}') from None
+        self.joint_names = sim.arm.joint_names
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self._description_pub = self.create_publisher(
+            topics.ROBOT_DESCRIPTION.type, topics.ROBOT_DESCRIPTION.name,
+            topics.ROBOT_DESCRIPTION.qos)
+        self._description_pub.publish(topics.ROBOT_DESCRIPTION.type(data=sim.arm.urdf))
+        rate_hz = values['rate_hz']
+        self.start_stepping_setup(sim, values, (
+            f'simulating {sim.arm.name} ({sim.arm.dof} joints, tool {sim.arm.tool_frame!r}) '
+            f'at {rate_hz:g} Hz (RK4 on ABA, dt {1e3 / rate_hz:g} ms) from q = '
+            f'{np.round(sim.q, 4).tolist()} rad; masses perturbed within '
+            f'+-{100 * values["perturbation"]:g} % (seed {values["perturbation_seed"]}); '
+            f'effort limits {sim.arm.limits.effort.tolist()} N m, command timeout '
+            f'{self._command_timeout:g} s'))
+
+    @staticmethod
+    def _simulator(values: dict) -> ArmSimulator:
+        """The simulator of the parameters `values`; ValueError with the reason."""
+        if values['urdf_file']:
+            model = robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
+        else:
+            model = robot_model(values['robot'], tool_frame=values['tool_frame'])
+        nominal = generic_model(model)
+        initial_q = nominal.home if values['initial_q'] is None else values['initial_q']
+        arm = true_arm(nominal, values['perturbation'], values['perturbation_seed'],
+                       values['damping'])
+        return ArmSimulator(arm, initial_q, np.zeros(arm.dof), dt=1.0 / values['rate_hz'])
+
+    def wrench_values(self, msg: WrenchStamped) -> tuple[float, ...]:
+        """Force (N) and torque (N m) at the tool point, base-frame axes."""
+        force, torque = msg.wrench.force, msg.wrench.torque
+        return joint_command_floats((force.x, force.y, force.z, torque.x, torque.y, torque.z),
+                                    6)
+
+    def tool_point(self, q) -> tuple[float, float, float]:
+        return tuple(self._sim.arm.tool_position(q).tolist())
+
+    def _apply_parameters(self, parameters) -> None:
+        """The timeouts and the report period (the rest is read-only; ROS checks ranges)."""
+        self._command_timeout = self.get_parameter('command_timeout').value
+        self._wrench_timeout = self.get_parameter('wrench_timeout').value
+        self._report_period = self.get_parameter('report_period').value
+        self.get_logger().info('parameters changed: ' + ', '.join(
+            f'{p.name}={p.value}' for p in parameters))
+
+
+def main(args=None):
+    return run_sim_node(ArmSim, NODE_NAME, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -20,12 +20,20 @@ x_r). Three layouts are read:
 Messages are deserialised with the rosbags typestore of ROS 2 Jazzy; types it lacks are
 registered from the bag's own message definitions. `read_demonstration` takes a fast path for
 the two types a demonstration is made of, JointState and PointStamped: `read_bag` keeps their
-raw CDR bytes, and `joint_state_positions` / `point_stamped_xy` read the numbers straight into
+raw CDR bytes, and `_joint_positions` / `_point_array` read the numbers straight into
 numpy arrays (hri_core.cdr). The first message of a topic gives the byte layout (a small CDR
 walk); every message with the same length and the same bytes where the layout could differ
 (encoding, frame_id, joint names, sequence lengths) has that layout and is read by one fancy-
 indexed view; any other message is deserialised with rosbags, which stays the reference (the
 unit tests hold the two equal on the fixture bags and on a crash-recovered bag).
+
+Positions are 3-D (x, y, z of /ee_position and /demo/reference). A bag without /ee_position
+gets its tool positions from /joint_states through the forward kinematics of the arm its
+/robot_description names (the URDF text the recorder records with the demonstration; pinocchio,
+batched by hri_core.robot_description.ToolKinematics); a bag recorded before bags carried their
+robot, with the SCARA's joints joint1, joint2, through the SCARA's (l1, l2, z = 0). A bag with
+neither /ee_position nor a /robot_description for other joints, or whose joint states name
+joints its URDF lacks, is refused in one line.
 """
 
 import os
@@ -45,8 +53,14 @@ from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_
 from rosbags.typesys.store import Typestore
 
 from hri_core import topics
-from hri_core.cdr import joint_state_layout, point_stamped_layout, read_float64s
+from hri_core.cdr import CdrLayout, joint_state_layout, point_stamped_layout, read_float64s
 from hri_core.dynamics import forward_kinematics
+from hri_core.robot_description import (
+    ToolKinematics,
+    description_model,
+    urdf_joint_names,
+)
+from hri_core.robot_model import PinocchioModel
 
 #: rosbag2 bag format version that ROS 2 Jazzy's rosbag2 writes.
 JAZZY_BAG_VERSION = 8
@@ -62,6 +76,9 @@ JOINT_STATE_TOPIC = topics.JOINT_STATES.name
 REFERENCE_TOPIC = topics.DEMO_REFERENCE.name
 POINT_STAMPED = topics.EE_POSITION.type_name
 JOINT_STATE = topics.JOINT_STATES.type_name
+DESCRIPTION_TOPIC = topics.ROBOT_DESCRIPTION.name
+STRING = topics.ROBOT_DESCRIPTION.type_name
+# The SCARA's joints: a bag without /robot_description that names them is the SCARA's.
 JOINT_NAMES = ('joint1', 'joint2')
 
 
@@ -599,12 +616,15 @@ def read_bag(path: str | os.PathLike, topics: Iterable[str] | None = None,
 
 @dataclass(frozen=True)
 class Demonstration:
-    """One demonstration as arrays (paper section II-B).
+    """One demonstration as arrays (paper section II-B), positions in 3-D.
 
     times: (N,) s, receive time since `start_time_ns`, increasing;
-    positions: (N, 2) m, end-effector position x_i in the base frame;
-    references: (N, 2) m, reference x_r in force at each sample;
-    position_source: the topic the positions came from.
+    positions: (N, 3) m, end-effector (tool) position x_i in the base frame;
+    references: (N, 3) m, reference x_r in force at each sample;
+    position_source: the topic the positions came from; kinematics: for /joint_states, the
+    forward kinematics that made them positions ('' otherwise); robot: the arm of the bag's
+    /robot_description ('' without one); reach: m, that arm's reach (RobotModel.reach; None
+    without a /robot_description).
     """
 
     path: Path
@@ -614,6 +634,9 @@ class Demonstration:
     start_time_ns: int
     position_source: str
     recovered: bool = False
+    kinematics: str = ''
+    robot: str = ''
+    reach: float | None = None
 
 
 def _decoded(series: TopicMessages, typestore: Typestore, topic: str, path: Path):
@@ -626,32 +649,36 @@ def _decoded(series: TopicMessages, typestore: Typestore, topic: str, path: Path
 
 def _point_array(series: TopicMessages, topic: str, path: Path,
                  typestore: Typestore | None = None) -> np.ndarray:
-    """(N, 2) x, y (m) of PointStamped messages: raw bytes by the fast path, else rosbags."""
-    layout = point_stamped_layout(series.raw[0]) if series.raw else None
-    if layout is None:
+    """(N, 3) x, y, z (m) of PointStamped messages: raw bytes by the fast path, else rosbags."""
+    planar = point_stamped_layout(series.raw[0]) if series.raw else None
+    if planar is None:
         typestore = typestore if typestore is not None else jazzy_typestore()
-        return np.array([[m.point.x, m.point.y] for _, m in _decoded(
-            series, typestore, topic, path)], dtype=float).reshape(-1, 2)
+        return np.array([[m.point.x, m.point.y, m.point.z] for _, m in _decoded(
+            series, typestore, topic, path)], dtype=float).reshape(-1, 3)
+    # hri_core.cdr's layout reads x, y; z is the float64 after y.
+    x_offset, y_offset = planar.offsets
+    layout = CdrLayout(planar.template, planar.size, planar.checks,
+                       (x_offset, y_offset, y_offset + 8))
     values, matched = read_float64s(series.raw, layout)
     if not matched.all():
         typestore = typestore if typestore is not None else jazzy_typestore()
         for index in np.flatnonzero(~matched):
             msg = _deserialize(typestore, series.raw[index], series.msgtype, topic, index, path)
-            values[index] = (msg.point.x, msg.point.y)
+            values[index] = (msg.point.x, msg.point.y, msg.point.z)
     return values
 
 
-def _joint_row(msg, index: int, path: Path) -> list[float]:
-    """[joint1, joint2] positions (rad) of one deserialised JointState."""
+def _joint_row(msg, index: int, path: Path, joints: Sequence[str]) -> list[float]:
+    """Positions of `joints` (rad or m) in one deserialised JointState."""
     names = list(msg.name)
     position = np.asarray(msg.position, dtype=float)
-    if all(n in names for n in JOINT_NAMES):
-        idx = [names.index(n) for n in JOINT_NAMES]
-    elif not names and position.size >= 2:
-        idx = [0, 1]
+    if all(n in names for n in joints):
+        idx = [names.index(n) for n in joints]
+    elif not names and position.size >= len(joints):
+        idx = list(range(len(joints)))
     else:
         raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has no '
-                       f'positions for {", ".join(JOINT_NAMES)} (names {names})')
+                       f'positions for {", ".join(joints)} (names {names})')
     if position.size <= max(idx):
         raise BagError(f'bag {path}: {JOINT_STATE_TOPIC} message {index} has '
                        f'{position.size} positions for {len(names)} names')
@@ -659,52 +686,118 @@ def _joint_row(msg, index: int, path: Path) -> list[float]:
 
 
 def _joint_positions(series: TopicMessages, topic: str, path: Path,
+                     joints: Sequence[str] = JOINT_NAMES,
                      typestore: Typestore | None = None) -> np.ndarray:
-    """(N, 2) joint angles [joint1, joint2] in rad from JointState messages (raw bytes by
-    the fast path where their layout allows, else rosbags)."""
-    layout = joint_state_layout(series.raw[0], JOINT_NAMES) if series.raw else None
+    """(N, len(joints)) positions of `joints` in rad (m for a prismatic joint) from JointState
+    messages (raw bytes by the fast path where their layout allows, else rosbags)."""
+    layout = joint_state_layout(series.raw[0], joints) if series.raw else None
     typestore = typestore if typestore is not None else jazzy_typestore()
     if layout is None:
-        return np.array([_joint_row(m, i, path) for i, m in _decoded(
-            series, typestore, topic, path)], dtype=float).reshape(-1, 2)
+        return np.array([_joint_row(m, i, path, joints) for i, m in _decoded(
+            series, typestore, topic, path)], dtype=float).reshape(-1, len(joints))
     values, matched = read_float64s(series.raw, layout)
     for index in np.flatnonzero(~matched):
         msg = _deserialize(typestore, series.raw[index], series.msgtype, topic, index, path)
-        values[index] = _joint_row(msg, index, path)
+        values[index] = _joint_row(msg, index, path, joints)
     return values
 
 
-def end_effector_positions(joint_angles: np.ndarray, l1: float, l2: float) -> np.ndarray:
-    """End-effector positions (N, 2) in m from joint angles (N, 2) in rad (forward kinematics).
+def _first_joint_names(series: TopicMessages, topic: str, path: Path) -> list[str]:
+    """The joint names of the first JointState message."""
+    first = series.messages[0] if series.messages else _deserialize(
+        jazzy_typestore(), series.raw[0], series.msgtype, topic, 0, path)
+    return list(first.name)
 
-    Uses hri_core.dynamics.forward_kinematics with link lengths l1, l2 in m.
+
+def end_effector_positions(joint_angles: np.ndarray, l1: float, l2: float) -> np.ndarray:
+    """End-effector positions (N, 3) in m from the SCARA's joint angles (N, 2) in rad: the
+    forward kinematics of hri_core.dynamics with link lengths l1, l2 (m), in the plane z = 0.
     """
     joint_angles = np.asarray(joint_angles, dtype=float).reshape(-1, 2)
-    return np.asarray(forward_kinematics(joint_angles, l1, l2), dtype=float).reshape(-1, 2)
+    planar = np.asarray(forward_kinematics(joint_angles, l1, l2), dtype=float).reshape(-1, 2)
+    return np.column_stack([planar, np.zeros(len(planar))])
+
+
+@dataclass(frozen=True)
+class BagRobot:
+    """The arm a bag's /robot_description describes: its model and the URDF's joint names."""
+
+    model: PinocchioModel
+    urdf_joints: tuple[str, ...]
+
+
+def bag_robot(series: TopicMessages, path: Path, tool_frame: str = '') -> BagRobot:
+    """The arm of a bag's /robot_description messages (std_msgs/String, the URDF text) with
+    its tool point at `tool_frame` ('' = hri_core.robot_description.default_tool_frame).
+    Raises BagError (one line) for an unreadable URDF, several different ones, or a tool frame
+    it lacks."""
+    texts = list(dict.fromkeys(
+        m.data for _, m in _decoded(series, jazzy_typestore(), DESCRIPTION_TOPIC, path)))
+    if len(texts) > 1:
+        raise BagError(f'bag {path} carries {len(texts)} different URDFs on '
+                       f'{DESCRIPTION_TOPIC}: a demonstration is made by one arm')
+    try:
+        return BagRobot(description_model(texts[0], tool_frame), urdf_joint_names(texts[0]))
+    except ValueError as err:
+        raise BagError(f'bag {path}: the URDF on {DESCRIPTION_TOPIC}: {err}') from None
+
+
+def _tool_positions(source: TopicMessages, topic: str, path: Path,
+                    robot: BagRobot | None, l1: float, l2: float) -> tuple[np.ndarray, str]:
+    """Tool positions (N, 3) m from JointState messages: through the bag's URDF where it has
+    one, else (a bag recorded before bags carried their robot) the SCARA's forward kinematics
+    with l1, l2 for its joints joint1, joint2. Returns them and which kinematics made them."""
+    names = _first_joint_names(source, topic, path)
+    if robot is None:
+        if names and not all(joint in names for joint in JOINT_NAMES):
+            raise BagError(
+                f'bag {path} has neither {POSITION_TOPIC} nor {DESCRIPTION_TOPIC}: the '
+                f'positions of its joints ({", ".join(names[:8])}) cannot be turned into '
+                'tool positions; record the demonstration with /robot_description')
+        joints = _joint_positions(source, topic, path, JOINT_NAMES)
+        return end_effector_positions(joints, l1, l2), f'the SCARA\'s, l1={l1} l2={l2} m'
+    model = robot.model
+    unknown = [name for name in names if name not in robot.urdf_joints]
+    if unknown:
+        raise BagError(f'bag {path}: {topic} names joints its URDF ({model.name}) lacks: '
+                       f'{", ".join(unknown[:8])}')
+    missing = [name for name in model.joint_names if names and name not in names]
+    if missing:
+        raise BagError(f'bag {path}: {topic} lacks joints of {model.name} between its base '
+                       f'and {model.tool_frame}: {", ".join(missing)}')
+    joints = _joint_positions(source, topic, path, model.joint_names)
+    if not np.all(np.isfinite(joints)):
+        raise BagError(f'bag {path} is corrupt: non-finite joint positions')
+    return (ToolKinematics(model).positions(joints),
+            f'the URDF of {model.name}, tool frame {model.tool_frame}')
 
 
 def read_demonstration(path: str | os.PathLike, l1: float = 0.35, l2: float = 0.30,
                        position_topic: str = POSITION_TOPIC,
                        joint_state_topic: str = JOINT_STATE_TOPIC,
                        reference_topic: str = REFERENCE_TOPIC,
-                       fast: bool = True) -> Demonstration:
-    """Read a demonstration bag into receive times, positions x_i and references x_r.
+                       fast: bool = True, tool_frame: str = '') -> Demonstration:
+    """Read a demonstration bag into receive times, positions x_i and references x_r (3-D).
 
-    Positions come from `position_topic` (PointStamped) when the bag has it, else from
-    `joint_state_topic` through the forward kinematics with link lengths l1, l2 (m). x_r is
+    Positions come from `position_topic` (PointStamped: x, y, z) when the bag has it, else from
+    `joint_state_topic` through the forward kinematics of the arm on /robot_description
+    (the URDF text; tool point at `tool_frame`, '' = the robot's own, see
+    hri_core.robot_description), else, for a bag recorded before bags carried their robot,
+    through the SCARA's with link lengths l1, l2 (m) (joints joint1, joint2; z = 0). x_r is
     the last `reference_topic` message received at or before each sample; samples received
     before the first reference take the first one. Raises BagError (one line) when the bag
-    cannot be read or lacks the topics, or when a value is not finite. fast=False reads every
-    message through the rosbags deserialiser (the reference of the raw CDR fast path).
+    cannot be read or lacks the topics, when its URDF cannot be read or its joint states name
+    joints the URDF lacks, or when a value is not finite. fast=False reads every message
+    through the rosbags deserialiser (the reference of the raw CDR fast path).
     """
     if not (np.isfinite(l1) and np.isfinite(l2) and l1 > 0.0 and l2 > 0.0):
         raise BagError(f'link lengths must be finite and > 0 m, got l1={l1}, l2={l2}')
     wanted = (position_topic, joint_state_topic, reference_topic)
-    contents = read_bag(path, topics=wanted,
+    contents = read_bag(path, topics=(*wanted, DESCRIPTION_TOPIC),
                         raw_types=(JOINT_STATE, POINT_STAMPED) if fast else ())
     bag = contents.path
     present = {name: s for name, s in contents.topics.items() if s.count}
-    if not present:
+    if not present.keys() & set(wanted):
         available = read_bag(path).topics
         raise BagError(f'bag {bag} has none of the topics {", ".join(wanted)} '
                        f'(it has {", ".join(sorted(available)) or "no topics"})')
@@ -714,20 +807,25 @@ def read_demonstration(path: str | os.PathLike, l1: float = 0.35, l2: float = 0.
     if reference.msgtype != POINT_STAMPED:
         raise BagError(f'bag {bag}: {reference_topic} is {reference.msgtype}, '
                        f'not {POINT_STAMPED}')
+    description = present.get(DESCRIPTION_TOPIC)
+    if description is not None and description.msgtype != STRING:
+        raise BagError(f'bag {bag}: {DESCRIPTION_TOPIC} is {description.msgtype}, '
+                       f'not {STRING}')
+    robot = None if description is None else bag_robot(description, bag, tool_frame)
     if position_topic in present:
         source = present[position_topic]
         if source.msgtype != POINT_STAMPED:
             raise BagError(f'bag {bag}: {position_topic} is {source.msgtype}, '
                            f'not {POINT_STAMPED}')
         positions = _point_array(source, position_topic, bag)
-        source_topic = position_topic
+        source_topic, kinematics = position_topic, ''
     elif joint_state_topic in present:
         source = present[joint_state_topic]
         if source.msgtype != JOINT_STATE:
             raise BagError(f'bag {bag}: {joint_state_topic} is {source.msgtype}, '
                            f'not {JOINT_STATE}')
-        positions = end_effector_positions(
-            _joint_positions(source, joint_state_topic, bag), l1, l2)
+        positions, kinematics = _tool_positions(source, joint_state_topic, bag, robot,
+                                                l1, l2)
         source_topic = joint_state_topic
     else:
         raise BagError(f'bag {bag} has no end-effector positions: neither {position_topic} '
@@ -741,4 +839,7 @@ def read_demonstration(path: str | os.PathLike, l1: float = 0.35, l2: float = 0.
     start = int(stamps[0])
     return Demonstration(path=bag, times=(stamps - start) * 1e-9, positions=positions,
                          references=reference_points[held], start_time_ns=start,
-                         position_source=source_topic, recovered=contents.recovered)
+                         position_source=source_topic, recovered=contents.recovered,
+                         kinematics=kinematics,
+                         robot='' if robot is None else robot.model.name,
+                         reach=None if robot is None else robot.model.reach)

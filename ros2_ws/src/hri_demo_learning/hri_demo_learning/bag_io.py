@@ -525,9 +525,10 @@ def _sort_by_time(topics: dict[str, TopicMessages]) -> None:
     for series in topics.values():
         order = np.argsort(np.asarray(series.timestamps_ns, dtype=np.int64), kind='stable')
         if np.any(order != np.arange(order.size)):
+            # One of messages and raw holds the topic's messages, the other is empty.
             series.timestamps_ns = [series.timestamps_ns[i] for i in order]
-            series.messages = [series.messages[i] for i in order]
-            series.raw = [series.raw[i] for i in order]
+            series.messages = [series.messages[i] for i in order] if series.messages else []
+            series.raw = [series.raw[i] for i in order] if series.raw else []
 
 
 def _read_unclosed(path: Path, mcap_files: list[Path], wanted: set[str] | None,

@@ -17,6 +17,10 @@ from hri_core.potential import log_potential
 from hri_demo_learning.task_energy import normalised_energy
 
 _GRID_POINTS = 600
+_MAX_DRAWN_SAMPLES = 5000
+"""Samples drawn as points at most: an evenly strided subset of a longer demonstration. At 6 px
+a point, 5000 of them cover the curve; drawing the 500k samples of a 1M-message bag took
+matplotlib 8 s here, longer than learning from it."""
 _MAX_LOG = 700.0  # keeps exp() finite when P at a grid point dwarfs P at the samples
 
 
@@ -46,7 +50,8 @@ def plot_task_fit(distance, energy, shape, path, title='', reference=None):
     distance: (N,) m; energy: (N,) P_d, not all zero; shape: TaskShape of the fitted P;
     path: PNG file to write (its folder is created); title: figure title; reference: None, or
     (TaskShape, label) of another P drawn the same way (dashed), e.g. the paper's row.
-    Returns the Path written. Raises ValueError for unusable input.
+    Returns the Path written. Raises ValueError for unusable input. At most
+    _MAX_DRAWN_SAMPLES samples are drawn (evenly strided); the normalisation uses them all.
     """
     d = np.asarray(distance, dtype=float)
     e = np.asarray(energy, dtype=float)
@@ -71,7 +76,8 @@ def plot_task_fit(distance, energy, shape, path, title='', reference=None):
     for index, (start, end) in enumerate(_desired_spans(shape, right)):
         axes.axvspan(start, end, color='tab:green', alpha=0.15,
                      label='desired region' if index == 0 else None)
-    axes.scatter(d, demonstrated, s=6, color='tab:blue', alpha=0.6,
+    drawn = np.unique(np.linspace(0, d.size - 1, min(d.size, _MAX_DRAWN_SAMPLES)).astype(int))
+    axes.scatter(d[drawn], demonstrated[drawn], s=6, color='tab:blue', alpha=0.6,
                  label=r'demonstration $P_d/\|P_d\|$')
     axes.plot(grid, fitted_grid, color='tab:red', linewidth=1.8,
               label=rf'fit $P/\|P\|$: S={shape.s:+d}, $a_1$={shape.a1:.4g}, '

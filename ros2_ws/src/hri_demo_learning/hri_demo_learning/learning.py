@@ -175,13 +175,16 @@ class LearningSettings:
 class Demonstration:
     """One demonstration as arrays: times (M,) s, positions (M, 3) m ((M, 2): the plane
     z = 0), reference x_r (3,) m ((2,): z = 0), source (a name for messages, e.g. the bag),
-    reach: m, the reach of the arm that made it (None: LearningSettings.reach)."""
+    reach: m, the reach of the arm that made it (None: LearningSettings.reach); references:
+    (M, 3) m, the reference held at each sample (a bag's), which must stay at x_r from the
+    first moving sample on (None: not checked)."""
 
     times: np.ndarray
     positions: np.ndarray
     reference: np.ndarray
     source: str
     reach: float | None = None
+    references: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -246,6 +249,9 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
                                           rest_fraction=settings.rest_fraction)
         except ValueError as err:
             raise LearningError(f'bag {demo.source}: {_one_line(err)}') from None
+        if demo.references is not None:
+            check_fixed_reference(demo.references[demo.times >= energy.times[0]],
+                                  as_position(demo.reference, 'reference'), demo.source)
         energies.append(energy)
     if not combine and len(demos) > 1:
         references = np.array([as_position(demo.reference, 'reference') for demo in demos])
@@ -305,17 +311,11 @@ def learn_from_bags(bags: list[str], shifts: list[float], task_name: str,
         try:
             demo = read_demonstration(bag, l1=settings.l1, l2=settings.l2,
                                       tool_frame=settings.tool_frame)
-            x_r = demo.references[-1]  # the reference in force when the person let go
-            energy = demonstration_energy(demo.times, demo.positions, x_r,
-                                          stationary_speed=settings.stationary_speed,
-                                          rest_fraction=settings.rest_fraction)
-            check_fixed_reference(demo.references[demo.times >= energy.times[0]], x_r,
-                                  demo.path)
         except BagError as err:
             raise LearningError(str(err)) from None
-        except ValueError as err:
-            raise LearningError(f'bag {bag}: {_one_line(err)}') from None
-        demos.append(Demonstration(demo.times, demo.positions, x_r, str(bag), demo.reach))
+        # x_r: the reference in force when the person let go (checked fixed while moving).
+        demos.append(Demonstration(demo.times, demo.positions, demo.references[-1],
+                                   str(bag), demo.reach, demo.references))
     learned = learn_from_demonstrations(demos, shifts, task_name, settings)
     return replace(learned, total_seconds=time.perf_counter() - started)
 

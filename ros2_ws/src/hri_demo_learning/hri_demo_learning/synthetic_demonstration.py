@@ -11,7 +11,7 @@ shape, or one far longer than a simulation could record in time:
   last one's solution; a sample equal to the one before costs nothing), with the joints kept
   inside their limits; ValueError if a point is not reached within IK_TOLERANCE;
 * `write_demonstration_bag(path, demo)`: a rosbag2 bag (bag_io.BagWriter) of a
-  `JointDemonstration`: /joint_states (the model's joint names; positions, velocities by
+  `JointDemonstration`: /joint_states (its joint names; positions, velocities by
   finite differences, zero efforts) at every sample, /demo/reference (x_r) every
   `reference_period` samples, optionally the URDF on /robot_description (std_msgs/String,
   once, first) and the tool path on /ee_position.
@@ -75,12 +75,12 @@ def joint_path(model: RobotModel, points, q0) -> np.ndarray:
 
 @dataclass(frozen=True)
 class JointDemonstration:
-    """A scripted demonstration: times (N,) s from `start_ns`, joint positions (N, n) of the
-    model's joints, the reference x_r (3,) m, and what else the bag carries: the URDF text
+    """A scripted demonstration: the joints' names (n), times (N,) s from `start_ns`, joint
+    positions (N, n), the reference x_r (3,) m, and what else the bag carries: the URDF text
     ('' = no /robot_description), the tool path (N, 3) m for /ee_position (None = none);
     reference_period: samples between /demo/reference messages."""
 
-    model: RobotModel
+    joint_names: tuple[str, ...]
     times: np.ndarray
     q: np.ndarray
     reference: np.ndarray
@@ -95,9 +95,9 @@ def write_demonstration_bag(path: str | os.PathLike, demo: JointDemonstration) -
     stamps = demo.start_ns + np.rint(np.asarray(demo.times) * 1e9).astype(np.int64)
     velocities = np.gradient(demo.q, demo.times, axis=0) if len(demo.times) > 1 \
         else np.zeros_like(demo.q)
-    joints = joint_state_template(demo.model.joint_names)
+    joints = joint_state_template(demo.joint_names)
     point = point_stamped_template('base')
-    zeros = [0.0] * demo.model.dof
+    zeros = [0.0] * len(demo.joint_names)
     reference = [float(v) for v in demo.reference]
     with BagWriter(path) as writer:
         types = writer.typestore.types

@@ -161,7 +161,7 @@ def test_a_scripted_panda_follow_in_3d_learns_table_ones_follow(tmp_path):
     points = push_path(times, start, reference + 0.041 * away, 1.0, 3.0)
     q = joint_path(PANDA, points, PANDA.home)
     write_demonstration_bag(tmp_path / 'follow', JointDemonstration(
-        PANDA, times, q, reference, urdf=PANDA.urdf))
+        PANDA.joint_names, times, q, reference, urdf=PANDA.urdf))
     demo = read_demonstration(tmp_path / 'follow')
     np.testing.assert_allclose(demo.positions, points, atol=1e-8)  # the IK's tolerance
     record = learn_from_bags([str(tmp_path / 'follow')], [0.0], 'follow', SETTINGS).record

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Benchmark of the scara_sim node's real-time behaviour (a measurement, not a test).
 
-Starts `ros2 run scara_sim scara_sim` on its own ROS_DOMAIN_ID with discovery kept on
+Starts `ros2 run scara_sim scara_sim` (with `--robot NAME`: `ros2 run scara_sim arm_sim
+--ros-args -p robot:=NAME`, e.g. the Panda) on its own ROS_DOMAIN_ID with discovery kept on
 loopback, listens to /joint_states for `--duration` seconds and prints
 
 * the achieved publish rate;
@@ -45,6 +46,8 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument('--rate-hz', type=float, default=1000.0, help="the sim's rate_hz")
     parser.add_argument('--warmup', type=float, default=1.0,
                         help='seconds after the first message that are not measured')
+    parser.add_argument('--robot', default='',
+                        help='run arm_sim with this robot (scara, panda) instead of scara_sim')
     parser.add_argument('--json', action='store_true', help='print JSON only')
     return parser.parse_args(argv)
 
@@ -106,15 +109,18 @@ class Listener:
 def run(args: argparse.Namespace) -> dict:
     if shutil.which('ros2') is None:
         raise SystemExit('bench_sim: no `ros2` on PATH; run `source scripts/env.sh` first')
-    sim = start_node('scara_sim', 'scara_sim', args.domain_id,
-                     params={'rate_hz': float(args.rate_hz)},
+    executable = 'arm_sim' if args.robot else 'scara_sim'
+    params = {'rate_hz': float(args.rate_hz)}
+    if args.robot:
+        params['robot'] = args.robot
+    sim = start_node('scara_sim', executable, args.domain_id, params=params,
                      log_dir=tempfile.mkdtemp(prefix='bench-sim-'))
     listener = Listener(args.domain_id)
     try:
         if not listener.first.wait(timeout=20.0):
             raise SystemExit(f'bench_sim: no /joint_states within 20 s; see {sim.log_path}')
         time.sleep(args.warmup)
-        process = node_process(psutil.Process(sim.pid))
+        process = node_process(psutil.Process(sim.pid), executable)
         cpu0, wall0 = process.cpu_times(), time.monotonic()
         listener.recording = True
         time.sleep(args.duration)
@@ -128,6 +134,8 @@ def run(args: argparse.Namespace) -> dict:
     stamps, received = np.array(listener.stamps), np.array(listener.received)
     match = SUMMARY.search(sim.log())
     result = {
+        'executable': executable,
+        'robot': args.robot or 'scara',
         'duration_s': round(wall, 3),
         'rate_hz_requested': args.rate_hz,
         'messages': int(stamps.size),

@@ -371,8 +371,9 @@ class PinocchioModel(RobotModel):
                                   velocity=model.velocityLimit.copy(),
                                   effort=model.effortLimit.copy())
         self.damping = model.damping.copy()
+        # '<joint>.<parameter>': the inertial parameters of the link that joint moves.
         self.parameter_names = tuple(
-            [f'{link}.{parameter}' for link in model.names[1:] for parameter in INERTIA_NAMES]
+            [f'{joint}.{parameter}' for joint in model.names[1:] for parameter in INERTIA_NAMES]
             + [f'{joint}.damping' for joint in self.joint_names])
         self.theta = np.concatenate(
             [inertia.toDynamicParameters() for inertia in model.inertias[1:]] + [self.damping])
@@ -468,6 +469,12 @@ class PinocchioModel(RobotModel):
         """ddq (n,) = M^-1 (tau - C dq - F dq - g) by pinocchio's ABA; inputs unchecked."""
         return self._pin.aba(self.model, self.data, q, dq, tau - self.damping * dq)
 
+    def tool_position_unchecked(self, q) -> np.ndarray:
+        """tool_position() for a q the caller has checked ((n,) finite floats)."""
+        self._pin.forwardKinematics(self.model, self.data, q)
+        return self._pin.updateFramePlacement(self.model, self.data,
+                                              self.tool_frame_id).translation.copy()
+
     def inverse_mass_matrix(self, q) -> np.ndarray:
         """M(q)^-1 (n, n) by pinocchio's computeMinverse; q unchecked."""
         upper = np.triu(self._pin.computeMinverse(self.model, self.data, q))
@@ -497,6 +504,7 @@ class PinocchioModel(RobotModel):
         pin = self._pin
         copy = object.__new__(PinocchioModel)
         copy.__dict__.update(self.__dict__)
+        copy.home = self.home.copy()
         copy.model = pin.Model(self.model)
         for joint, scale in enumerate(scales, start=1):
             inertia = copy.model.inertias[joint]
@@ -534,16 +542,27 @@ def _neutral_within_limits(pin, model) -> np.ndarray:
 # Names ------------------------------------------------------------------------------------
 
 def panda_urdf_path() -> Path:
-    """The Panda's URDF inside the installed example-robot-data package (a data-only package:
-    its files sit under the environment's cmeel.prefix/share). ValueError if missing."""
+    """The Panda's URDF of the example-robot-data package: in the Python environment (the
+    PyPI wheel, a data-only package: its files sit under the environment's cmeel.prefix/share)
+    or else in the ament index (the ROS package of an apt install). ValueError if neither."""
+    candidates = []
     try:
-        path = Path(metadata.distribution('example-robot-data').locate_file(PANDA_URDF))
+        candidates.append(Path(metadata.distribution('example-robot-data')
+                               .locate_file(PANDA_URDF)))
     except metadata.PackageNotFoundError:
-        raise ValueError('robot panda needs the example-robot-data package (requirements.lock)'
-                         ) from None
-    if not path.is_file():
-        raise ValueError(f'the Panda URDF is not at {path}')
-    return path
+        pass
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.append(Path(get_package_share_directory('example-robot-data'))
+                          / PANDA_URDF.split('example-robot-data/', 1)[1])
+    except (ImportError, LookupError):
+        pass
+    for path in candidates:
+        if path.is_file():
+            return path
+    raise ValueError('robot panda needs the example-robot-data package (requirements.lock); '
+                     f'no Panda URDF at {", ".join(map(str, candidates)) or "any known place"}')
 
 
 def robot_model(robot: str = '', urdf_file: str = '', tool_frame: str = '') -> RobotModel:

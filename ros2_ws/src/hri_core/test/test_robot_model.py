@@ -221,3 +221,48 @@ def test_wrong_shapes_and_non_finite_states(panda):
         panda.tool_position(np.zeros(6))
     with pytest.raises(ValueError, match='dq_r must be finite'):
         panda.regressor(np.zeros(7), np.zeros(7), np.full(7, np.nan), np.zeros(7))
+
+
+def test_reach_bounds_the_tool_distance_from_the_shoulder(panda):
+    """No configuration within the limits puts the tool beyond `reach` from `shoulder`; the
+    bound is the chain's length, within 20 % of the farthest of 5000 random poses (0.95 m
+    against 1.09 m for the Panda; exact, l1 + l2, for the SCARA)."""
+    rng = np.random.default_rng(SEED)
+    for model in (panda, ScaraModel()):
+        distances = [np.linalg.norm(model.tool_position(
+            rng.uniform(model.limits.lower, model.limits.upper)) - model.shoulder)
+            for _ in range(5000)]
+        assert max(distances) <= model.reach
+        assert max(distances) >= 0.8 * model.reach
+    np.testing.assert_allclose(panda.shoulder, [0.0, 0.0, 0.333], atol=1e-12)
+    stretched = ScaraModel().tool_position(np.zeros(2))
+    assert np.linalg.norm(stretched) == pytest.approx(ScaraModel().reach, abs=1e-12)
+
+
+def test_panda_theta_box_is_the_documented_one(panda):
+    """Masses >= 1 % of the URDF's, diagonal inertias and friction >= 0, the rest free."""
+    names = panda.parameter_names
+    for name, low, high in zip(names, panda.theta_lower, panda.theta_upper, strict=True):
+        assert high == np.inf, name
+        kind = name.rsplit('.', 1)[1]
+        if kind == 'm':
+            assert low == pytest.approx(0.01 * panda.theta[names.index(name)]), name
+        elif kind in ('Ixx', 'Iyy', 'Izz', 'damping'):
+            assert low == 0.0, name
+        else:
+            assert low == -np.inf, name
+    assert names[0] == 'panda_joint1.m' and names[-1] == 'panda_joint7.damping'
+
+
+def test_without_example_robot_data_the_panda_is_one_line(monkeypatch):
+    from importlib import metadata
+
+    from hri_core import robot_model as module
+
+    def missing(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(module.metadata, 'distribution', missing)
+    monkeypatch.setenv('AMENT_PREFIX_PATH', '/nonexistent')
+    with pytest.raises(ValueError, match='robot panda needs the example-robot-data package'):
+        robot_model('panda')

@@ -32,8 +32,6 @@ from geometry_msgs.msg import WrenchStamped
 
 from hri_core import topics
 from hri_core.node_common import (
-    CPU_WAKEUP_LATENCY,
-    REALTIME_PRIORITY,
     ParameterSpec,
     StartupError,
     declare_parameters,
@@ -41,7 +39,12 @@ from hri_core.node_common import (
 )
 from hri_core.robot_model import generic_model, robot_model
 from scara_sim.arm_simulation import ArmSimulator, true_arm
-from scara_sim.sim_node_common import SteppedSimNode, run_sim_node
+from scara_sim.sim_node_common import (
+    STEPPING_PARAMETERS,
+    TIMING_PARAMETERS,
+    SteppedSimNode,
+    run_sim_node,
+)
 from scara_sim.simulation import joint_command_floats
 
 PACKAGE = 'scara_sim'
@@ -54,13 +57,7 @@ PARAMETERS = {
                                read_only=True),
     'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the '
                                 "robot's own; required with urdf_file)", read_only=True),
-    'rate_hz': ParameterSpec(float, 'integration step and publish rate (Hz); step = '
-                             '1/rate_hz', 1000.0, 10000.0, read_only=True),
-    'max_catch_up_steps': ParameterSpec(
-        int, 'most steps one timer tick may run to catch up with real time; the rest are '
-        'dropped and counted', 1, 10000, read_only=True),
-    'realtime_priority': REALTIME_PRIORITY,
-    'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
+    **STEPPING_PARAMETERS,
     'initial_q': ParameterSpec(list, "joint positions at start (rad; unset: the robot's home "
                                'pose)', read_only=True, optional=True),
     'perturbation': ParameterSpec(float, 'the simulated arm: link masses, inertias and joint '
@@ -71,14 +68,7 @@ PARAMETERS = {
     'damping': ParameterSpec(list, "viscous friction of each joint before the perturbation "
                              "(N m s/rad; unset: the URDF's <dynamics damping>)",
                              read_only=True, optional=True),
-    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque',
-                                     0.005, 60.0),
-    'wrench_timeout': ParameterSpec(float, 'no /human/wrench for this long (s): zero wrench',
-                                    0.005, 60.0),
-    'base_frame': ParameterSpec(str, 'frame of /ee_position and of /human/wrench',
-                                read_only=True),
-    'report_period': ParameterSpec(float, 'how often (s) late or dropped steps are reported',
-                                   0.1, 3600.0),
+    **TIMING_PARAMETERS,
 }
 
 
@@ -86,6 +76,7 @@ class ArmSim(SteppedSimNode):
     """Integrates the arm of its URDF and publishes its state at rate_hz."""
 
     command_topics = {'effort': topics.EFFORT_COMMANDS}
+    stepping_thread_name = 'arm_sim_steps'
 
     def __init__(self):
         super().__init__(NODE_NAME)
@@ -96,7 +87,7 @@ class ArmSim(SteppedSimNode):
         except ValueError as error:
             raise StartupError(f'bad parameters: {error}') from None
         self.joint_names = sim.arm.joint_names
-        self.add_post_set_parameters_callback(self._apply_parameters)
+        self.add_post_set_parameters_callback(self.apply_timing_parameters)
         self._description_pub = self.create_publisher(
             topics.ROBOT_DESCRIPTION.type, topics.ROBOT_DESCRIPTION.name,
             topics.ROBOT_DESCRIPTION.qos)
@@ -130,15 +121,7 @@ class ArmSim(SteppedSimNode):
                                     6)
 
     def tool_point(self, q) -> tuple[float, float, float]:
-        return tuple(self._sim.arm.tool_position(q).tolist())
-
-    def _apply_parameters(self, parameters) -> None:
-        """The timeouts and the report period (the rest is read-only; ROS checks ranges)."""
-        self._command_timeout = self.get_parameter('command_timeout').value
-        self._wrench_timeout = self.get_parameter('wrench_timeout').value
-        self._report_period = self.get_parameter('report_period').value
-        self.get_logger().info('parameters changed: ' + ', '.join(
-            f'{p.name}={p.value}' for p in parameters))
+        return tuple(self._sim.arm.tool_position_unchecked(np.array(q)).tolist())
 
 
 def main(args=None):

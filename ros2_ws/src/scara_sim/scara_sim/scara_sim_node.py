@@ -42,15 +42,18 @@ from rcl_interfaces.msg import SetParametersResult
 from hri_core import topics
 from hri_core.dynamics import ScaraParameters, forward_kinematics_pair
 from hri_core.node_common import (
-    CPU_WAKEUP_LATENCY,
-    REALTIME_PRIORITY,
     ParameterSpec,
     StartupError,
     declare_parameters,
     float_array_problem,
     load_defaults,
 )
-from scara_sim.sim_node_common import SteppedSimNode, run_sim_node
+from scara_sim.sim_node_common import (
+    STEPPING_PARAMETERS,
+    TIMING_PARAMETERS,
+    SteppedSimNode,
+    run_sim_node,
+)
 from scara_sim.simulation import (
     ScaraSimulator,
     VelocityLoop,
@@ -88,26 +91,13 @@ ARRAY_PARAMETERS = {
                                  'velocity-mode PI loop: integral gains (N m/rad)', size=2),
 }
 PARAMETERS = {
-    'rate_hz': ParameterSpec(float, 'integration step and publish rate (Hz); step = '
-                             '1/rate_hz', 1000.0, 10000.0, read_only=True),
-    'max_catch_up_steps': ParameterSpec(
-        int, 'most steps one timer tick may run to catch up with real time; the rest are '
-        'dropped and counted', 1, 10000, read_only=True),
-    'realtime_priority': REALTIME_PRIORITY,
-    'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
+    **STEPPING_PARAMETERS,
     **ARM_PARAMETERS,
     **ARRAY_PARAMETERS,
     'initial_q': ParameterSpec(list, 'joint positions at start (rad)', size=2,
                                read_only=True),
     'effort_limit': ParameterSpec(float, 'drive torque limit of each joint (N m)', 0.1, 1000.0),
-    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque',
-                                     0.005, 60.0),
-    'wrench_timeout': ParameterSpec(float, 'no /human/wrench for this long (s): zero force',
-                                    0.005, 60.0),
-    'base_frame': ParameterSpec(str, 'frame of /ee_position and of /human/wrench',
-                                read_only=True),
-    'report_period': ParameterSpec(float, 'how often (s) late or dropped steps are reported',
-                                   0.1, 3600.0),
+    **TIMING_PARAMETERS,
 }
 
 
@@ -116,6 +106,7 @@ class ScaraSim(SteppedSimNode):
 
     joint_names = tuple(JOINT_NAMES)
     command_topics = {'effort': topics.EFFORT_COMMANDS, 'velocity': topics.VELOCITY_COMMANDS}
+    stepping_thread_name = 'scara_sim_steps'
 
     def __init__(self):
         super().__init__(NODE_NAME)
@@ -188,11 +179,7 @@ class ScaraSim(SteppedSimNode):
         loop.integral = sim.velocity_loop.integral
         sim.velocity_loop = loop
         self._effort_limit = sim.effort_limit = self.get_parameter('effort_limit').value
-        self._command_timeout = self.get_parameter('command_timeout').value
-        self._wrench_timeout = self.get_parameter('wrench_timeout').value
-        self._report_period = self.get_parameter('report_period').value
-        self.get_logger().info('parameters changed: ' + ', '.join(
-            f'{p.name}={p.value}' for p in parameters))
+        self.apply_timing_parameters(parameters)
 
 
 def main(args=None):

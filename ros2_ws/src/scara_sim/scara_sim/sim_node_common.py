@@ -16,9 +16,9 @@ line. No joint command for `command_timeout` s: zero torque (logged once, and on
 commands resume). A malformed command or wrench (wrong length, NaN/inf, wrong frame) is
 rejected with a throttled warning; the last good one stays in force.
 
-The subclass gives: JOINT_NAMES' length through `joint_names`, `command_topics` (mode ->
-Topic), `wrench_values(msg)` (the wrench components its simulator takes), `tool_point(q)`
-(x, y, z) in m, and optionally `on_new_mode(mode)`.
+The subclass gives: `joint_names`, `command_topics` (mode -> Topic),
+`stepping_thread_name`, `wrench_values(msg)` (the wrench components its simulator takes),
+`tool_point(q)` (x, y, z) in m, and optionally `on_new_mode(mode)`.
 """
 
 import math
@@ -41,6 +41,9 @@ from hri_core.cdr import (
     point_stamped_template,
 )
 from hri_core.node_common import (
+    CPU_WAKEUP_LATENCY,
+    REALTIME_PRIORITY,
+    ParameterSpec,
     hold_wakeup_latency,
     request_realtime,
     run_node,
@@ -55,6 +58,27 @@ from scara_sim.simulation import (
 
 WARN_THROTTLE = 2.0  # s between two warnings about malformed input
 
+# The parameters every simulator node declares: stepping first, the inputs' timing last.
+STEPPING_PARAMETERS = {
+    'rate_hz': ParameterSpec(float, 'integration step and publish rate (Hz); step = '
+                             '1/rate_hz', 1000.0, 10000.0, read_only=True),
+    'max_catch_up_steps': ParameterSpec(
+        int, 'most steps one timer tick may run to catch up with real time; the rest are '
+        'dropped and counted', 1, 10000, read_only=True),
+    'realtime_priority': REALTIME_PRIORITY,
+    'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
+}
+TIMING_PARAMETERS = {
+    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque',
+                                     0.005, 60.0),
+    'wrench_timeout': ParameterSpec(float, 'no /human/wrench for this long (s): zero force',
+                                    0.005, 60.0),
+    'base_frame': ParameterSpec(str, 'frame of /ee_position and of /human/wrench',
+                                read_only=True),
+    'report_period': ParameterSpec(float, 'how often (s) late or dropped steps are reported',
+                                   0.1, 3600.0),
+}
+
 
 def _taken_by_the_stepping_thread(data: bytes) -> None:
     """The command subscriptions' callback, never called: no executor spins their node."""
@@ -65,6 +89,7 @@ class SteppedSimNode(Node):
 
     joint_names: tuple[str, ...] = ()
     command_topics: dict = {}
+    stepping_thread_name = 'sim_steps'
 
     def read_stepping_settings(self, values: dict) -> None:
         """The settings every simulator node declares, from its declared `values`."""
@@ -73,6 +98,15 @@ class SteppedSimNode(Node):
         self._wrench_timeout = values['wrench_timeout']
         self._frame = values['base_frame']
         self._report_period = values['report_period']
+
+    def apply_timing_parameters(self, parameters) -> None:
+        """After a parameter change: the timeouts and report period of TIMING_PARAMETERS
+        from their current values, and one line naming what changed."""
+        self._command_timeout = self.get_parameter('command_timeout').value
+        self._wrench_timeout = self.get_parameter('wrench_timeout').value
+        self._report_period = self.get_parameter('report_period').value
+        self.get_logger().info('parameters changed: ' + ', '.join(
+            f'{p.name}={p.value}' for p in parameters))
 
     def wrench_values(self, msg: WrenchStamped) -> tuple:
         """The components of the wrench the simulator takes (checked: finite)."""
@@ -134,7 +168,7 @@ class SteppedSimNode(Node):
         # 1 kHz alone and came late behind the command callbacks; this thread, 5 %.
         self._stopping = threading.Event()
         self._stepping = threading.Thread(target=self._step_in_real_time,
-                                          name=f'{self.get_name()}_steps', daemon=True)
+                                          name=self.stepping_thread_name, daemon=True)
         self.get_logger().info(startup_line)
         request_realtime(self, values['realtime_priority'])
         self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])

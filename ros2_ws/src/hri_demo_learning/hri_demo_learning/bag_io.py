@@ -271,12 +271,70 @@ class BagWriter:
 # Reading
 
 
+class PayloadTable(Sequence):
+    """The payloads of one topic's messages where they lie in a bag file's bytes: `starts`
+    (N,) and `lengths` (N,) byte offsets and counts into `data`, no Python object per message
+    until one is asked for (item i is the memoryview of payload i). `read_float64s` reads a
+    CdrLayout's values of all of them by numpy gathers: a 1M-message topic in one step."""
+
+    _BLOCK = 65536  # rows per gather: bounds the index arrays (rows x checked bytes x 8 B)
+
+    def __init__(self, data: memoryview, starts: np.ndarray, lengths: np.ndarray):
+        self.data = data
+        self.u8 = np.frombuffer(data, dtype=np.uint8)
+        self.starts = np.asarray(starts, dtype=np.int64)
+        self.lengths = np.asarray(lengths, dtype=np.int64)
+
+    def __len__(self) -> int:
+        return int(self.starts.size)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        start = int(self.starts[index])
+        return self.data[start:start + int(self.lengths[index])]
+
+    def take(self, order: np.ndarray) -> 'PayloadTable':
+        """The payloads in `order` (N,) (indices)."""
+        return PayloadTable(self.data, self.starts[order], self.lengths[order])
+
+    def _gathered(self, rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        return self.u8[self.starts[rows][:, None] + columns]
+
+    def read_float64s(self, layout: CdrLayout) -> tuple[np.ndarray, np.ndarray]:
+        """hri_core.cdr.read_float64s of these payloads: (values (N, k), NaN where a message
+        does not share the layout; matched (N,) bool)."""
+        count = len(self)
+        values = np.full((count, len(layout.offsets)), np.nan)
+        matched = np.zeros(count, dtype=bool)
+        candidates = np.flatnonzero(self.lengths == layout.size)
+        template = np.frombuffer(layout.template, dtype=np.uint8)
+        checked = np.concatenate([np.arange(start, end) for start, end in layout.checks]
+                                 or [np.zeros(0, dtype=np.int64)])
+        wanted = (np.asarray(layout.offsets)[:, None] + _BYTE_OFFSETS).ravel()
+        for first in range(0, candidates.size, self._BLOCK):
+            rows = candidates[first:first + self._BLOCK]
+            same = np.all(self._gathered(rows, checked) == template[checked], axis=1)
+            rows = rows[same]
+            matched[rows] = True
+            values[rows] = self._gathered(rows, wanted).view('<f8')
+        return values, matched
+
+
+def _float64s(raw, layout: CdrLayout) -> tuple[np.ndarray, np.ndarray]:
+    """read_float64s of raw payloads: a PayloadTable's by its gathers, a list's by hri_core."""
+    if isinstance(raw, PayloadTable):
+        return raw.read_float64s(layout)
+    return read_float64s(raw, layout)
+
+
 @dataclass
 class TopicMessages:
     """The messages of one topic: type, bag timestamps (receive time, ns) and messages.
 
-    For a type `read_bag` was asked to keep raw, `raw` holds each message's CDR bytes and
-    `messages` stays empty; otherwise `messages` holds the deserialised messages.
+    For a type `read_bag` was asked to keep raw, `raw` holds each message's CDR bytes (a list,
+    or a PayloadTable for a closed MCAP file read by the fast walk) and `messages` stays
+    empty; otherwise `messages` holds the deserialised messages.
     """
 
     msgtype: str
@@ -359,6 +417,7 @@ _RECORD_HEAD = struct.Struct('<BQ')           # opcode, content length
 _CHUNK_HEAD = struct.Struct('<QQQI')          # start, end time, uncompressed size, crc
 # A message record: opcode (1), length (8), channel id (2), sequence (4), log time (8), publish
 # time (8), then the payload (from byte 31 of the record).
+_MESSAGE_CHANNEL_TIME = struct.Struct('<H4xQ')  # channel id, (sequence), log time
 _BYTE_OFFSETS = np.arange(8)  # the 8 bytes of a little-endian uint64, gathered by numpy
 _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END = 0x04, 0x05, 0x06, 0x0F
 
@@ -391,10 +450,10 @@ def _message_run(u8: np.ndarray, first: int, end: int, length: int, probe: int) 
     return count if same.all() else max(1, int(np.argmin(same)))
 
 
-def _take_run(u8: np.ndarray, data: memoryview, first: int, count: int, length: int,
+def _take_run(u8: np.ndarray, first: int, count: int, length: int,
               sinks: dict[int, tuple | None]) -> None:
     """Hand the `count` message records of content length `length` from byte `first` on to
-    their topics' sinks, in order: channel ids and log times gathered by numpy."""
+    their topics' sinks, in order: log times (ns) and payload offsets as arrays."""
     starts = first + (9 + length) * np.arange(count)
     channels = u8[starts + 9].astype(np.uint16) | (u8[starts + 10].astype(np.uint16) << 8)
     log_times = u8[(starts + 15)[:, None] + _BYTE_OFFSETS].view('<u8')[:, 0]
@@ -405,18 +464,18 @@ def _take_run(u8: np.ndarray, data: memoryview, first: int, count: int, length: 
             continue
         mine = slice(None) if one_channel else channels == channel
         stamps, payloads = sink
-        stamps(log_times[mine].tolist())
-        end = 9 + length
-        payloads([data[start + 31:start + end] for start in starts[mine].tolist()])
+        stamps(log_times[mine])
+        payloads(starts[mine] + 31)  # the payload follows the 31 bytes of record head
 
 
 def _walk_records(data: memoryview, start: int, end: int, channels: dict[int, str],
                   sinks: dict[int, tuple | None], wanted: dict[str, tuple[list, list]]) -> bool:
     """Walk the MCAP records in data[start:end]: channels into `channels` (id -> topic) and
-    `sinks` (id -> the (stamps, payloads) extenders of a topic in `wanted`, else None); each
-    message of a wanted topic adds its log time (ns) and payload there, in order; chunks are
-    walked inside. False at a compressed chunk (the caller falls back to rosbags), True at the
-    end of the data section. ValueError or struct.error for records that do not fit.
+    `sinks` (id -> the (stamps, payloads) appenders of a topic in `wanted`, else None); each
+    run of messages of a wanted topic appends its log times (ns) and its payloads' byte
+    offsets there (arrays), in order; chunks are walked inside. False at a compressed chunk
+    (the caller falls back to rosbags), True at the end of the data section. ValueError or
+    struct.error for records that do not fit.
 
     A recording is mostly runs of messages of one length (a 1 kHz stream of one layout): a run
     is found and read by numpy in one step (`_message_run`, `_take_run`), so the Python loop
@@ -430,12 +489,25 @@ def _walk_records(data: memoryview, start: int, end: int, channels: dict[int, st
         if body + length > end:
             raise ValueError(f'record at byte {at} runs past the end')
         if opcode == _OP_MESSAGE:
+            if probes.get(length) == 1:
+                # A length seen alone last time (a slow topic between runs of a fast one):
+                # taken without numpy, and probed again once the next record has it too.
+                channel, log_time = _MESSAGE_CHANNEL_TIME.unpack_from(data, body)
+                sink = sinks.get(channel)
+                if sink is not None:
+                    sink[0](np.array([log_time], dtype=np.uint64))
+                    sink[1](np.array([body + 22], dtype=np.int64))
+                at = body + length
+                if at + 9 <= end and _RECORD_HEAD.unpack_from(data, at) == (_OP_MESSAGE,
+                                                                            length):
+                    probes[length] = 16
+                continue
             count = _message_run(u8, at, end, length, probes.get(length, 16))
-            _take_run(u8, data, at, count, length, sinks)
+            _take_run(u8, at, count, length, sinks)
             # Probe a little beyond the last run of this length: a long run (a fast topic
-            # between two messages of a slow one) is found in one step, a lone message costs
-            # a short probe.
-            probes[length] = min(max(16, 2 * count), 65536)
+            # between two messages of a slow one) is found in one step; a lone message
+            # marks its length for the path above.
+            probes[length] = 1 if count == 1 else min(2 * count, 65536)
             at += count * (9 + length)
             continue
         at = body + length
@@ -459,7 +531,7 @@ def _walk_records(data: memoryview, start: int, end: int, channels: dict[int, st
             topic = bytes(data[body + 8:body + 8 + topic_length]).decode()
             channels[channel] = topic
             series = wanted.get(topic)
-            sinks[channel] = None if series is None else (series[0].extend, series[1].extend)
+            sinks[channel] = None if series is None else (series[0].append, series[1].append)
         elif opcode == _OP_DATA_END:
             return True
     return True
@@ -468,19 +540,42 @@ def _walk_records(data: memoryview, start: int, end: int, channels: dict[int, st
 def _read_mcap_data(files: list[Path], topics: dict[str, TopicMessages]) -> bool:
     """Read the messages of `topics` from closed MCAP files as raw bytes into their series;
     False (nothing kept) where a chunk is compressed. ValueError/struct.error if corrupt."""
-    found_by_topic: dict[str, tuple[list, list]] = {topic: ([], []) for topic in topics}
+    tables: list[tuple[memoryview, dict[str, tuple[list, list]]]] = []
     for mcap_file in files:
         data = memoryview(mcap_file.read_bytes())
         if bytes(data[:len(MCAP_MAGIC)]) != MCAP_MAGIC:
             raise ValueError(f'{mcap_file} does not start with the MCAP magic bytes')
+        found_by_topic: dict[str, tuple[list, list]] = {topic: ([], []) for topic in topics}
         if not _walk_records(data, len(MCAP_MAGIC), len(data) - len(MCAP_MAGIC), {}, {},
                              found_by_topic):
             return False
-    for topic, (stamps, payloads) in found_by_topic.items():
-        series = topics[topic]
-        series.timestamps_ns.extend(stamps)
-        series.raw.extend(payloads)
+        tables.append((data, found_by_topic))
+    for topic, series in topics.items():
+        parts = []
+        for data, found_by_topic in tables:
+            stamps, starts = found_by_topic[topic]
+            if stamps:
+                series.timestamps_ns.extend(np.concatenate(stamps).tolist())
+                starts = np.concatenate(starts)
+                parts.append(PayloadTable(data, starts, _payload_lengths(data, starts)))
+        if len(parts) == 1:
+            series.raw = parts[0]
+        else:  # several files: one list (each file's bytes stay alive through its views)
+            series.raw = [payload for part in parts for payload in part]
     return True
+
+
+def _payload_lengths(data: memoryview, starts: np.ndarray) -> np.ndarray:
+    """The payload length of each message whose payload starts at `starts` (N,): its record's
+    content length (the uint64 at 30 bytes before the payload) less the 22 bytes of channel
+    id, sequence and times."""
+    u8 = np.frombuffer(data, dtype=np.uint8)
+    lengths = np.empty(starts.size, dtype=np.int64)
+    for first in range(0, starts.size, PayloadTable._BLOCK):
+        block = starts[first:first + PayloadTable._BLOCK]
+        lengths[first:first + block.size] = u8[(block - 30)[:, None] + _BYTE_OFFSETS].view(
+            '<u8')[:, 0] - 22
+    return lengths
 
 
 def _read_closed(path: Path, wanted: set[str] | None, typestore: Typestore,
@@ -570,7 +665,10 @@ def _sort_by_time(topics: dict[str, TopicMessages]) -> None:
             # One of messages and raw holds the topic's messages, the other is empty.
             series.timestamps_ns = [series.timestamps_ns[i] for i in order]
             series.messages = [series.messages[i] for i in order] if series.messages else []
-            series.raw = [series.raw[i] for i in order] if series.raw else []
+            if isinstance(series.raw, PayloadTable):
+                series.raw = series.raw.take(order)
+            else:
+                series.raw = [series.raw[i] for i in order] if series.raw else []
 
 
 def _read_unclosed(path: Path, mcap_files: list[Path], wanted: set[str] | None,
@@ -702,7 +800,7 @@ def _point_array(series: TopicMessages, topic: str, path: Path,
     x_offset, y_offset = planar.offsets
     layout = CdrLayout(planar.template, planar.size, planar.checks,
                        (x_offset, y_offset, y_offset + 8))
-    values, matched = read_float64s(series.raw, layout)
+    values, matched = _float64s(series.raw, layout)
     if not matched.all():
         typestore = typestore if typestore is not None else jazzy_typestore()
         for index in np.flatnonzero(~matched):
@@ -738,7 +836,7 @@ def _joint_positions(series: TopicMessages, topic: str, path: Path,
     if layout is None:
         return np.array([_joint_row(m, i, path, joints) for i, m in _decoded(
             series, typestore, topic, path)], dtype=float).reshape(-1, len(joints))
-    values, matched = read_float64s(series.raw, layout)
+    values, matched = _float64s(series.raw, layout)
     for index in np.flatnonzero(~matched):
         msg = _deserialize(typestore, series.raw[index], series.msgtype, topic, index, path)
         values[index] = _joint_row(msg, index, path, joints)

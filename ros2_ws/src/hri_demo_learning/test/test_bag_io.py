@@ -413,6 +413,28 @@ def test_messages_written_out_of_time_order_are_read_in_time_order(tmp_path):
     np.testing.assert_allclose(demo.positions[:, :2], forward_kinematics(q, 0.35, 0.30))
 
 
+def test_messages_of_the_same_size_with_other_names_take_the_reference_path(tmp_path):
+    """Joint names swapped: every byte count equal, only the checked name bytes differ."""
+    q = np.column_stack([np.linspace(0.1, 0.5, 30), np.linspace(1.0, 0.4, 30)])
+    bag = tmp_path / 'swapped'
+    with BagWriter(bag) as writer:
+        js = writer.add_topic('/joint_states', JOINT_STATE)
+        ref = writer.add_topic('/demo/reference', POINT_STAMPED)
+        writer.write(ref, T0, point_bytes(0.4, 0.2))
+        for i, row in enumerate(q):
+            names, position = (['joint2', 'joint1'], row[::-1]) if i % 7 == 3 else (
+                ['joint1', 'joint2'], row)
+            msg = TYPES.types[JOINT_STATE](
+                header=TYPES.types['std_msgs/msg/Header'](
+                    stamp=TYPES.types['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
+                    frame_id='base'),
+                name=names, position=np.array(position), velocity=np.zeros(2),
+                effort=np.zeros(2))
+            writer.write(js, T0 + i * PERIOD, bytes(TYPES.serialize_cdr(msg, JOINT_STATE)))
+    demo = assert_same_demonstration(bag)
+    np.testing.assert_allclose(demo.positions[:, :2], forward_kinematics(q, 0.35, 0.30))
+
+
 def test_messages_of_another_layout_take_the_reference_path(tmp_path):
     """Frame ids and joint lists of other lengths or orders: read right, one by one."""
     q = np.array([[0.1 * i, -0.2 * i] for i in range(6)])

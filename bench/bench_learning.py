@@ -25,7 +25,18 @@ Three parts, all through the functions the `learner` node uses:
   ... once:=true`, its own ROS domain, nothing subscribed): wall time from process start to
   exit, figure included (`learner_process_s`).
 
+* panda (`--panda-seconds`, default 1000): the same replay for the 7-joint Panda in 3-D: a bag
+  of 1000 s x 1000 sensor_msgs/JointState (the Panda's 7 joints, through its inverse
+  kinematics along a straight 3-D push to 0.041 m from x_r), /demo/reference at 10 Hz and the
+  URDF on /robot_description, no /ee_position (`synthetic_demonstration`). Then the `learner`
+  node on it (`ros2 run hri_demo_learning learner ... once:=true`, its own ROS domain):
+  wall time from process start to exit (`learner_process_s`, the bar: <= 15 s), the same for
+  the SCARA's replay bag (`scara_learner_process_s`, the bar: <= 10 s), and
+  `bag_io.read_demonstration` alone on the Panda bag (`read_s`, forward kinematics through
+  the URDF included).
+
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_learning.py`.
+`--only-panda` runs the panda part alone.
 `--json` prints the figures as one JSON object only.
 """
 
@@ -44,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from hri_core.dynamics import forward_kinematics
+from hri_core.robot_model import robot_model
 from hri_demo_learning.bag_io import (
     JOINT_STATE,
     JOINT_STATE_TOPIC,
@@ -58,6 +70,12 @@ from hri_demo_learning.performance_learning import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_TOLERANCE,
     fit_task_parameters,
+)
+from hri_demo_learning.synthetic_demonstration import (
+    JointDemonstration,
+    joint_path,
+    push_path,
+    write_demonstration_bag,
 )
 from hri_demo_learning.task_energy import DEFAULT_STATIONARY_SPEED
 
@@ -92,6 +110,10 @@ def parse_arguments(argv=None) -> argparse.Namespace:
                         help='sample counts of the scaling part')
     parser.add_argument('--replay-seconds', type=float, default=1000.0,
                         help='length of the replay bag at 1 kHz (s); 0 skips the replay part')
+    parser.add_argument('--panda-seconds', type=float, default=1000.0,
+                        help='length of the Panda replay bag at 1 kHz (s); 0 skips it')
+    parser.add_argument('--only-panda', action='store_true',
+                        help='run the panda part alone (the learner node on 1M-message bags)')
     parser.add_argument('--json', action='store_true', help='print JSON only')
     return parser.parse_args(argv)
 
@@ -287,28 +309,6 @@ def write_replay_bag(path: Path, seconds: float) -> dict:
             'write_s': round(time.perf_counter() - started, 2)}
 
 
-def time_learner_process(bag: Path, output_dir: Path) -> float:
-    """Wall time (s) of `ros2 run hri_demo_learning learner` on `bag` with once:=true, from
-    process start to exit; its own ROS domain (LEARNER_DOMAIN_ID), ended by PID on overrun."""
-    command = ['ros2', 'run', 'hri_demo_learning', 'learner', '--ros-args',
-               '-p', f'bags:=[{bag}]', '-p', 'once:=true', '-p', 'task_name:=follow',
-               '-p', f'output_dir:={output_dir}']
-    environment = {**os.environ, 'ROS_DOMAIN_ID': str(LEARNER_DOMAIN_ID)}
-    started = time.perf_counter()
-    process = subprocess.Popen(command, env=environment, stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE, text=True)
-    try:
-        _, errors = process.communicate(timeout=300)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-    elapsed = time.perf_counter() - started
-    if process.returncode != 0:
-        raise RuntimeError(f'learner exited {process.returncode}: {errors.strip()[-300:]}')
-    return round(elapsed, 2)
-
-
 def bench_replay(seconds: float) -> dict:
     with tempfile.TemporaryDirectory(prefix='bench-learning-') as workdir:
         bag = Path(workdir) / 'replay_follow'
@@ -316,7 +316,7 @@ def bench_replay(seconds: float) -> dict:
         result = {'seconds': seconds, 'rate_hz': REPLAY_RATE_HZ, 'method': 'trf',
                   **write_replay_bag(bag, seconds)}
         log(f'replay: written in {result["write_s"]} s; the learner node on it')
-        result['learner_process_s'] = time_learner_process(bag, Path(workdir) / 'tasks')
+        result['learner_process_s'], _ = learner_node_seconds(bag, Path(workdir) / 'tasks')
         log(f'replay: learner node {result["learner_process_s"]} s; reading')
         started = time.perf_counter()
         demo = read_demonstration(bag, l1=L1, l2=L2)
@@ -338,20 +338,114 @@ def bench_replay(seconds: float) -> dict:
     return result
 
 
+# -- panda: the learner node on a 1M-message bag of the 7-joint arm, in 3-D --------------------
+
+PANDA_OFFSET = np.array([0.12, 0.15, -0.18])  # m, x_r from the tool at the Panda's home pose
+
+
+def write_panda_bag(path: Path, seconds: float) -> dict:
+    """A follow demonstration of the Panda: at rest at its home pose, a 4 s minimum-jerk push
+    in the middle along a straight 3-D line to 0.041 m from x_r, at rest until the end; 1 kHz
+    joint states (inverse kinematics of the push), x_r at 10 Hz, the URDF; no /ee_position."""
+    started = time.perf_counter()
+    panda = robot_model('panda')
+    times = np.arange(int(round(seconds * REPLAY_RATE_HZ))) / REPLAY_RATE_HZ
+    start = panda.tool_position(panda.home)
+    reference = start + PANDA_OFFSET
+    goal = reference - PANDA_OFFSET / np.linalg.norm(PANDA_OFFSET) * REPLAY_STOP_DISTANCE
+    begin = 0.5 * (seconds - REPLAY_PUSH_SECONDS)
+    points = push_path(times, start, goal, begin, REPLAY_PUSH_SECONDS)
+    q = np.tile(panda.home, (times.size, 1))
+    pushing = np.flatnonzero((times >= begin) & (times <= begin + REPLAY_PUSH_SECONDS))
+    q[pushing] = joint_path(panda, points[pushing], panda.home)
+    q[pushing[-1] + 1:] = q[pushing[-1]]
+    counts = write_demonstration_bag(path, JointDemonstration(
+        panda.joint_names, times, q, reference, urdf=panda.urdf,
+        reference_period=int(round(REPLAY_RATE_HZ / REFERENCE_RATE_HZ)), start_ns=EPOCH_NS))
+    size = sum(f.stat().st_size for f in path.iterdir())
+    return {'joint_states': counts['/joint_states'], 'joints': panda.dof,
+            'bag_mb': round(size / 1e6, 1), 'write_s': round(time.perf_counter() - started, 2)}
+
+
+def learner_node_seconds(bag: Path, output_dir: Path) -> tuple[float, str]:
+    """Wall time (s) of the learner node on `bag` with once:=true from process start to exit,
+    and its summary line; its own ROS domain; ended by PID if it overruns 300 s."""
+    command = ['ros2', 'run', 'hri_demo_learning', 'learner', '--ros-args',
+               '-p', f'bags:=[{bag}]', '-p', 'once:=true', '-p', 'task_name:=follow',
+               '-p', f'output_dir:={output_dir}']
+    environment = {**os.environ, 'ROS_DOMAIN_ID': str(LEARNER_DOMAIN_ID)}
+    started = time.perf_counter()
+    process = subprocess.Popen(command, env=environment, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    try:
+        output, _ = process.communicate(timeout=300)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    elapsed = time.perf_counter() - started
+    if process.returncode != 0:
+        raise RuntimeError(f'learner exited {process.returncode}: {output.strip()[-300:]}')
+    summary = next((line for line in output.splitlines() if 'learned task' in line), '')
+    return round(elapsed, 2), summary.split(': ', 1)[-1]
+
+
+def bench_panda(seconds: float, scara_seconds: float) -> dict:
+    with tempfile.TemporaryDirectory(prefix='bench-learning-panda-') as workdir:
+        bag = Path(workdir) / 'panda_follow'
+        log(f'panda: writing {int(seconds * REPLAY_RATE_HZ)} joint states into {bag}')
+        result = {'seconds': seconds, **write_panda_bag(bag, seconds)}
+        log(f'panda: written in {result["write_s"]} s; the learner node on it')
+        result['learner_process_s'], result['summary'] = learner_node_seconds(
+            bag, Path(workdir) / 'tasks')
+        log(f'panda: learner node {result["learner_process_s"]} s; reading alone')
+        started = time.perf_counter()
+        demo = read_demonstration(bag)
+        result['read_s'] = round(time.perf_counter() - started, 2)
+        result['kinematics'] = demo.kinematics
+        del demo
+        if scara_seconds > 0:
+            scara = Path(workdir) / 'scara_follow'
+            log(f'panda: the SCARA bag of {int(scara_seconds * REPLAY_RATE_HZ)} joint states')
+            write_replay_bag(scara, scara_seconds)
+            result['scara_learner_process_s'], result['scara_summary'] = learner_node_seconds(
+                scara, Path(workdir) / 'scara_tasks')
+    return result
+
+
 def run(args: argparse.Namespace) -> dict:
     if args.repeats < 1:
         raise SystemExit('bench_learning: --repeats must be >= 1')
     result = {'repeats': args.repeats}
+    if args.only_panda:
+        result['panda'] = bench_panda(args.panda_seconds, args.replay_seconds)
+        return result
     log('fixtures')
     result['fixtures'] = bench_fixtures(args.repeats)
     log('scaling')
     result['scaling'] = bench_scaling(args.sizes, args.repeats)
     if args.replay_seconds > 0:
         result['replay'] = bench_replay(args.replay_seconds)
+    if args.panda_seconds > 0:
+        result['panda'] = bench_panda(args.panda_seconds, args.replay_seconds)
     return result
 
 
+def print_panda(r: dict) -> None:
+    print(f'panda: {r["joint_states"]} joint states of {r["joints"]} joints ({r["bag_mb"]} MB, '
+          f'URDF, no /ee_position; written in {r["write_s"]} s): learner node '
+          f'{r["learner_process_s"]} s start to exit (bar 15 s), read {r["read_s"]} s '
+          f'({r["kinematics"]})')
+    print(f'  {r["summary"]}')
+    if 'scara_learner_process_s' in r:
+        print(f'  SCARA replay bag: learner node {r["scara_learner_process_s"]} s start to exit '
+              '(bar 10 s)')
+
+
 def print_table(result: dict) -> None:
+    if 'fixtures' not in result:
+        print_panda(result['panda'])
+        return
     print(f'fixtures (learn_from_bags, {result["repeats"]} rounds; time min/median)')
     print(f'  {"task":12s} {"method":13s} {"iter":>5s} {"cost":>10s} {"conv":>5s} '
           f'{"fit s":>17s} {"total s":>15s}')
@@ -376,6 +470,8 @@ def print_table(result: dict) -> None:
               f'{r["write_s"]} s): learner node {r["learner_process_s"]} s start to exit, '
               f'read {r["read_s"]} s, learn_from_bags {r["learn_total_s"]} s '
               f'(fit {r["fit_s"]} s, {r["iterations"]} it), d2 {r["d2"]} m')
+    if 'panda' in result:
+        print_panda(result['panda'])
 
 
 def main(argv=None) -> int:

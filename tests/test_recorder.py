@@ -14,8 +14,10 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from hri_bringup.processes import wait_for
+from hri_core.robot_model import robot_model
 from hri_demo_learning.bag_io import read_bag, read_demonstration
 
 pytestmark = pytest.mark.integration
@@ -165,7 +167,7 @@ def test_sigkill_loses_at_most_the_last_second(nodes, probe, tmp_path):
     assert demo.recovered
     assert demo.position_source == '/ee_position'
     assert demo.times[-1] >= 3.5 - 1.0 - 0.1
-    assert tuple(demo.references[-1]) == (0.4, 0.1)
+    assert tuple(demo.references[-1]) == (0.4, 0.1, 0.0)
 
 
 def test_sigterm_closes_the_bag_and_custom_types_are_recorded(nodes, probe, tmp_path):
@@ -187,6 +189,37 @@ def test_sigterm_closes_the_bag_and_custom_types_are_recorded(nodes, probe, tmp_
     assert [m.name for m in messages] == [f'task{i}' for i in range(5)]
     assert [m.d2 for m in messages] == [0.2 + i for i in range(5)]
     assert 'closed bag' in log_of(recorder)
+
+
+def test_records_the_robot_description_published_before_it_started(nodes, probe, tmp_path):
+    """The bag carries its robot: the URDF latched on /robot_description (as arm_sim and
+    robot_state_publisher publish it, once) reaches a recorder started after it, by default."""
+    panda = robot_model('panda')
+    bag = tmp_path / 'panda'
+    description = probe.publisher('/robot_description', String, LATCHED)
+    description.publish(String(data=panda.urdf))
+    reference = probe.publisher('/demo/reference', PointStamped, LATCHED)
+    reference.publish(point(0.4, 0.1, 'base'))
+    recorder = nodes('hri_demo_learning', 'recorder', params={'output': str(bag)})
+    joints = probe.publisher('/joint_states', JointState, LOSSLESS)
+    wait_subscribed([description, reference, joints], recorder)
+    time.sleep(0.3)
+    for index in range(50):
+        joints.publish(JointState(name=list(panda.joint_names), position=list(panda.home),
+                                  velocity=[0.0] * 7, effort=[0.0] * 7))
+        time.sleep(0.002 if index else 0.0)
+    assert joints.wait_for_all_acked(Duration(seconds=30.0)), log_of(recorder)
+    assert recorder.stop(timeout=10.0) == 0, log_of(recorder)
+    assert 'recording /robot_description (std_msgs/msg/String, reliable, transient_local' in \
+        log_of(recorder)
+    contents = read_bag(bag)
+    assert contents.counts() == {'/robot_description': 1, '/demo/reference': 1,
+                                 '/joint_states': 50}
+    assert contents.topics['/robot_description'].messages[0].data == panda.urdf
+    demo = read_demonstration(bag)  # no /ee_position: the tool path through the bag's URDF
+    assert (demo.position_source, demo.robot) == ('/joint_states', 'panda')
+    assert demo.positions[0].tolist() == pytest.approx(panda.tool_position(panda.home).tolist(),
+                                                       abs=1e-12)
 
 
 def test_refuses_to_overwrite_an_existing_output(nodes, tmp_path):

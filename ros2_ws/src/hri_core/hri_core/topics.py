@@ -75,5 +75,7 @@ SEPARATION = Topic('/hri/separation', SeparationState, MONITOR_QOS)
 CONTROLLER_STATE = Topic('/hri/controller_state', ControllerState, MONITOR_QOS)
 ROBOT_DESCRIPTION = Topic('/robot_description', String, ROBOT_DESCRIPTION_QOS)
 
-# What the recorder writes by default: everything the learner and the reports read.
-DEMONSTRATION_TOPICS = (JOINT_STATES, EE_POSITION, DEMO_REFERENCE, TARGET, HUMAN_WRENCH)
+# What the recorder writes by default: everything the learner and the reports read, and the
+# arm that made the demonstration (its URDF, latched: the recorder gets it however late it joins).
+DEMONSTRATION_TOPICS = (JOINT_STATES, EE_POSITION, DEMO_REFERENCE, TARGET, HUMAN_WRENCH,
+                        ROBOT_DESCRIPTION)

@@ -77,7 +77,9 @@ def plot_task_fit(distance, energy, shape, path, title='', reference=None):
     distance: (N,) m; energy: (N,) P_d, not all zero; shape: TaskShape of the fitted P;
     path: PNG file to write (its folder is created); title: figure title; reference: None, or
     (TaskShape, label) of another P drawn the same way (dashed), e.g. the paper's row.
-    Returns the Path written. Raises ValueError for unusable input.
+    Returns the Path written. Raises ValueError for unusable input. The demonstration is
+    drawn as PROFILE_BINS distance bins (median and band), however long it is; the
+    normalisation uses every sample.
     """
     d = np.asarray(distance, dtype=float)
     e = np.asarray(energy, dtype=float)

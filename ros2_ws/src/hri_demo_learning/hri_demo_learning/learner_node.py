@@ -16,7 +16,13 @@ longer); it logs a warning if a subscriber has not acknowledged within ACK_TIMEO
 Otherwise it stays up so that late joiners get the task. A bag it cannot learn from, or a bad
 parameter, gives one error line and exit code 1, and no task file; so does a demonstration the
 model does not describe (fit cost above `max_cost`) or a task whose pull would vanish within the
-arm's reach (l1 + l2) of its region.
+arm's reach of its region (the reach of the arm on the bag's /robot_description, l1 + l2 for a
+bag without one).
+
+Positions are 3-D. A bag without /ee_position is turned into tool positions through the
+forward kinematics of its /robot_description (the URDF, tool link `tool_frame`); a bag recorded
+before bags carried their robot, through the SCARA's (`l1`, `l2`); a bag with neither, or whose
+joint states name joints its URDF lacks, is refused in one line.
 """
 
 import sys
@@ -82,10 +88,13 @@ PARAMETERS = {
     'once': ParameterSpec(bool, 'exit 0 after saving and delivering the task'),
     'method': ParameterSpec(str, 'fit solver: ' + ', '.join(METHODS) + " (trf: bounded least "
                             "squares; gauss_newton: the paper's eq. 9-11)"),
-    'l1': ParameterSpec(float, 'link 1 length, for bags with joint states only (m)',
-                        *SETTING_RANGES['l1']),
-    'l2': ParameterSpec(float, 'link 2 length, for bags with joint states only (m)',
-                        *SETTING_RANGES['l2']),
+    'l1': ParameterSpec(float, "the SCARA's link 1 (m), for bags with joint states and no "
+                        '/robot_description', *SETTING_RANGES['l1']),
+    'l2': ParameterSpec(float, "the SCARA's link 2 (m), for bags with joint states and no "
+                        '/robot_description', *SETTING_RANGES['l2']),
+    'tool_frame': ParameterSpec(str, "the tool link of a bag's URDF, for bags with joint "
+                                "states only ('' = the robot's own, or the URDF's one end "
+                                'link)'),
 }
 
 

@@ -4,9 +4,11 @@
 travel as one `LearningSettings` (the learner node builds it once from its parameters):
 
 1. each bag is read (`bag_io.read_demonstration`): receive times t_i (s, shape (M,)),
-   end-effector positions x_i (m, (M, 2)) from /ee_position, else from /joint_states through
-   the forward kinematics with the link lengths l1, l2 (m), and the reference x_r (m, (2,)),
-   the one in force when the person let go; x_r must not move during the demonstration;
+   end-effector positions x_i (m, (M, 3), in 3-D) from /ee_position, else from /joint_states
+   through the forward kinematics of the arm on the bag's /robot_description (its URDF, tool
+   point at `tool_frame`), else (a bag recorded before bags carried their robot) the SCARA's
+   with the link lengths l1, l2 (m), and the reference x_r (m, (3,)), the one in force when the
+   person let go; x_r must not move during the demonstration;
 2. its task energy P_d (eq. 3, `task_energy.demonstration_energy`, m^2) against the distance
    |x_i - x_r| (m); with `combine` false the bags are repetitions of one demonstration, all
    with one x_r, and share one target x_d, the mean of their rest positions (Sec. II-B: "if
@@ -16,7 +18,8 @@ travel as one `LearningSettings` (the learner node builds it once from its param
 4. the task type S and the desired region [d1, d2] (m) identified from it (eq. 5, 6);
 5. the steepness a1, a2 (1/m^2) of the potential of eq. 1, 2 with exponent N = n fitted by
    the cost C of eq. 7, 8 (`method` 'trf', or the paper's Gauss-Newton iteration of eq. 9-11,
-   'gauss_newton'), a1 capped so that P still pulls `reach` m (default l1 + l2) outside the
+   'gauss_newton'), a1 capped so that P still pulls `reach` m (the reach of the bag's arm
+   from its URDF, the largest over the bags; l1 + l2 for a bag without one) outside the
    region (`performance_learning.reach_steepness_limit`); a cost above `max_cost` means the
    model does not describe the demonstration: refused;
 6. the task gain K (m^2/s) fitted to the demonstration's speeds (`task_gain.fit_task_gain`),
@@ -55,6 +58,7 @@ from hri_demo_learning.performance_learning import (
 from hri_demo_learning.task_energy import (
     DEFAULT_REST_FRACTION,
     EnergyProfile,
+    as_position,
     combine_energy_profiles,
     demonstration_energy,
 )
@@ -101,7 +105,9 @@ class LearningSettings:
     n: exponent N of eq. 2; stationary_speed: m/s below which a sample is at rest whatever the
     pace (eq. 3, 5); workspace_radius: m, d2 of a region open outward; method: the fit's solver
     (performance_learning.METHODS); tolerance, max_iterations: the fit's stopping rule; l1, l2:
-    m, link lengths for bags with joint states only, and the reach l1 + l2; combine: True for
+    m, the SCARA's link lengths for bags with joint states and no /robot_description, and the
+    reach l1 + l2 of a bag without one; tool_frame: the tool link of a bag's URDF ('' = the
+    robot's own, hri_core.robot_description.default_tool_frame); combine: True for
     eq. 4's combination, False for repetitions of one demonstration (averaged x_d);
     rest_fraction: of the demonstration's peak speed below which a sample is at rest;
     max_task_speed: m/s, the controller's cap, the reference of the reach check; max_cost:
@@ -118,6 +124,7 @@ class LearningSettings:
     l1: float
     l2: float
     combine: bool = True
+    tool_frame: str = ''
     rest_fraction: float = DEFAULT_REST_FRACTION
     max_task_speed: float = DEFAULT_MAX_TASK_SPEED
     max_cost: float = DEFAULT_MAX_COST
@@ -137,6 +144,9 @@ class LearningSettings:
         if not isinstance(self.combine, bool):
             raise LearningError(f'parameter combine must be true or false, '
                                 f'got {self.combine!r}')
+        if not isinstance(self.tool_frame, str):
+            raise LearningError(f'parameter tool_frame must be a link name, '
+                                f'got {self.tool_frame!r}')
 
     @classmethod
     def from_parameters(cls, values: Mapping) -> 'LearningSettings':
@@ -150,7 +160,8 @@ class LearningSettings:
 
     @property
     def reach(self) -> float:
-        """m: how far outside its region a task must still pull (the arm's l1 + l2)."""
+        """m: how far outside its region a task must still pull, for a demonstration whose
+        bag names no arm (the SCARA's l1 + l2)."""
         return self.l1 + self.l2
 
     @property
@@ -162,13 +173,18 @@ class LearningSettings:
 
 @dataclass(frozen=True)
 class Demonstration:
-    """One demonstration as arrays: times (M,) s, positions (M, 2) m, reference x_r (2,) m,
-    source (a name for messages, e.g. the bag)."""
+    """One demonstration as arrays: times (M,) s, positions (M, 3) m ((M, 2): the plane
+    z = 0), reference x_r (3,) m ((2,): z = 0), source (a name for messages, e.g. the bag),
+    reach: m, the reach of the arm that made it (None: LearningSettings.reach); references:
+    (M, 3) m, the reference held at each sample (a bag's), which must stay at x_r from the
+    first moving sample on (None: not checked)."""
 
     times: np.ndarray
     positions: np.ndarray
     reference: np.ndarray
     source: str
+    reach: float | None = None
+    references: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -187,7 +203,7 @@ class LearnedTask:
     total_seconds: float
     task_file: Path | None = None
     figure: Path | None = None
-    targets: tuple = ()  # x_d (2,) m of each demonstration (all equal with combine false)
+    targets: tuple = ()  # x_d (3,) m of each demonstration (all equal with combine false)
     fit: FitResult | None = None
     a1_max: float | None = None  # 1/m^2, the reach's cap on a1 (None: none)
 
@@ -199,10 +215,11 @@ def _one_line(text) -> str:
 def check_fixed_reference(references: np.ndarray, x_r: np.ndarray, bag) -> None:
     """Raise LearningError if x_r moved during a demonstration (eq. 3 needs one fixed x_r).
 
-    references: (M, 2) m, the reference held at each sample from the first moving one on;
-    x_r: (2,) m, the reference used.
+    references: (M, 3) m, the reference held at each sample from the first moving one on;
+    x_r: (3,) m, the reference used.
     """
-    wander = float(np.max(np.hypot(*(references - x_r).T))) if len(references) else 0.0
+    wander = float(np.max(np.linalg.norm(references - x_r, axis=1))) if len(references) \
+        else 0.0
     if wander > REFERENCE_TOLERANCE:
         raise LearningError(f'bag {bag}: the reference x_r moved by {wander:.3f} m during the '
                             f'demonstration; a demonstration needs one fixed x_r (eq. 3)')
@@ -213,11 +230,13 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
     """Learn one task from demonstrations given as arrays (steps 2-6 of the module docstring).
 
     One shift (m) per demonstration (all 0 with settings.combine false); the task must pull
-    settings.reach (l1 + l2) m outside its region. Raises LearningError (one line).
+    the demonstrations' largest reach (settings.reach for one without) m outside its region.
+    Raises LearningError (one line).
     """
     started = time.perf_counter()
     sources = ', '.join(demo.source for demo in demos)
     combine, n = settings.combine, settings.n
+    reach = max(settings.reach if demo.reach is None else demo.reach for demo in demos)
     max_cost, method = settings.max_cost, settings.method
     if not combine and any(shift != 0.0 for shift in shifts):
         raise LearningError('parameter shifts belongs to a combination (eq. 4): repetitions '
@@ -230,10 +249,13 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
                                           rest_fraction=settings.rest_fraction)
         except ValueError as err:
             raise LearningError(f'bag {demo.source}: {_one_line(err)}') from None
+        if demo.references is not None:
+            check_fixed_reference(demo.references[demo.times >= energy.times[0]],
+                                  as_position(demo.reference, 'reference'), demo.source)
         energies.append(energy)
     if not combine and len(demos) > 1:
-        references = np.array([demo.reference for demo in demos])
-        spread = float(np.max(np.hypot(*(references - references[0]).T)))
+        references = np.array([as_position(demo.reference, 'reference') for demo in demos])
+        spread = float(np.max(np.linalg.norm(references - references[0], axis=1)))
         if spread > REFERENCE_TOLERANCE:
             raise LearningError(f'repeated demonstrations ({sources}) need one x_r, theirs '
                                 f'differ by {spread:.3f} m; learn them as a combination '
@@ -247,7 +269,7 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
         profile = combine_energy_profiles([energy.profile for energy in energies], shifts)
         region = identify_task_region(profile.distance, profile.energy, profile.moving,
                                       workspace_radius=settings.workspace_radius, n=n)
-        a1_max = reach_steepness_limit(region.s, region.d1, region.d2, settings.reach)
+        a1_max = reach_steepness_limit(region.s, region.d1, region.d2, reach)
         fit = fit_task_parameters(profile.distance, profile.energy, region.s, region.d1,
                                   region.d2, n=n, options=settings.fit_options, a1_max=a1_max)
         if fit.cost > max_cost and not fit.converged:
@@ -262,7 +284,7 @@ def learn_from_demonstrations(demos: Sequence[Demonstration], shifts: list[float
         record = TaskRecord(name=task_name, s=region.s, a1=fit.a1, a2=fit.a2, d1=region.d1,
                             d2=region.d2, n=n, cost=fit.cost, iterations=fit.iterations)
         k = fit_task_gain(profile.distance, profile.speed, profile.moving, record.shape)
-        shortfall = reach_shortfall(record.shape, k, settings.max_task_speed, settings.reach)
+        shortfall = reach_shortfall(record.shape, k, settings.max_task_speed, reach)
         if shortfall is not None:
             raise ValueError(f'the task does not reach: {shortfall}')
         record = replace(record, k=k)
@@ -280,25 +302,20 @@ def learn_from_bags(bags: list[str], shifts: list[float], task_name: str,
                     settings: LearningSettings) -> LearnedTask:
     """Learn one task from demonstration bags (eq. 3-11, K, reach) without writing it.
 
-    One shift (m) per bag; the reach is settings.l1 + settings.l2. Raises LearningError (one
-    line).
+    One shift (m) per bag; the reach is that of the bags' arms (settings.l1 + settings.l2 for
+    a bag that names none). Raises LearningError (one line).
     """
     started = time.perf_counter()
     demos = []
     for bag in bags:
         try:
-            demo = read_demonstration(bag, l1=settings.l1, l2=settings.l2)
-            x_r = demo.references[-1]  # the reference in force when the person let go
-            energy = demonstration_energy(demo.times, demo.positions, x_r,
-                                          stationary_speed=settings.stationary_speed,
-                                          rest_fraction=settings.rest_fraction)
-            check_fixed_reference(demo.references[demo.times >= energy.times[0]], x_r,
-                                  demo.path)
+            demo = read_demonstration(bag, l1=settings.l1, l2=settings.l2,
+                                      tool_frame=settings.tool_frame)
         except BagError as err:
             raise LearningError(str(err)) from None
-        except ValueError as err:
-            raise LearningError(f'bag {bag}: {_one_line(err)}') from None
-        demos.append(Demonstration(demo.times, demo.positions, x_r, str(bag)))
+        # x_r: the reference in force when the person let go (checked fixed while moving).
+        demos.append(Demonstration(demo.times, demo.positions, demo.references[-1],
+                                   str(bag), demo.reach, demo.references))
     learned = learn_from_demonstrations(demos, shifts, task_name, settings)
     return replace(learned, total_seconds=time.perf_counter() - started)
 

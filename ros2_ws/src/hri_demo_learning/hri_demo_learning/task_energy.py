@@ -1,7 +1,8 @@
 """Task energy P_d of a demonstration (paper eq. 3) and of combined demonstrations (eq. 4).
 
-A demonstration is the end-effector path x_i (m) at times t_i (s) while a person moves the robot
-by hand, with a reference position x_r set by that person. Per eq. 3
+A demonstration is the end-effector path x_i (m, in 3-D: [x, y, z] in the base frame; a planar
+path (N, 2) is the plane z = 0) at times t_i (s) while a person moves the robot by hand, with a
+reference position x_r set by that person. Per eq. 3
 
     P_d,i = ||x_i - x_d||^2 - T   while the hand moves (||dx_i/dt|| > 0),
     P_d,i = 0                      while it is at rest,
@@ -9,6 +10,9 @@ by hand, with a reference position x_r set by that person. Per eq. 3
 with x_d the position where the person stopped moving the robot and T = min ||x_i - x_d||^2.
 Made precise here:
 
+* Distances and speeds are Euclidean in 3-D, so a demonstration rotated or tilted in space
+  (the same radial profile) gives the same profile, and a planar one (z constant) the same
+  numbers as before the pipeline went 3-D.
 * Speed is estimated with a smoothing differentiator, not a raw finite difference: the samples
   (uneven rates allowed; duplicate stamps averaged) are resampled linearly to a uniform grid at
   their median interval, differentiated with a Savitzky-Golay filter (cubic, window
@@ -39,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hri_core.validation import positive
+from hri_core.validation import positive, spatial_points, spatial_vector
 
 DEFAULT_STATIONARY_SPEED = 0.004
 """m/s: a sample slower than this is at rest (eq. 3's ||dx/dt|| = 0), whatever the pace."""
@@ -78,7 +82,7 @@ class TaskEnergy:
     """Task energy of one demonstration (eq. 3), from its first moving sample to its end.
 
     times: (M,) s; distance: (M,) m to x_r; energy: (M,) m^2, P_d; moving: (M,) bool;
-    speed: (M,) m/s, smoothed; target: (2,) m, x_d; offset: m^2, T of eq. 3.
+    speed: (M,) m/s, smoothed; target: (3,) m, x_d; offset: m^2, T of eq. 3.
     """
 
     times: np.ndarray
@@ -98,8 +102,9 @@ class TaskEnergy:
 def _check_demonstration(times, positions):
     t = np.asarray(times, dtype=float)
     x = np.asarray(positions, dtype=float)
-    if t.ndim != 1 or x.shape != (t.size, 2):
-        raise ValueError(f'times must be (N,) and positions (N, 2), got {t.shape} and {x.shape}')
+    if t.ndim != 1 or x.ndim != 2 or x.shape[0] != t.size or x.shape[1] not in (2, 3):
+        raise ValueError(f'times must be (N,) and positions (N, 2) or (N, 3), got {t.shape} '
+                         f'and {x.shape}')
     if t.size < MIN_SAMPLES:
         raise ValueError(f'too few samples: {t.size} (need at least {MIN_SAMPLES})')
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(x))):
@@ -108,7 +113,15 @@ def _check_demonstration(times, positions):
         raise ValueError('times must be non-decreasing')
     if t[-1] <= t[0]:
         raise ValueError('the demonstration has zero duration')
-    return t, x
+    return t, spatial_points(x, 'positions', 'm')
+
+
+def as_position(point, name: str) -> np.ndarray:
+    """A position x_r or x_d as (3,) m; a planar [x, y] is [x, y, 0]."""
+    array = np.asarray(point, dtype=float).reshape(-1)
+    if array.shape == (2,):
+        array = np.append(array, 0.0)
+    return spatial_vector(array, name, 'm')
 
 
 def _check_speed_parameters(stationary_speed, smoothing_window, rest_fraction):
@@ -121,18 +134,18 @@ def _check_speed_parameters(stationary_speed, smoothing_window, rest_fraction):
 def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
     """Smoothed end-effector speed ||dx/dt|| at each sample (the speed test of eq. 3).
 
-    times: (N,) s, non-decreasing, uneven spacing allowed; positions: (N, 2) m.
+    times: (N,) s, non-decreasing, uneven spacing allowed; positions: (N, 3) m ((N, 2): z = 0).
     Resamples to a uniform grid at the median sample interval, applies a cubic Savitzky-Golay
     differentiator over ``smoothing_window`` s and interpolates back. Returns (N,) m/s.
     """
     t, x = _check_demonstration(times, positions)
     positive(smoothing_window, 'smoothing_window', 's')
     stamps, inverse, counts = np.unique(t, return_inverse=True, return_counts=True)
-    mean_x = np.stack([np.bincount(inverse, weights=x[:, k]) / counts for k in range(2)], axis=1)
+    mean_x = np.stack([np.bincount(inverse, weights=x[:, k]) / counts for k in range(3)], axis=1)
     duration = stamps[-1] - stamps[0]
     step = max(float(np.median(np.diff(stamps))), duration / (_MAX_GRID_POINTS - 1))
     grid = stamps[0] + step * np.arange(int(math.floor(duration / step)) + 1)
-    resampled = np.stack([np.interp(grid, stamps, mean_x[:, k]) for k in range(2)], axis=1)
+    resampled = np.stack([np.interp(grid, stamps, mean_x[:, k]) for k in range(3)], axis=1)
     window = int(round(smoothing_window / step)) // 2 * 2 + 1
     window = max(window, _SAVGOL_ORDER + 2)
     if window > grid.size:
@@ -145,7 +158,7 @@ def estimate_speed(times, positions, smoothing_window=DEFAULT_SMOOTHING_WINDOW):
     from scipy.signal import savgol_filter
     velocity = savgol_filter(resampled, window, _SAVGOL_ORDER, deriv=1, delta=step, axis=0,
                              mode='interp')
-    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    speed = np.sqrt(np.einsum('ij,ij->i', velocity, velocity))
     # Within half a window of either end the one-sided fit is noisy: hold the speed of the
     # nearest sample whose window is complete.
     half = window // 2
@@ -185,7 +198,8 @@ def rest_position(times, positions, stationary_speed=DEFAULT_STATIONARY_SPEED,
                   smoothing_window=DEFAULT_SMOOTHING_WINDOW, rest_fraction=DEFAULT_REST_FRACTION):
     """Target x_d of eq. 3: mean position of the final rest segment of a demonstration.
 
-    times: (N,) s; positions: (N, 2) m. Returns (2,) m. Raises ValueError when no sample moves
+    times: (N,) s; positions: (N, 3) m ((N, 2): z = 0). Returns (3,) m. Raises ValueError when
+    no sample moves
     or the demonstration does not end at rest.
     """
     _check_speed_parameters(stationary_speed, smoothing_window, rest_fraction)
@@ -200,8 +214,8 @@ def demonstration_energy(times, positions, reference, stationary_speed=DEFAULT_S
                          rest_fraction=DEFAULT_REST_FRACTION):
     """Task energy P_d of one demonstration (eq. 3).
 
-    times: (N,) s; positions: (N, 2) m; reference: x_r, (2,) m; stationary_speed: m/s;
-    target: x_d, (2,) m, or None to take the mean of the final rest segment; rest_fraction:
+    times: (N,) s; positions: (N, 3) m; reference: x_r, (3,) m; stationary_speed: m/s;
+    target: x_d, (3,) m, or None to take the mean of the final rest segment; rest_fraction:
     of the peak speed (module docstring).
     Returns a TaskEnergy over the samples from the first moving one to the end.
     Raises ValueError (one-line reason) for too few samples, non-finite input, no sample
@@ -209,23 +223,20 @@ def demonstration_energy(times, positions, reference, stationary_speed=DEFAULT_S
     """
     _check_speed_parameters(stationary_speed, smoothing_window, rest_fraction)
     t, x = _check_demonstration(times, positions)
-    x_r = np.asarray(reference, dtype=float)
-    if x_r.shape != (2,) or not np.all(np.isfinite(x_r)):
-        raise ValueError(f'reference must be a finite (2,) position, got {reference!r}')
+    x_r = as_position(reference, 'reference')
     speed = estimate_speed(t, x, smoothing_window)
     moving, first, last = _demonstration_span(speed, stationary_speed, smoothing_window,
                                               rest_fraction)
     if target is None:
         x_d = x[last + 1:].mean(axis=0)
     else:
-        x_d = np.asarray(target, dtype=float)
-        if x_d.shape != (2,) or not np.all(np.isfinite(x_d)):
-            raise ValueError(f'target must be a finite (2,) position, got {target!r}')
+        x_d = as_position(target, 'target')
     t, x, speed, moving = t[first:], x[first:], speed[first:], moving[first:]
     squared = np.sum((x - x_d) ** 2, axis=1)
     offset = float(np.min(squared[moving]))
     energy = np.where(moving, squared - offset, 0.0)
-    distance = np.hypot(x[:, 0] - x_r[0], x[:, 1] - x_r[1])
+    away = x - x_r
+    distance = np.sqrt(np.einsum('ij,ij->i', away, away))
     return TaskEnergy(times=t, distance=distance, energy=energy, moving=moving, speed=speed,
                       target=x_d, offset=offset)
 
@@ -236,8 +247,8 @@ def repeated_demonstration_energy(demonstrations, reference,
                                   rest_fraction=DEFAULT_REST_FRACTION):
     """Task energies (eq. 3) of repetitions of one demonstration with a shared, averaged x_d.
 
-    demonstrations: sequence of (times (N_k,) s, positions (N_k, 2) m), all with the same
-    reference x_r (2,) m. x_d is the mean of the repetitions' rest positions (paper: "if the
+    demonstrations: sequence of (times (N_k,) s, positions (N_k, 3) m), all with the same
+    reference x_r (3,) m. x_d is the mean of the repetitions' rest positions (paper: "if the
     same demonstration is repeated, the average position can be used").
     Returns a list of TaskEnergy, one per repetition.
     """

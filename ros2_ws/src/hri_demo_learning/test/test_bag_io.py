@@ -38,11 +38,11 @@ def joint_state_bytes(index: int, q: np.ndarray) -> bytes:
     return bytes(TYPES.serialize_cdr(msg, JOINT_STATE))
 
 
-def point_bytes(x: float, y: float, frame: str = 'base') -> bytes:
+def point_bytes(x: float, y: float, frame: str = 'base', z: float = 0.0) -> bytes:
     msg = TYPES.types[POINT_STAMPED](
         header=TYPES.types['std_msgs/msg/Header'](
             stamp=TYPES.types['builtin_interfaces/msg/Time'](sec=0, nanosec=0), frame_id=frame),
-        point=TYPES.types['geometry_msgs/msg/Point'](x=x, y=y, z=0.0))
+        point=TYPES.types['geometry_msgs/msg/Point'](x=x, y=y, z=z))
     return bytes(TYPES.serialize_cdr(msg, POINT_STAMPED))
 
 
@@ -204,20 +204,23 @@ def test_demonstration_prefers_ee_position_and_holds_the_reference(tmp_path):
     sent = write_demo_bag(bag, count=500)
     demo = read_demonstration(bag)
     assert demo.position_source == '/ee_position'
-    np.testing.assert_array_equal(demo.positions, sent['xy'])
+    np.testing.assert_array_equal(demo.positions, np.column_stack([sent['xy'], np.zeros(500)]))
     assert demo.times[0] == 0.0
     np.testing.assert_allclose(np.diff(demo.times), 1e-3, atol=1e-9)
     # Before the first reference (sample 10) the first one applies; the second from 250 on.
-    np.testing.assert_array_equal(demo.references[:250], np.tile(sent['x_r'][0], (250, 1)))
-    np.testing.assert_array_equal(demo.references[250:], np.tile(sent['x_r'][1], (250, 1)))
+    np.testing.assert_array_equal(demo.references[:250], np.tile([*sent['x_r'][0], 0], (250, 1)))
+    np.testing.assert_array_equal(demo.references[250:], np.tile([*sent['x_r'][1], 0], (250, 1)))
 
 
 def test_demonstration_from_joint_states_uses_forward_kinematics(tmp_path):
     bag = tmp_path / 'demo'
     sent = write_demo_bag(bag, count=200, points=False)
     demo = read_demonstration(bag, l1=0.35, l2=0.30)
-    assert demo.position_source == '/joint_states'
-    np.testing.assert_allclose(demo.positions, sent['xy'], atol=1e-12)
+    assert (demo.position_source, demo.kinematics) == ('/joint_states',
+                                                       "the SCARA's, l1=0.35 l2=0.3 m")
+    assert (demo.robot, demo.reach) == ('', None)
+    np.testing.assert_allclose(demo.positions[:, :2], sent['xy'], atol=1e-12)
+    assert not demo.positions[:, 2].any()
     longer = read_demonstration(bag, l1=0.5, l2=0.30)
     assert not np.allclose(longer.positions, demo.positions)
 
@@ -392,6 +395,46 @@ def test_fast_reader_equals_rosbags_on_a_crash_recovered_bag(tmp_path):
         assert demo.recovered and demo.times.shape == (2000,)
 
 
+def test_messages_written_out_of_time_order_are_read_in_time_order(tmp_path):
+    """A reliable stream repaired under load reaches the recorder in order but with a later
+    receive time for the repaired message: the bag's stamps are then out of order."""
+    q = np.column_stack([np.linspace(0.1, 0.5, 40), np.linspace(1.0, 0.4, 40)])
+    order = np.arange(40)
+    order[[10, 11, 12]] = [12, 10, 11]  # message 12 arrives... stamped before 10 and 11
+    bag = tmp_path / 'repaired'
+    with BagWriter(bag) as writer:
+        js = writer.add_topic('/joint_states', JOINT_STATE)
+        ref = writer.add_topic('/demo/reference', POINT_STAMPED)
+        writer.write(ref, T0, point_bytes(0.4, 0.2))
+        for i in order:
+            writer.write(js, T0 + int(i) * PERIOD, joint_state_bytes(int(i), q[i]))
+    demo = assert_same_demonstration(bag)
+    np.testing.assert_allclose(np.diff(demo.times), 1e-3, atol=1e-9)
+    np.testing.assert_allclose(demo.positions[:, :2], forward_kinematics(q, 0.35, 0.30))
+
+
+def test_messages_of_the_same_size_with_other_names_take_the_reference_path(tmp_path):
+    """Joint names swapped: every byte count equal, only the checked name bytes differ."""
+    q = np.column_stack([np.linspace(0.1, 0.5, 30), np.linspace(1.0, 0.4, 30)])
+    bag = tmp_path / 'swapped'
+    with BagWriter(bag) as writer:
+        js = writer.add_topic('/joint_states', JOINT_STATE)
+        ref = writer.add_topic('/demo/reference', POINT_STAMPED)
+        writer.write(ref, T0, point_bytes(0.4, 0.2))
+        for i, row in enumerate(q):
+            names, position = (['joint2', 'joint1'], row[::-1]) if i % 7 == 3 else (
+                ['joint1', 'joint2'], row)
+            msg = TYPES.types[JOINT_STATE](
+                header=TYPES.types['std_msgs/msg/Header'](
+                    stamp=TYPES.types['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
+                    frame_id='base'),
+                name=names, position=np.array(position), velocity=np.zeros(2),
+                effort=np.zeros(2))
+            writer.write(js, T0 + i * PERIOD, bytes(TYPES.serialize_cdr(msg, JOINT_STATE)))
+    demo = assert_same_demonstration(bag)
+    np.testing.assert_allclose(demo.positions[:, :2], forward_kinematics(q, 0.35, 0.30))
+
+
 def test_messages_of_another_layout_take_the_reference_path(tmp_path):
     """Frame ids and joint lists of other lengths or orders: read right, one by one."""
     q = np.array([[0.1 * i, -0.2 * i] for i in range(6)])
@@ -414,7 +457,7 @@ def test_messages_of_another_layout_take_the_reference_path(tmp_path):
                 effort=np.zeros(0))
             writer.write(js, T0 + i * PERIOD, bytes(TYPES.serialize_cdr(msg, JOINT_STATE)))
     demo = assert_same_demonstration(bag)
-    np.testing.assert_allclose(demo.positions, forward_kinematics(q, 0.35, 0.30))
+    np.testing.assert_allclose(demo.positions[:, :2], forward_kinematics(q, 0.35, 0.30))
 
 
 def rosbags_messages(bag: Path) -> dict[str, tuple[list[int], list[bytes]]]:

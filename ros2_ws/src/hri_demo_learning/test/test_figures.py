@@ -1,5 +1,6 @@
 """Unit tests of hri_demo_learning.figures: the Fig. 3-style plot of a fit."""
 
+
 import numpy as np
 import pytest
 

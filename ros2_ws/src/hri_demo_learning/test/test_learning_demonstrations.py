@@ -194,7 +194,7 @@ def test_repeated_demonstrations_share_the_averaged_x_d():
     learned = learn(demos, combine=False)
     assert len(learned.targets) == 3
     for target in learned.targets:
-        np.testing.assert_allclose(target, np.mean(rests, axis=0), atol=2e-4)
+        np.testing.assert_allclose(target, [*np.mean(rests, axis=0), 0.0], atol=2e-4)  # z = 0
     assert learned.record.d1 == 0.0
     assert learned.record.d2 == pytest.approx(max(stops), abs=0.002)  # eq. 5: all rests
     combined = learn(demos)  # eq. 4, no shift: each demonstration keeps its own x_d

@@ -79,7 +79,7 @@ def test_demonstration_energy_of_follow_and_avoid(start, stop):
     moving_truth = true_speed(energy.times, start, stop) > DEFAULT_STATIONARY_SPEED
     assert np.mean(energy.moving == moving_truth) > 0.97
     # x_d: where the push stopped; T: the smallest squared distance to it while moving.
-    assert np.hypot(*(energy.target - REFERENCE)) == pytest.approx(stop, abs=5e-4)
+    assert np.hypot(*(energy.target[:2] - REFERENCE)) == pytest.approx(stop, abs=5e-4)
     assert 0.0 <= energy.offset < 1e-5
     np.testing.assert_allclose(energy.distance, np.hypot(*(positions[-energy.distance.size:]
                                                            - REFERENCE).T))
@@ -98,7 +98,7 @@ def test_given_target_is_used():
     times, positions, _ = synthetic_demonstration(rng, 0.30, 0.041)
     target = REFERENCE + np.array([0.01, 0.0])
     energy = demonstration_energy(times, positions, REFERENCE, target=target)
-    np.testing.assert_array_equal(energy.target, target)
+    np.testing.assert_array_equal(energy.target, [*target, 0.0])  # planar: the plane z = 0
     squared = np.sum((positions[-energy.distance.size:] - target) ** 2, axis=1)
     moving = energy.moving
     np.testing.assert_allclose(energy.energy[moving], squared[moving] - energy.offset)
@@ -111,7 +111,7 @@ def test_repeated_demonstrations_share_the_averaged_target():
     rests = [rest_position(t, x) for t, x in demos]
     for energy in energies:
         np.testing.assert_allclose(energy.target, np.mean(rests, axis=0))
-    assert np.hypot(*(energies[0].target - REFERENCE)) == pytest.approx(0.041, abs=5e-4)
+    assert np.hypot(*(energies[0].target[:2] - REFERENCE)) == pytest.approx(0.041, abs=5e-4)
 
 
 def test_uneven_and_duplicate_stamps_are_handled():
@@ -171,7 +171,7 @@ def test_bad_demonstrations_are_rejected_with_a_reason():
         demonstration_energy(times[pushing], positions[pushing], REFERENCE)
     with pytest.raises(ValueError, match='stationary_speed must be finite and > 0'):
         demonstration_energy(times, positions, REFERENCE, stationary_speed=0.0)
-    with pytest.raises(ValueError, match='reference must be a finite'):
+    with pytest.raises(ValueError, match='reference must be 3 finite values'):
         demonstration_energy(times, positions, [0.1, np.inf])
     with pytest.raises(ValueError, match='zero duration'):
         demonstration_energy(np.zeros(20), np.zeros((20, 2)), REFERENCE)

@@ -1,0 +1,537 @@
+"""The adaptive law of eq. 12-19 for an arm of n joints in 3-D task space (any RobotModel).
+
+adaptive_law.step_lean is the SCARA's 1 kHz path (2 joints, plane); this module is the same
+law for any serial arm whose model hri_core.robot_model gives (the Panda's 7 joints, a URDF).
+Shapes: q, qdot (n,) rad, rad/s; x, x_d (3,) m; J (3, n) m/rad; theta (p,); tau (n,) N m.
+
+    delta_eps = Q'(r) e,  r = |x - x_d|, e = (x - x_d) / r                           (eq. 12')
+    v_r = f xdot_d - a delta_eps - J+^T g_B / Kp                              (eq. 14, task)
+    qdot_r = J+ v_r + N z,   J+ = J^T (J J^T + lambda^2 I)^-1,  N = I - J+ J         (eq. 14)
+    qddot_r = dJ+/dt v_r + J+ dv_r/dt + dN/dt z + N dz/dt,  dN/dt = -(dJ+/dt J + J+ Jdot)
+    dv_r/dt = f xddot_d + df/dt xdot_d - da/dt delta_eps - a H_Q (xdot - xdot_d) - ...  (eq. 18)
+    s = qdot - qdot_r                                                                (eq. 17)
+    tau = -Ks s - J^T Kp a delta_eps - g_B + Y(q, qdot, qdot_r, qddot_r) theta_hat   (eq. 16)
+    dtheta_hat/dt = -L Y^T s, projected onto the model's box                         (eq. 19)
+
+Q'(r), Q''(r): task_variable.radial_drive, the SCARA's own radial task term (speed cap
+max_task_speed, approach floor, Hessian bound), in 3-D: H_Q = Q'' e e^T + Q'/r (I - e e^T)
+(the analytic Hessian of Q, so qddot_r is exact). The drive is task_variable.task_drive
+with the model's reach. f = 1 for follow tasks, 1 - a for avoid tasks (open outward: the
+hand's velocity is not fed forward); the feed-forward is capped at FEED_FORWARD_RATIO v_max
+with task_variable.speed_cap, as adaptive_law does. Y is the model's eq. 18 regressor with
+gravity and viscous friction (Y theta = M qddot_r + C qdot_r + F qdot_r + g): theta_hat
+adapts the gravity too, from whatever start.
+
+Null space (redundant arms, n > 3): z = cap(-k_n (q - q_home)) - v_B g_B / kb moves the
+joints towards the model's home pose and away from the joint limits. J N = J - J J+ J = 0
+wherever J+ is the exact inverse (manipulability above the damping threshold), so the tool's
+velocity and eq. 20-22 do not see z: with V = 1/2 s^T M s + Kp a Q + B + 1/2 dtheta^T L^-1
+dtheta (B the barrier's energy),
+
+    dV/dt = -s^T (Ks + F) s - Kp |a delta_eps + J+^T g_B / Kp|^2 + Kp (da/dt) Q
+            + g_B^T N z_post - (v_B / kb) g_B^T N g_B + (feed-forward gate terms),
+
+the posture term g_B^T N z_post is non-zero only within a barrier band (g_B = 0 elsewhere),
+and the last one is <= 0 (N symmetric, idempotent). Joint-limit barrier: joint_limits'
+barrier for every joint (the same quintic smoothstep; `barrier_n`): near a limit the torque
+gets -g_B and the reference the task-space share of it, the feed-forward towards the limit
+is gated, and eq. 19 pauses by 1 - near. Per-joint effort limits: tau is scaled as a whole so
+that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is. A non-finite
+result gives zero torque and fault=True, theta_hat unchanged.
+
+Not (yet) for n joints: the SCARA's reach-round blend, an avoid task's return to its rest
+position and its retreat from an approaching hand (avoid tasks here only drop the
+feed-forward and follow the potential's push).
+No ROS import.
+"""
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from hri_adaptive_controller.adaptive_law import FEED_FORWARD_RATIO
+from hri_adaptive_controller.joint_limits import FEED_SPEED
+from hri_adaptive_controller.task_variable import (
+    MAX_TASK_HESSIAN,
+    DampingSettings,
+    TaskDrive,
+    radial_drive,
+    speed_cap,
+    task_drive,
+    task_potential,
+)
+from hri_core.potential import TaskShape
+from hri_core.robot_model import INERTIA_NAMES, PinocchioModel, RobotModel, generic_model
+
+_EYE3 = np.eye(3)
+_DIAGONAL3 = np.diag_indices(3)
+
+ADAPTATION_KINDS = (*INERTIA_NAMES, 'damping')
+"""The kinds of parameters `ArmGains.adaptation` gives one rate each, for every joint."""
+
+
+@dataclass(frozen=True)
+class ArmGains:
+    """Gains of the n-joint law (module docstring).
+
+    ks: diagonal of Ks (n values, N m s/rad, > 0); kp: Kp (N s/m, > 0); adaptation: L's rate
+    for each kind of parameter (ADAPTATION_KINDS: m, mcx, ..., Izz, damping; >= 0), the same
+    for every joint; task_gain, approach_speed, region_margin, max_task_speed, rest_gain,
+    rest_gate: as adaptive_law.ControllerGains; effort_scale (0, 1]: the fraction of the
+    model's per-joint effort limits the law may use; max_effort_rate (N m/s): the callers'
+    rate limit (effort_rate); damping: J+ damping (threshold w0 in m^3 for a 3-row J);
+    posture_gain k_n (1/s, >= 0) and posture_speed (rad/s, > 0): the null-space pull towards
+    home, each joint's speed capped smoothly; limit_band (rad, > 0), barrier_torque kb (N m,
+    >= 0): the barrier; limit_speed v_B (rad/s, >= 0): the null-space push off a limit.
+    Raises ValueError with the reason for a value out of range.
+    """
+
+    ks: tuple[float, ...]
+    kp: float
+    adaptation: tuple[float, ...]
+    task_gain: float | None = None
+    approach_speed: float = 0.1
+    region_margin: float = 0.02
+    max_task_speed: float = 0.25
+    effort_scale: float = 1.0
+    rest_gain: float = 2.0
+    rest_gate: float = 0.03
+    max_effort_rate: float = 1000.0
+    damping: DampingSettings = field(default_factory=lambda: DampingSettings(0.02, 0.05))
+    posture_gain: float = 1.0
+    posture_speed: float = 0.3
+    limit_band: float = 0.15
+    barrier_torque: float = 3.0
+    limit_speed: float = 0.3
+
+    def __post_init__(self):
+        ks = np.asarray(self.ks, dtype=float)
+        if ks.ndim != 1 or ks.size == 0 or not np.all(np.isfinite(ks)) or np.any(ks <= 0.0):
+            raise ValueError(f'ks must be finite values > 0 N m s/rad, got {self.ks}')
+        rates = np.asarray(self.adaptation, dtype=float)
+        if (rates.shape != (len(ADAPTATION_KINDS),) or not np.all(np.isfinite(rates))
+                or np.any(rates < 0.0)):
+            raise ValueError(f'adaptation must be {len(ADAPTATION_KINDS)} finite values >= 0 '
+                             f'({", ".join(ADAPTATION_KINDS)}), got {self.adaptation}')
+        if self.task_gain is not None and not (
+                math.isfinite(self.task_gain) and self.task_gain > 0.0):
+            raise ValueError(f'task_gain must be None or finite and > 0, got {self.task_gain}')
+        for name in ('kp', 'max_task_speed', 'rest_gate', 'max_effort_rate', 'posture_speed',
+                     'limit_band', 'effort_scale'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be finite and > 0, got {value}')
+        if self.effort_scale > 1.0:
+            raise ValueError(f'effort_scale must be <= 1, got {self.effort_scale}')
+        for name in ('approach_speed', 'region_margin', 'rest_gain', 'posture_gain',
+                     'barrier_torque', 'limit_speed'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {value}')
+
+
+# The Panda's gains (robot_model('panda'): M's diagonal at home 0.53, 1.55, 0.98, 0.96, 0.04,
+# 0.05, 0.007 kg m^2; gravity up to 22 N m on joint 4). Ks / M ~ 30-60 1/s on the big joints
+# (s decays in 20-35 ms) and below 2 / dt on the wrist (1 kHz Euler-stable); kp as the SCARA's.
+# L: masses and first moments carry the gravity (Y's columns ~ 10 N m per kg or kg m at
+# s ~ 0.1 rad/s), so they adapt fastest; the rotational inertias and friction slowly.
+PANDA_GAINS = ArmGains(
+    ks=(30.0, 40.0, 30.0, 30.0, 3.0, 3.0, 0.6),
+    kp=10.0,
+    adaptation=(2.0, 2.0, 2.0, 2.0, 0.05, 0.05, 0.05, 0.05, 0.05, 0.05, 0.5),
+)
+
+
+class HandState(NamedTuple):
+    """The hand (target) x_d (3,) m, xdot_d (3,) m/s, xddot_d (3,) m/s^2."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+
+class ActiveTask(NamedTuple):
+    """The task in force: its learned shape, its gain k (m^2/s, 0 = default), its event weight
+    a in [0, 1] and da/dt (1/s)."""
+
+    shape: TaskShape
+    weight: float
+    weight_rate: float = 0.0
+    k: float = 0.0
+
+
+class ArmOutput(NamedTuple):
+    """One step of `ArmController.step`.
+
+    tau (n,) N m, the command (zeros on a fault); tau_requested (n,) before the effort limit;
+    s (n,) rad/s; qdot_r, qddot_r (n,); position x (3,) m; distance |x - x_d| (m, None on a
+    fault); task_gain K (m^2/s); theta_hat (p,) used for this step; torque_limited, fault;
+    fault_reason; damping lambda^2; near: the barrier's proximity in [0, 1]; barrier_gradient
+    g_B (n,) N m; weighted_task_variable a delta_eps (3,) m/s.
+    """
+
+    tau: np.ndarray
+    tau_requested: np.ndarray
+    s: np.ndarray
+    qdot_r: np.ndarray
+    qddot_r: np.ndarray
+    position: np.ndarray | None
+    distance: float | None
+    task_gain: float
+    theta_hat: np.ndarray
+    torque_limited: bool
+    fault: bool
+    fault_reason: str = ''
+    damping: float = 0.0
+    near: float = 0.0
+    barrier_gradient: np.ndarray | None = None
+    weighted_task_variable: np.ndarray | None = None
+
+
+def _smoothstep_arrays(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The quintic smoothstep of joint_limits / task_variable (C2) and its derivative, per
+    element of u."""
+    u = np.clip(u, 0.0, 1.0)
+    v = 1.0 - u
+    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
+
+
+def barrier_n(q, dq, lower, upper, band: float, barrier_torque: float):
+    """joint_limits.barrier for n joints: (g, gd, near) with g = dB/dq (n,) N m, gd its time
+    derivative (n,) N m/s and near = max_i w(u_i) in [0, 1]. q, dq, lower, upper (n,)."""
+    if (q >= lower + band).all() and (q <= upper - band).all():
+        zero = np.zeros(q.shape)
+        return zero, zero, 0.0  # outside every band (the usual case)
+    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
+    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
+    g = barrier_torque * (up - down)
+    gd = barrier_torque * (dup + ddown) / band * dq
+    return g, gd, float(max(up.max(), down.max()))
+
+
+def barrier_energy_n(q, lower, upper, band: float, barrier_torque: float) -> float:
+    """B(q) (J) of barrier_n: kb band times the smoothstep's integral over each overlap."""
+    total = 0.0
+    for u in np.concatenate([(q - (upper - band)) / band, ((lower + band) - q) / band]):
+        if u > 0.0:
+            v = min(u, 1.0)
+            total += barrier_torque * band * (2.5 * v ** 4 - 3.0 * v ** 5 + v ** 6
+                                              + max(u - 1.0, 0.0))
+    return total
+
+
+def gate_feed_forward_n(q, dq, v, rate, lower, upper, band: float):
+    """joint_limits.gate_feed_forward for n joints: the joint feed-forward v (n,) rad/s and
+    its rate (n,) with each component towards a near limit faded out."""
+    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
+    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
+    towards_up, dtu = _smoothstep_arrays(v / FEED_SPEED)
+    towards_down, dtd = _smoothstep_arrays(-v / FEED_SPEED)
+    factor = 1.0 - up * towards_up - down * towards_down
+    factor_rate = (-(dup / band * dq) * towards_up - up * dtu / FEED_SPEED * rate
+                   + (ddown / band * dq) * towards_down + down * dtd / FEED_SPEED * rate)
+    return v * factor, rate * factor + v * factor_rate
+
+
+def task_term_3d(dx: np.ndarray, drive: TaskDrive) -> tuple[np.ndarray, np.ndarray]:
+    """delta_eps = Q'(r) e (3,) m/s and its Hessian H_Q (3, 3) 1/s at dx = x - x_d (3,) m,
+    from task_variable.radial_drive (eq. 12'); entries bounded by MAX_TASK_HESSIAN."""
+    r = math.sqrt(float(dx @ dx))
+    slope, curvature = radial_drive(r, drive)
+    if r == 0.0:
+        return np.zeros(3), curvature * _EYE3
+    e = dx / r
+    tangential = slope / r
+    hessian = (curvature - tangential) * np.outer(e, e)
+    hessian[_DIAGONAL3] += tangential
+    if curvature > MAX_TASK_HESSIAN or tangential > MAX_TASK_HESSIAN or (
+            curvature < -MAX_TASK_HESSIAN or tangential < -MAX_TASK_HESSIAN):
+        hessian = np.clip(hessian, -MAX_TASK_HESSIAN, MAX_TASK_HESSIAN)
+    return slope * e, hessian
+
+
+class ArmController:
+    """The adaptive law for the arm `model` (a RobotModel; the SCARA through its URDF).
+
+    gains: ArmGains (len(ks) = model.dof); theta_hat0 (p,): the initial estimate (default: the
+    model's nominal theta), projected onto the model's box.
+    """
+
+    def __init__(self, model: RobotModel, gains: ArmGains, theta_hat0=None):
+        self.model: PinocchioModel = generic_model(model)
+        n = self.model.dof
+        if n < 3:
+            raise ValueError(f'{self.model.name} has {n} joints: the 3-D law needs at least 3 '
+                             '(the planar SCARA runs adaptive_law)')
+        if len(gains.ks) != n:
+            raise ValueError(f'ks must have {n} values for {self.model.name}, got {gains.ks}')
+        self._gains = gains
+        import pinocchio as pin  # the model already imported it
+
+        self._pin = pin
+        self._frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        limits = self.model.limits
+        self._lower = np.where(np.isfinite(limits.lower), limits.lower, -1e9)
+        self._upper = np.where(np.isfinite(limits.upper), limits.upper, 1e9)
+        if np.any(self._upper - self._lower <= 2.0 * gains.limit_band):
+            raise ValueError(f'every joint range of {self.model.name} must be wider than '
+                             f'2 limit_band ({gains.limit_band} rad)')
+        self._effort = gains.effort_scale * limits.effort
+        if not np.all(self._effort > 0.0):
+            raise ValueError(f'{self.model.name} has a joint without an effort limit > 0: '
+                             f'{limits.effort.tolist()}')
+        self._ks = np.asarray(gains.ks, dtype=float)
+        per_joint = len(INERTIA_NAMES)
+        self._rates = np.concatenate([np.tile(gains.adaptation[:per_joint], n),
+                                      np.full(n, gains.adaptation[per_joint])])
+        self._home = np.clip(self.model.home, self._lower + gains.limit_band,
+                             self._upper - gains.limit_band)
+        self._threshold2 = gains.damping.threshold ** 2
+        self._max_damping2 = gains.damping.max_damping ** 2
+        self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
+        self._eye_n = np.eye(n)
+        self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
+        self._last: tuple = (None, 0.0, None)
+        self.reset(self.model.theta if theta_hat0 is None else theta_hat0)
+
+    @property
+    def gains(self) -> ArmGains:
+        """The controller's gains."""
+        return self._gains
+
+    @property
+    def theta_hat(self) -> np.ndarray:
+        """The current estimate (p,), a copy."""
+        return self._theta.copy()
+
+    @property
+    def adaptation_rates(self) -> np.ndarray:
+        """L's diagonal (p,), a copy."""
+        return self._rates.copy()
+
+    @property
+    def effort_limits(self) -> np.ndarray:
+        """The per-joint effort limits the law keeps to (n,) N m."""
+        return self._effort.copy()
+
+    def reset(self, theta_hat0) -> None:
+        """Restart the estimate at theta_hat0 (p,), projected onto the model's box."""
+        theta = np.asarray(theta_hat0, dtype=float)
+        if theta.shape != self.model.theta.shape or not np.all(np.isfinite(theta)):
+            raise ValueError(f'theta_hat0 must be {self.model.theta.size} finite values, '
+                             f'got shape {theta.shape}')
+        self._theta = np.clip(theta, self.model.theta_lower, self.model.theta_upper)
+
+    def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
+        """The TaskDrive of `shape` with gain k (cached; task_variable.task_drive with the
+        model's reach), None without a task."""
+        if shape is None:
+            return None
+        if shape is self._last[0] and k == self._last[1]:
+            return self._last[2]  # the same task as the last cycle (hashing costs 5 us)
+        key = (shape, k)
+        drive = self._drives.get(key)
+        if drive is None:
+            gains = self._gains
+            drive = self._drives[key] = task_drive(
+                shape, k if gains.task_gain is None else gains.task_gain,
+                gains.max_task_speed, self.model.reach, gains.approach_speed,
+                gains.region_margin, gains.rest_gain, gains.rest_gate)
+        self._last = (shape, k, drive)
+        return drive
+
+    def lyapunov(self, output: ArmOutput, q, task: ActiveTask | None, true_model=None) -> float:
+        """V of eq. 21 with the barrier (J): 1/2 s^T M s + Kp a Q + B (+ 1/2 dtheta^T L^-1
+        dtheta with the true model's theta, in simulation). M from true_model if given,
+        else from the nominal model."""
+        q = np.asarray(q, dtype=float)
+        model = self.model if true_model is None else true_model
+        value = 0.5 * float(output.s @ model.mass_matrix(q) @ output.s)
+        drive = None if task is None else self.drive(task.shape, task.k)
+        if drive is not None and output.distance is not None:
+            value += self._gains.kp * task.weight * task_potential(output.distance, drive)
+        value += barrier_energy_n(q, self._lower, self._upper, self._gains.limit_band,
+                                  self._gains.barrier_torque)
+        if true_model is not None:
+            active = self._rates > 0.0
+            error = true_model.theta - output.theta_hat
+            value += 0.5 * float(np.sum(error[active] ** 2 / self._rates[active]))
+        return value
+
+    def _kinematics(self, q, dq):
+        """x (3,), J (3, n), Jdot (3, n) at (q, dq), base-frame axes."""
+        pin, model = self._pin, self.model
+        pin.computeJointJacobiansTimeVariation(model.model, model.data, q, dq)
+        x = pin.updateFramePlacement(model.model, model.data,
+                                     model.tool_frame_id).translation.copy()
+        jac = pin.getFrameJacobian(model.model, model.data, model.tool_frame_id,
+                                   self._frame)[:3]
+        rate = pin.getFrameJacobianTimeVariation(model.model, model.data,
+                                                 model.tool_frame_id, self._frame)[:3]
+        return x, jac, rate
+
+    def _pseudo_inverse(self, jac, rate):
+        """Damped J+ (n, 3), dJ+/dt (n, 3) and lambda^2 (task_variable's damping law with
+        w = sqrt(det(J J^T))). The 3x3 algebra in plain floats (numpy's small-matrix calls
+        cost more than the arithmetic)."""
+        gram_rate = rate @ jac.T
+        gram_rate = gram_rate + gram_rate.T
+        (g00, g01, g02), (_, g11, g12), (_, _, g22) = (jac @ jac.T).tolist()
+        (e00, e01, e02), (_, e11, e12), (_, _, e22) = gram_rate.tolist()
+        # The adjugate of the symmetric G; det(G) = g0 . adj0.
+        c00, c01, c02 = g11 * g22 - g12 * g12, g02 * g12 - g01 * g22, g01 * g12 - g02 * g11
+        c11, c12, c22 = g00 * g22 - g02 * g02, g01 * g02 - g00 * g12, g00 * g11 - g01 * g01
+        ratio = (g00 * c00 + g01 * c01 + g02 * c02) / self._threshold2
+        if ratio >= 1.0:
+            lam2 = lam2_rate = 0.0
+        else:
+            lam2 = self._max_damping2 * (1.0 - ratio) ** 2
+            trace = (c00 * e00 + c11 * e11 + c22 * e22
+                     + 2.0 * (c01 * e01 + c02 * e02 + c12 * e12))  # d det(G)/dt
+            lam2_rate = -2.0 * self._max_damping2 * (1.0 - ratio) * trace / self._threshold2
+            g00, g11, g22 = g00 + lam2, g11 + lam2, g22 + lam2
+            c00, c01, c02 = g11 * g22 - g12 * g12, g02 * g12 - g01 * g22, g01 * g12 - g02 * g11
+            c11, c12 = g00 * g22 - g02 * g02, g01 * g02 - g00 * g12
+            c22 = g00 * g11 - g01 * g01
+        det = g00 * c00 + g01 * c01 + g02 * c02
+        if abs(det) <= 1e-300:
+            raise ValueError('singular Jacobian and no damping (max_damping = 0)')
+        inverse = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
+        pinv = jac.T @ inverse
+        if lam2_rate != 0.0:
+            gram_rate = gram_rate + lam2_rate * np.eye(3)
+        pinv_rate = (rate.T - pinv @ gram_rate) @ inverse
+        return pinv, pinv_rate, lam2
+
+    def _null_velocity(self, q, dq, barrier_gradient, barrier_rate):
+        """z (n,) rad/s and dz/dt: towards home (each joint capped at posture_speed) and off
+        the joint limits (module docstring)."""
+        gains = self._gains
+        z = -gains.posture_gain * (q - self._home)
+        z_rate = -gains.posture_gain * dq
+        if np.max(np.abs(z)) > gains.posture_speed:
+            capped = [speed_cap(value, gains.posture_speed) for value in z.tolist()]
+            z = np.array([value for value, _ in capped])
+            z_rate = z_rate * np.array([slope for _, slope in capped])
+        if gains.barrier_torque > 0.0:
+            push = gains.limit_speed / gains.barrier_torque
+            z = z - push * barrier_gradient
+            z_rate = z_rate - push * barrier_rate
+        return z, z_rate
+
+    def _feed_forward(self, velocity, acceleration):
+        """The hand's velocity fed forward, capped at FEED_FORWARD_RATIO v_max (as
+        adaptive_law._limited_reference), and its rate (3,) each."""
+        speed = math.sqrt(float(velocity @ velocity))
+        if speed <= self._feed_speed:
+            return velocity, acceleration
+        capped, slope = speed_cap(speed, self._feed_speed)
+        ratio = capped / speed
+        direction = velocity / speed
+        along = float(direction @ acceleration) * (slope - ratio)
+        return ratio * velocity, ratio * acceleration + along * direction
+
+    def step(self, q, dq, hand: HandState, task: ActiveTask | None, dt: float) -> ArmOutput:
+        """The torque at (q, dq) (n,) for the hand and task, and theta_hat advanced by dt (s).
+
+        Inputs are finite and of the right shapes (the caller checks them where they enter);
+        a non-finite result still gives zero torque and fault=True, theta_hat unchanged.
+        """
+        gains = self._gains
+        theta = self._theta
+        q = np.asarray(q, dtype=float)
+        dq = np.asarray(dq, dtype=float)
+        drive = None if task is None else self.drive(task.shape, task.k)
+        k = 0.0 if drive is None else drive.task_gain
+        try:
+            with np.errstate(all='ignore'):
+                x, jac, jac_rate = self._kinematics(q, dq)
+                pinv, pinv_rate, lam2 = self._pseudo_inverse(jac, jac_rate)
+                xdot = jac @ dq
+                hand_velocity, hand_acceleration = hand.velocity, hand.acceleration
+                dx = x - hand.position
+                distance = math.sqrt(float(dx @ dx))
+                if drive is None:
+                    weighted = weighted_rate = np.zeros(3)
+                    feed, feed_rate = 1.0, 0.0
+                else:
+                    a, da = task.weight, task.weight_rate
+                    slope, hessian = task_term_3d(dx, drive)
+                    weighted = a * slope
+                    weighted_rate = da * slope + a * (hessian @ (xdot - hand_velocity))
+                    feed, feed_rate = (1.0 - a, -da) if drive.open_outward else (1.0, 0.0)
+                ff, ff_rate = self._feed_forward(
+                    feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
+                g_b, g_b_rate, near = barrier_n(q, dq, self._lower, self._upper,
+                                                gains.limit_band, gains.barrier_torque)
+                joint_ff = pinv @ ff
+                joint_ff_rate = pinv_rate @ ff + pinv @ ff_rate
+                if near > 0.0:
+                    joint_ff, joint_ff_rate = gate_feed_forward_n(
+                        q, dq, joint_ff, joint_ff_rate, self._lower, self._upper,
+                        gains.limit_band)
+                # The barrier's task-space velocity J+^T g_B / Kp and its rate.
+                barrier_task = (pinv.T @ g_b) / gains.kp
+                barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
+                task_velocity = -weighted - barrier_task
+                task_rate = -weighted_rate - barrier_task_rate
+                qdot_r = joint_ff + pinv @ task_velocity
+                qddot_r = joint_ff_rate + pinv_rate @ task_velocity + pinv @ task_rate
+                if self.model.dof > 3:
+                    z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate)
+                    null = self._eye_n - pinv @ jac
+                    null_rate = -(pinv_rate @ jac + pinv @ jac_rate)
+                    qdot_r = qdot_r + null @ z
+                    qddot_r = qddot_r + null_rate @ z + null @ z_rate
+                s = dq - qdot_r
+                y = self.model.regressor_unchecked(q, dq, qdot_r, qddot_r)
+                tau_requested = (-self._ks * s - gains.kp * (jac.T @ weighted) - g_b
+                                 + y @ theta)
+        except (ValueError, np.linalg.LinAlgError) as error:
+            return self._fault(f'step failed: {error}')
+        if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(qddot_r))):
+            return self._fault('non-finite torque or parameter update')
+        peak = float(np.max(np.abs(tau_requested) / self._effort))
+        limited = peak > 1.0
+        tau = tau_requested / peak if limited else tau_requested.copy()
+        # eq. 19, paused near a limit and while the torque is clamped (as step_lean).
+        pace = 0.0 if limited else dt * (1.0 - near)
+        if pace > 0.0:
+            with np.errstate(all='ignore'):
+                theta_next = np.clip(theta - pace * self._rates * (y.T @ s),
+                                     self.model.theta_lower, self.model.theta_upper)
+            if not np.all(np.isfinite(theta_next)):
+                return self._fault('non-finite torque or parameter update')
+            self._theta = theta_next
+        return ArmOutput(tau, tau_requested, s, qdot_r, qddot_r, x, distance, k, theta,
+                         limited, False, '', lam2, near, g_b, weighted)
+
+    def _fault(self, reason: str) -> ArmOutput:
+        zero = np.zeros(self.model.dof)
+        return ArmOutput(zero, zero.copy(), zero.copy(), zero.copy(), zero.copy(), None, None,
+                         0.0, self._theta.copy(), False, True, reason)
+
+
+def forward_dynamics(model: RobotModel, q, dq, tau) -> np.ndarray:
+    """qddot = M^-1 (tau - C qdot - F qdot - g) (n,) of `model` (pinocchio's ABA when it is a
+    PinocchioModel)."""
+    if isinstance(model, PinocchioModel):
+        return model.forward_dynamics(q, dq, tau)
+    bias = model.coriolis_matrix(q, dq) @ dq + model.friction_torque(dq) + model.gravity_torque(q)
+    return np.linalg.solve(model.mass_matrix(q), tau - bias)
+
+
+def rk4_step(model: RobotModel, q, dq, tau, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(q, qdot) after dt (s) under the constant torque tau (n,): one classical Runge-Kutta
+    step of the model's forward dynamics (for tests and pure closed loops)."""
+    def derivative(position, velocity):
+        return velocity, forward_dynamics(model, position, velocity, tau)
+
+    k1q, k1v = derivative(q, dq)
+    k2q, k2v = derivative(q + 0.5 * dt * k1q, dq + 0.5 * dt * k1v)
+    k3q, k3v = derivative(q + 0.5 * dt * k2q, dq + 0.5 * dt * k2v)
+    k4q, k4v = derivative(q + dt * k3q, dq + dt * k3v)
+    return (q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q),
+            dq + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))

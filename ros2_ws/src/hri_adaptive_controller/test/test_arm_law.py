@@ -1,0 +1,189 @@
+"""Unit tests of arm_law: the n-joint adaptive law in 3-D, closed with the Panda's own
+forward dynamics (RK4 at 1 kHz, a perturbed 'true' arm, theta_hat from a wrong start)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from hri_adaptive_controller.arm_law import (
+    PANDA_GAINS,
+    ActiveTask,
+    ArmController,
+    ArmGains,
+    HandState,
+    barrier_energy_n,
+    barrier_n,
+    gate_feed_forward_n,
+    rk4_step,
+    task_term_3d,
+)
+from hri_adaptive_controller.joint_limits import (
+    JointLimits,
+    barrier,
+    barrier_energy,
+    gate_feed_forward,
+)
+from hri_adaptive_controller.task_variable import task_potential, task_term
+from hri_core.potential import TaskShape
+from hri_core.robot_model import ScaraModel, robot_model
+
+FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)  # Table I's follow row
+DT = 1e-3
+
+
+@pytest.fixture(scope='module')
+def panda():
+    return robot_model('panda')
+
+
+def true_arm(nominal, seed):
+    """The 'true' Panda: link inertias 15 % off the URDF's, friction 0.05 N m s/rad."""
+    rng = np.random.default_rng(seed)
+    return nominal.with_inertias(rng.uniform(0.85, 1.15, nominal.dof), np.full(nominal.dof, 0.05))
+
+
+def still_hand(nominal, q, seed, distance=0.3):
+    rng = np.random.default_rng(seed)
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    return HandState(nominal.tool_position(q) + distance * direction, np.zeros(3), np.zeros(3))
+
+
+def run(nominal, seed, duration, monitor=False):
+    """The Panda from home following a still hand 0.3 m away; theta_hat from 70 % of the
+    URDF's values. Returns per-step distance, tau, V (if monitored), limited flags, q and
+    the controller."""
+    true = true_arm(nominal, seed)
+    controller = ArmController(nominal, PANDA_GAINS, theta_hat0=0.7 * nominal.theta)
+    q, dq = nominal.home.copy(), np.zeros(nominal.dof)
+    hand = still_hand(nominal, q, seed)
+    task = ActiveTask(FOLLOW, 1.0)
+    record = {'distance': [], 'tau': [], 'V': [], 'limited': [], 'q': [], 'speed': []}
+    for _ in range(round(duration / DT)):
+        out = controller.step(q, dq, hand, task, DT)
+        assert not out.fault, out.fault_reason
+        record['distance'].append(out.distance)
+        record['tau'].append(out.tau)
+        record['limited'].append(out.torque_limited)
+        record['q'].append(q)
+        record['speed'].append(float(np.linalg.norm(nominal.tool_jacobian(q) @ dq)))
+        if monitor:
+            record['V'].append(controller.lyapunov(out, q, task, true))
+        q, dq = rk4_step(true, q, dq, out.tau, DT)
+    return {key: np.array(value) for key, value in record.items()}, controller
+
+
+def test_v_does_not_increase_for_a_fixed_region_and_a_still_hand(panda):
+    record, controller = run(panda, seed=1, duration=2.0, monitor=True)
+    assert not record['limited'].any()
+    steps = np.diff(record['V'])
+    # eq. 22: dV/dt <= 0 between events; the sampled law (torque held 1 ms) adds O(dt^2).
+    assert steps.max() <= 1e-7, steps.max()
+    # and V lost at least half its task term Kp a Q(0.3 m) (the parameter term stays).
+    task_energy = PANDA_GAINS.kp * task_potential(0.3, controller.drive(FOLLOW))
+    assert record['V'][0] - record['V'][-1] > 0.5 * task_energy > 0.0
+
+
+def test_follows_a_still_hand_and_holds_under_gravity_while_theta_adapts(panda):
+    record, controller = run(panda, seed=2, duration=6.0)
+    inside = record['distance'] <= FOLLOW.d2
+    entered = int(np.argmax(inside))
+    assert inside.any() and entered * DT <= 5.0, entered * DT
+    assert inside[entered:].all()  # held, with gravity, from the wrong start on
+    assert record['speed'][-500:].max() < 1e-3  # at rest in the region
+    # theta_hat moved from its start (eq. 19 runs) and the gravity it implies came closer.
+    start = 0.7 * panda.theta
+    assert np.linalg.norm(controller.theta_hat - start) > 0.01
+    q = record['q'][-1]
+    gravity_true = true_arm(panda, 2).gravity_torque(q)
+    y_static = controller.model.regressor(q, np.zeros(7), np.zeros(7), np.zeros(7))
+    assert (np.linalg.norm(y_static @ controller.theta_hat - gravity_true)
+            < np.linalg.norm(y_static @ start - gravity_true))
+    effort = panda.limits.effort
+    assert np.all(np.abs(record['tau']) <= effort + 1e-12)
+    # Every joint stays 5 deg off its limits.
+    margin = np.minimum(record['q'] - panda.limits.lower, panda.limits.upper - record['q'])
+    assert margin.min() > math.radians(5.0)
+
+
+def test_null_space_motion_leaves_the_tool_velocity_unchanged(panda):
+    rng = np.random.default_rng(3)
+    still = dataclasses.replace(PANDA_GAINS, posture_gain=0.0)
+    task = ActiveTask(FOLLOW, 0.7, 0.3)
+    checked = 0
+    for _ in range(20):
+        q = panda.home + rng.uniform(-0.5, 0.5, 7)
+        dq = rng.uniform(-0.3, 0.3, 7)
+        hand = HandState(panda.tool_position(q) + rng.uniform(-0.2, 0.2, 3),
+                         rng.uniform(-0.1, 0.1, 3), rng.uniform(-0.5, 0.5, 3))
+        with_null = ArmController(panda, PANDA_GAINS).step(q, dq, hand, task, DT)
+        without = ArmController(panda, still).step(q, dq, hand, task, DT)
+        if with_null.damping > 0.0 or with_null.near > 0.0:
+            continue  # J+ damped or a barrier band: J N = 0 is claimed only where J+ is exact
+        null_motion = with_null.qdot_r - without.qdot_r
+        jac = panda.tool_jacobian(q)
+        assert np.linalg.norm(null_motion) > 1e-3  # the posture term does move the joints
+        assert np.linalg.norm(jac @ null_motion) <= 1e-9
+        # and its rate: J (qddot_r - qddot_r') + Jdot (qdot_r - qdot_r') = d/dt (J N z) = 0
+        rate = panda.tool_jacobian(q + 1e-7 * dq) - panda.tool_jacobian(q - 1e-7 * dq)
+        assert np.linalg.norm(jac @ (with_null.qddot_r - without.qddot_r)
+                              + rate / 2e-7 @ null_motion) <= 1e-6
+        checked += 1
+    assert checked >= 10
+
+
+def test_barrier_and_gate_equal_the_scaras_for_two_joints():
+    rng = np.random.default_rng(4)
+    limits = JointLimits()
+    lower, upper = np.array(limits.lower), np.array(limits.upper)
+    for _ in range(200):
+        q = rng.uniform(lower - 0.05, upper + 0.05)
+        dq, v, rate = (rng.uniform(-1.0, 1.0, 2) for _ in range(3))
+        g, gd, near = barrier_n(q, dq, lower, upper, limits.band, limits.barrier_torque)
+        g1, g2, gd1, gd2, near2 = barrier(*q, *dq, limits)
+        np.testing.assert_allclose(np.concatenate([g, gd, [near]]),
+                                   [g1, g2, gd1, gd2, near2], atol=1e-12)
+        assert barrier_energy_n(q, lower, upper, limits.band, limits.barrier_torque) == \
+            pytest.approx(barrier_energy(*q, limits), abs=1e-12)
+        gated, gated_rate = gate_feed_forward_n(q, dq, v, rate, lower, upper, limits.band)
+        np.testing.assert_allclose(np.concatenate([gated, gated_rate]),
+                                   gate_feed_forward(*q, *dq, *v, *rate, limits), atol=1e-12)
+
+
+def test_task_term_in_3d_is_the_planar_one_in_the_plane():
+    rng = np.random.default_rng(5)
+    controller = ArmController(robot_model('panda'), PANDA_GAINS)
+    drive = controller.drive(FOLLOW)
+    for _ in range(50):
+        dx = rng.uniform(-0.4, 0.4, 2)
+        slope, hessian = task_term_3d(np.array([*dx, 0.0]), drive)
+        g1, g2, h11, h12, h22 = task_term(*dx, drive)
+        np.testing.assert_allclose(slope, [g1, g2, 0.0], atol=1e-12)
+        np.testing.assert_allclose(hessian[:2, :2], [[h11, h12], [h12, h22]], rtol=1e-9,
+                                   atol=1e-12)
+
+
+def test_a_non_finite_state_gives_zero_torque_and_a_fault(panda):
+    controller = ArmController(panda, PANDA_GAINS)
+    theta = controller.theta_hat
+    q = panda.home.copy()
+    q[2] = math.nan
+    out = controller.step(q, np.zeros(7), still_hand(panda, panda.home, 6),
+                          ActiveTask(FOLLOW, 1.0), DT)
+    assert out.fault and not np.any(out.tau)
+    np.testing.assert_array_equal(controller.theta_hat, theta)
+
+
+def test_bad_gains_and_models_are_refused(panda):
+    with pytest.raises(ValueError, match='ks must have 7 values'):
+        ArmController(panda, dataclasses.replace(PANDA_GAINS, ks=(1.0, 1.0)))
+    with pytest.raises(ValueError, match='adaptation must be 11'):
+        dataclasses.replace(PANDA_GAINS, adaptation=(1.0,))
+    with pytest.raises(ValueError, match='effort_scale must be <= 1'):
+        dataclasses.replace(PANDA_GAINS, effort_scale=1.5)
+    with pytest.raises(ValueError, match='needs at least 3'):
+        ArmController(ScaraModel(), ArmGains(ks=(1.0, 1.0), kp=1.0, adaptation=(0.0,) * 11))
+    with pytest.raises(ValueError, match='theta_hat0 must be 77'):
+        ArmController(panda, PANDA_GAINS, theta_hat0=np.zeros(3))

@@ -56,6 +56,7 @@ from hri_adaptive_controller.joint_limits import FEED_SPEED
 from hri_adaptive_controller.task_variable import (
     MAX_TASK_HESSIAN,
     DampingSettings,
+    PotentialAlongPath,
     TaskDrive,
     radial_drive,
     speed_cap,
@@ -169,7 +170,8 @@ class ArmOutput(NamedTuple):
     s (n,) rad/s; qdot_r, qddot_r (n,); position x (3,) m; distance |x - x_d| (m, None on a
     fault); task_gain K (m^2/s); theta_hat (p,) used for this step; torque_limited, fault;
     fault_reason; damping lambda^2; near: the barrier's proximity in [0, 1]; barrier_gradient
-    g_B (n,) N m; weighted_task_variable a delta_eps (3,) m/s.
+    g_B (n,) N m; weighted_task_variable a delta_eps (3,) m/s; lyapunov: V (J) or part of it,
+    where a caller fills it in (None from step).
     """
 
     tau: np.ndarray
@@ -188,6 +190,7 @@ class ArmOutput(NamedTuple):
     near: float = 0.0
     barrier_gradient: np.ndarray | None = None
     weighted_task_variable: np.ndarray | None = None
+    lyapunov: float | None = None
 
 
 def _smoothstep_arrays(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -294,6 +297,7 @@ class ArmController:
         self._eye_n = np.eye(n)
         self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
         self._last: tuple = (None, 0.0, None)
+        self._potentials: dict[tuple[TaskShape, float], PotentialAlongPath] = {}
         self.reset(self.model.theta if theta_hat0 is None else theta_hat0)
 
     @property
@@ -341,6 +345,18 @@ class ArmController:
                 gains.region_margin, gains.rest_gain, gains.rest_gate)
         self._last = (shape, k, drive)
         return drive
+
+    def task_energy(self, distance: float, shape: TaskShape | None, k: float = 0.0) -> float:
+        """Kp Q(distance) (J per unit of a; adaptive_law.AdaptiveController.task_energy),
+        the task's part of V; 0 without a task."""
+        drive = self.drive(shape, k)
+        if drive is None:
+            return 0.0
+        key = (shape, k)
+        potential = self._potentials.get(key)
+        if potential is None:
+            potential = self._potentials[key] = PotentialAlongPath(drive)
+        return self._gains.kp * potential(distance)
 
     def lyapunov(self, output: ArmOutput, q, task: ActiveTask | None, true_model=None) -> float:
         """V of eq. 21 with the barrier (J): 1/2 s^T M s + Kp a Q + B (+ 1/2 dtheta^T L^-1

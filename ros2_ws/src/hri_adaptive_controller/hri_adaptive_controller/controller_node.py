@@ -69,12 +69,20 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from hri_adaptive_controller.adaptive_law import (
     DEFAULT_GAINS,
     PARAMETER_NAMES,
     AdaptiveController,
     ControllerGains,
+)
+from hri_adaptive_controller.arm_law import (
+    PANDA_GAINS,
+    ActiveTask,
+    ArmController,
+    ArmGains,
+    HandState,
 )
 from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import (
@@ -112,6 +120,8 @@ from hri_core.node_common import (
     stamp_seconds,
 )
 from hri_core.potential import TaskShape
+from hri_core.robot_description import urdf_joint_names
+from hri_core.robot_model import ROBOT_NAMES, RobotModel, robot_model
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
 
 PACKAGE = 'hri_adaptive_controller'
@@ -129,6 +139,19 @@ LINK = 'task_states'  # the link weight's one task: TaskStates arriving
 LINK_DOWN = WeightState(0.0, 0.0, 0.0, PHASE_IDLE, None, None)
 
 PARAMETERS = {
+    'robot': ParameterSpec(str, 'the arm: scara (the planar fast path, adaptive_law) or panda '
+                           '(the n-joint law, arm_law); ignored when urdf_file is given',
+                           choices=ROBOT_NAMES, read_only=True),
+    'urdf_file': ParameterSpec(str, 'URDF of an arm for the n-joint law ("": the robot '
+                               'parameter)', read_only=True),
+    'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the robot\'s '
+                                'own; required with urdf_file)', read_only=True),
+    'arm_ks': ParameterSpec(list, 'n-joint law: diagonal of Ks, one per joint (N m s/rad); '
+                            "unset: the robot's defaults (arm_law.PANDA_GAINS)", optional=True),
+    'arm_adaptation_gain': ParameterSpec(
+        list, 'n-joint law: L for each kind of link parameter (m, mcx, mcy, mcz, Ixx, Ixy, '
+        "Iyy, Ixz, Iyz, Izz, damping), every joint alike; unset: the robot's defaults",
+        size=11, optional=True),
     'rate_hz': ParameterSpec(float, 'expected /joint_states rate, which paces control; '
                              'deadlines and the zero-torque rate (Hz)', low=10.0, high=2000.0,
                              read_only=True),
@@ -203,7 +226,8 @@ PARAMETERS = {
 }
 GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
                    'region_margin', 'effort_limit', 'max_effort_rate', 'rest_gain', 'rest_gate',
-                   'joint_limit_band', 'barrier_torque', 'reach_round')
+                   'joint_limit_band', 'barrier_torque', 'reach_round', 'arm_ks',
+                   'arm_adaptation_gain')
 SIM_NODE = 'scara_sim'  # whose joint limits the controller's are checked against
 SIM_LIMITS = ('joint_lower_limits', 'joint_upper_limits')
 SIM_CHECK_PERIOD = 1.0  # s between looks for the sim's parameter service
@@ -224,6 +248,45 @@ def gains_from(values: dict) -> ControllerGains:
                                  values['joint_limit_band'], values['barrier_torque']),
         reach_round=dataclasses.replace(DEFAULT_GAINS.reach_round,
                                         enabled=values['reach_round']))
+
+
+def arm_model_from(values: dict) -> RobotModel | None:
+    """The model of a robot the n-joint law drives (urdf_file, or robot other than the
+    SCARA), or None for the SCARA (its planar fast path). ValueError with the reason."""
+    if values['urdf_file']:
+        return robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
+    if values['robot'] == 'scara':
+        return None
+    return robot_model(values['robot'], tool_frame=values['tool_frame'])
+
+
+def arm_gains_from(values: dict, model: RobotModel) -> ArmGains:
+    """ArmGains for `model` from parameter values: arm_ks and arm_adaptation_gain if set,
+    else PANDA_GAINS' (for a URDF arm: its Ks scaled per joint by the effort limits); the
+    task, speed, rate-limit and barrier parameters shared with the SCARA's. ValueError with
+    the reason if invalid."""
+    ks = values['arm_ks']
+    if ks is None:
+        if len(PANDA_GAINS.ks) == model.dof:
+            ks = PANDA_GAINS.ks
+        else:  # a URDF arm: Ks in proportion to each joint's effort limit (Panda's 40 / 87)
+            ks = tuple(float(v) * 40.0 / 87.0 for v in model.limits.effort)
+    adaptation = values['arm_adaptation_gain']
+    return dataclasses.replace(
+        PANDA_GAINS, ks=tuple(ks), kp=values['kp'],
+        adaptation=PANDA_GAINS.adaptation if adaptation is None else tuple(adaptation),
+        approach_speed=values['approach_speed'], region_margin=values['region_margin'],
+        max_task_speed=values['max_task_speed'], rest_gain=values['rest_gain'],
+        rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
+        limit_band=values['joint_limit_band'], barrier_torque=values['barrier_torque'])
+
+
+def point3_layout(data: bytes):
+    """cdr.point_stamped_layout reading x, y and z."""
+    layout = point_stamped_layout(data)
+    if layout is None:
+        return None
+    return dataclasses.replace(layout, offsets=(*layout.offsets, layout.offsets[-1] + 8))
 
 
 def limits_mismatch(ours, theirs) -> str:
@@ -252,10 +315,19 @@ class Controller(Node):
         self._values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         values = self._values
         try:
-            self._law = AdaptiveController(gains_from(values), values['theta_hat0'],
-                                           values['l1'], values['l2'], values['gravity'])
+            # The SCARA: adaptive_law's planar fast path (step_lean); any other arm: arm_law.
+            model = arm_model_from(values)
+            if model is None:
+                self._arm = None
+                self._law = AdaptiveController(gains_from(values), values['theta_hat0'],
+                                               values['l1'], values['l2'], values['gravity'])
+                self._joint_names = JOINT_NAMES
+            else:
+                self._arm = self._law = ArmController(model, arm_gains_from(values, model))
+                self._joint_names = model.joint_names
         except ValueError as error:
             raise StartupError(f'bad controller parameters: {error}') from None
+        self._dof = len(self._joint_names)
         self._period = 1.0 / values['rate_hz']
         self._late = LATE_FACTOR * self._period
         self._state_period = 1.0 / values['state_rate_hz']
@@ -274,12 +346,12 @@ class Controller(Node):
             max_acceleration=values['target_max_acceleration'],
             filter_time=values['target_filter_time'],
             max_extrapolation=MAX_TARGET_EXTRAPOLATION, timeout=values['target_timeout'],
-            fade_time=values['task_fade_time']))
+            fade_time=values['task_fade_time']), 2 if self._arm is None else 3)
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
         # a(E, t) of the task in force; its payload: (shape or None, k).
         self._weights = TaskWeightHold(values['task_fade_time'], MAX_WEIGHT_EXTRAPOLATION)
-        self._limiter = EffortRateLimiter(values['max_effort_rate'])
+        self._limiter = EffortRateLimiter(values['max_effort_rate'], self._dof)
         # The link to the event_manager as a second weight on a (1 while TaskStates come):
         # None until the first TaskState, which is used at once, as before.
         self._link: EventWeightSchedule | None = None
@@ -305,9 +377,11 @@ class Controller(Node):
         # The 1 kHz messages as raw CDR (hri_core.cdr): joint states read at fixed offsets
         # while their layout holds, commands written from a template.
         self._joint_reader = LayoutReader(lambda data: joint_state_layout(
-            data, JOINT_NAMES, (POSITION, VELOCITY), one_value_per_name=True))
-        self._command_template = float64_array_template(len(JOINT_NAMES))
-        self._target_reader = LayoutReader(point_stamped_layout)
+            data, self._joint_names, (POSITION, VELOCITY), one_value_per_name=True))
+        self._command_template = float64_array_template(self._dof)
+        # The SCARA reads the hand's x, y (its plane); the n-joint law x, y, z.
+        self._target_reader = LayoutReader(point_stamped_layout if self._arm is None
+                                           else point3_layout)
 
         command = topics.VELOCITY_COMMANDS if self._velocity_mode else topics.EFFORT_COMMANDS
         self._command_pub = self.create_publisher(command.type, command.name, command.qos)
@@ -323,21 +397,32 @@ class Controller(Node):
                                  topics.LATEST_SAMPLE_QOS, raw=True)
         self.create_subscription(TaskState, topics.TASK_STATE.name, self._on_task_state,
                                  topics.TASK_STATE.qos)
+        # The arm a simulator or robot_state_publisher describes, checked once it comes.
+        self.create_subscription(String, topics.ROBOT_DESCRIPTION.name,
+                                 self._on_robot_description, topics.ROBOT_DESCRIPTION.qos)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.create_timer(values['joint_state_timeout'] / WATCHDOG_CHECKS, self._watchdog)
         # Zero torque at the control rate while joint states are missing or stale; running
         # from the start, since none has arrived yet.
         self._zero_timer = self.create_timer(self._period, self._zero_cycle)
+        if self._arm is None:
+            gains = (f'ks={values["ks"]} kp={values["kp"]:g} effort_limit='
+                     f'{values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
+        else:
+            arm = self._arm
+            gains = (f'{arm.model.name} ({self._dof} joints, tool {arm.model.tool_frame!r}), '
+                     f'n-joint law: ks={list(arm.gains.ks)} kp={arm.gains.kp:g} effort limits '
+                     f'{arm.effort_limits.tolist()} N m; theta_hat0: the URDF\'s')
         self.get_logger().info(
             f'{values["mode"]} control on each /joint_states (expected at '
-            f'{values["rate_hz"]:g} Hz) on {topic}; ks={values["ks"]} kp={values["kp"]:g} '
-            f'effort_limit={values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
+            f'{values["rate_hz"]:g} Hz) on {topic}; {gains}')
         request_realtime(self, values['realtime_priority'])
         self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])
         # The joint limits are checked against the sim's once its parameter service is up.
-        self._sim_client = AsyncParameterClient(self, SIM_NODE)
-        self._sim_tries = 0
-        self._sim_timer = self.create_timer(SIM_CHECK_PERIOD, self._look_for_sim)
+        if self._arm is None:  # an n-joint arm's limits are its model's (and /robot_description's)
+            self._sim_client = AsyncParameterClient(self, SIM_NODE)
+            self._sim_tries = 0
+            self._sim_timer = self.create_timer(SIM_CHECK_PERIOD, self._look_for_sim)
 
     # -- the sim's joint limits ---------------------------------------------------------------
     def _look_for_sim(self) -> None:
@@ -378,6 +463,21 @@ class Controller(Node):
         self.get_logger().error(f'{problem}: using the range both allow, {list(low)} .. '
                                 f'{list(high)} rad')
 
+    def _on_robot_description(self, msg: String) -> None:
+        """One line when the published arm lacks a joint the controller drives."""
+        try:
+            names = urdf_joint_names(msg.data)
+        except ValueError as error:
+            self.get_logger().warning(f'/robot_description unreadable: {error}')
+            return
+        missing = [name for name in self._joint_names if name not in names]
+        if missing:
+            self.get_logger().warning(
+                f'/robot_description has no joint {", ".join(missing)} of the controller\'s '
+                f'arm ({", ".join(self._joint_names)}): check robot / urdf_file')
+        else:
+            self.get_logger().info('joint names agree with /robot_description')
+
     # -- inputs ----------------------------------------------------------------------------
     def _warn(self, kind: str, text: str) -> None:
         """Log `text`, at most once per WARNING_THROTTLE s for each `kind` of problem."""
@@ -407,7 +507,8 @@ class Controller(Node):
                 self._on_joint_state(msg)
             return
         sec, nanosec = read_stamp(data)
-        self._accept_joint_state(values[0:2], values[2:4], sec + 1e-9 * nanosec)
+        n = self._dof
+        self._accept_joint_state(values[0:n], values[n:], sec + 1e-9 * nanosec)
 
     def _on_joint_state(self, msg: JointState) -> None:
         """A joint state whose layout is not the fast path's: checked field by field."""
@@ -421,20 +522,20 @@ class Controller(Node):
         known, index = self._joint_index
         if names != known:
             try:
-                index = tuple(names.index(joint) for joint in JOINT_NAMES)
+                index = tuple(names.index(joint) for joint in self._joint_names)
             except ValueError:
                 self._warn('joint_state_names',
                            f'joint state dropped: names {list(names)} lack '
-                           f'{", ".join(JOINT_NAMES)}')
+                           f'{", ".join(self._joint_names)}')
                 return
             self._joint_index = (list(names), index)
-        i, j = index
-        self._accept_joint_state((position[i], position[j]), (velocity[i], velocity[j]),
+        self._accept_joint_state(tuple(position[i] for i in index),
+                                 tuple(velocity[i] for i in index),
                                  msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
 
     def _accept_joint_state(self, q: tuple, dq: tuple, stamp: float) -> None:
         """Start a cycle on joint positions q (rad), velocities dq (rad/s), stamp (s)."""
-        if not math.isfinite(q[0] + q[1] + dq[0] + dq[1]):
+        if not math.isfinite(sum(q) + sum(dq)):
             self._warn('joint_state_non_finite',
                        'joint state dropped: non-finite position or velocity')
             return
@@ -465,19 +566,23 @@ class Controller(Node):
         if values is None:
             msg = self._deserialize(data, PointStamped, 'target')
             if msg is not None:
-                self._accept_target(msg.point.x, msg.point.y, stamp_seconds(msg.header.stamp))
+                point = msg.point
+                self._accept_target((point.x, point.y) if self._arm is None
+                                    else (point.x, point.y, point.z),
+                                    stamp_seconds(msg.header.stamp))
             return
         sec, nanosec = read_stamp(data)
-        self._accept_target(values[0], values[1], sec + 1e-9 * nanosec)
+        self._accept_target(values, sec + 1e-9 * nanosec)
 
-    def _accept_target(self, x: float, y: float, stamp: float) -> None:
-        """A hand position x, y (m) stamped `stamp` (s), checked before it is used."""
-        if not (math.isfinite(x) and math.isfinite(y)):
+    def _accept_target(self, position: tuple, stamp: float) -> None:
+        """A hand position (x, y) for the SCARA, (x, y, z) for the n-joint law (m), stamped
+        `stamp` (s), checked before it is used."""
+        if not math.isfinite(sum(position)):
             self._warn('target_non_finite', 'target dropped: non-finite position')
             return
-        if math.hypot(x, y) > self._values['max_target_distance']:
+        if math.hypot(*position) > self._values['max_target_distance']:
             self._warn('target_far',
-                       f'target dropped: {[round(x, 3), round(y, 3)]} is farther than '
+                       f'target dropped: {[round(v, 3) for v in position]} is farther than '
                        f'max_target_distance {self._values["max_target_distance"]:g} m')
             return
         verdict = self._target_gate.offer(stamp)
@@ -488,11 +593,12 @@ class Controller(Node):
             self.get_logger().info('targets restarted behind the last one: following the new '
                                    'source')
             self._hand.reset()
-        if not self._hand.offer(stamp, (x, y)):
-            self._warn('target_glitch', f'target held: a jump to {[round(x, 3), round(y, 3)]} '
-                       f'no hand can make ({self._hand.glitches} held so far)')
+        if not self._hand.offer(stamp, position):
+            self._warn('target_glitch', f'target held: a jump to '
+                       f'{[round(v, 3) for v in position]} no hand can make '
+                       f'({self._hand.glitches} held so far)')
             return
-        self._target = (x, y)  # plain floats: what the per-cycle step computes with
+        self._target = tuple(position)  # plain floats: what the per-cycle step computes with
 
     def _on_task_state(self, msg: TaskState) -> None:
         if not (math.isfinite(msg.weight) and 0.0 <= msg.weight <= 1.0
@@ -537,12 +643,17 @@ class Controller(Node):
             return SetParametersResult(successful=True)
         values = {**self._values, **changed}
         try:
-            gains = gains_from(values)
-            law = AdaptiveController(gains, self._law.theta_hat, values['l1'], values['l2'],
-                                     values['gravity'])
+            if self._arm is None:
+                law = AdaptiveController(gains_from(values), self._law.theta_hat, values['l1'],
+                                         values['l2'], values['gravity'])
+            else:
+                law = ArmController(self._arm.model, arm_gains_from(values, self._arm.model),
+                                    self._arm.theta_hat)
         except (ValueError, TypeError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         self._values, self._law = values, law
+        if self._arm is not None:
+            self._arm = law
         self._limiter.max_rate = values['max_effort_rate']
         self.get_logger().info(f'gains changed: {changed}')
         return SetParametersResult(successful=True)
@@ -580,7 +691,7 @@ class Controller(Node):
         self._cycles += 1
         self._rate_limited = False
         if output is None:
-            command = (0.0, 0.0)
+            command = (0.0,) * self._dof
             self._limiter.reset()  # zero torque at once (safety), the next change from zero
         elif self._velocity_mode:
             command = output.qdot_r
@@ -625,7 +736,10 @@ class Controller(Node):
         self._weight = 0.0  # no task force acts unless the step below runs
         if self._target is None:
             self._status = 'no_target'
-            return None
+            # An arm under gravity is held where it is (no task, no hand motion) rather than
+            # let fall; the SCARA (horizontal) gets zero torque, as before.
+            return None if self._arm is None else self._arm_step(None, 0.0, 0.0, None, dt,
+                                                                  monitor)
         link = self._link_state(now)
         # a of the task in force, held between TaskStates from their stamps to the joint
         # state's (a TaskState delivered late would otherwise step a by its delay times
@@ -646,7 +760,7 @@ class Controller(Node):
                     + task_weight * link.weight * hand.rate)
             if self._rest_key != key:
                 self._rest_key = key
-                if self._fixed_rest is None:
+                if self._fixed_rest is None and self._arm is None:
                     x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
                     self._rest = (float(x[0]), float(x[1]))
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
@@ -658,11 +772,39 @@ class Controller(Node):
         target, target_velocity = self._hand.evaluate(self._joint_stamp)
         k = 0.0 if shape is None else k
         self._cycle_task = (shape, k)
+        if self._arm is not None:
+            return self._arm_step((target, target_velocity), weight, rate,
+                                  None if shape is None else (shape, k), dt, monitor)
         try:
             # V without its task term kp a Q, added once the command is out (_publish_state).
             output = self._law.step_lean(self._q, self._dq, target, target_velocity,
                                          (0.0, 0.0), weight, rate, shape, dt, monitor=monitor,
                                          k=k, rest=self._rest, with_potential=False)
+        except Exception as error:  # noqa: BLE001 a robot command must stay safe
+            self._status = f'fault: {type(error).__name__}'
+            self._warn('internal', f'zero torque: control step failed: {error!r}')
+            return None
+        if output.fault:
+            self._status = f'fault: {output.fault_reason}'
+            self._warn('fault', f'zero torque: {output.fault_reason}')
+            return None
+        return output
+
+    def _arm_step(self, hand, weight: float, rate: float, task, dt: float, monitor: bool):
+        """arm_law's step for the n-joint arm: hand (x_d, xdot_d) tuples of 3 or None (held
+        where the tool is), task (shape, k) or None. The ArmOutput, its lyapunov V without
+        the task term when monitored (the caller adds kp a Q), or None on a fault."""
+        arm = self._arm
+        q, dq = np.array(self._q), np.array(self._dq)
+        try:
+            if hand is None:
+                position, velocity = arm.model.tool_position(q), np.zeros(3)
+            else:
+                position, velocity = np.array(hand[0]), np.array(hand[1])
+            active = None if task is None else ActiveTask(task[0], weight, rate, task[1])
+            output = arm.step(q, dq, HandState(position, velocity, np.zeros(3)), active, dt)
+            if monitor and not output.fault:
+                output = output._replace(lyapunov=arm.lyapunov(output, q, None))
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             self._status = f'fault: {type(error).__name__}'
             self._warn('internal', f'zero torque: control step failed: {error!r}')
@@ -699,7 +841,8 @@ class Controller(Node):
             msg.weight = self._weight
             msg.saturated = bool(output.torque_limited or self._rate_limited)
         elif self._q is not None and self._target is not None:
-            x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
+            x = (forward_kinematics(self._q, self._values['l1'], self._values['l2'])
+                 if self._arm is None else self._arm.model.tool_position(self._q))
             msg.distance = float(np.linalg.norm(x - np.array(self._target)))
         self._state_pub.publish(msg)
 

@@ -150,10 +150,11 @@ class HandHold:
     xdot_d: VelocityEstimator(filter_time); between messages the hand is held to first order
     for at most max_extrapolation s, and the jump a new message makes is blended over its
     message period (the time since the previous one, at most max_extrapolation).
+    dimension: 2 (the planar hand, [x, y]) or 3 ([x, y, z]).
     """
 
-    def __init__(self, filter_time: float, max_extrapolation: float):
-        self._velocity = VelocityEstimator(filter_time)
+    def __init__(self, filter_time: float, max_extrapolation: float, dimension: int = 2):
+        self._velocity = VelocityEstimator(filter_time, dimension)
         self._hold = BlendedHold(max_extrapolation)
         self._max_hold = max_extrapolation
         self._stamp = None
@@ -166,8 +167,8 @@ class HandHold:
 
     def offer(self, position: Sequence[float], stamp: float, blend_time: float = 0.0,
               restart_velocity: bool = False) -> None:
-        """A hand position (2,) m stamped `stamp` s (later than the previous one); its jump is
-        blended over at least `blend_time` s (a far sample: target_filter);
+        """A hand position (dimension,) m stamped `stamp` s (later than the previous one); its
+        jump is blended over at least `blend_time` s (a far sample: target_filter);
         restart_velocity: the velocity estimate starts again from this sample (a re-anchor:
         the difference to the old place is no velocity)."""
         if restart_velocity:

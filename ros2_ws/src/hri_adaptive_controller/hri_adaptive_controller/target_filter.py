@@ -212,13 +212,14 @@ class FilteredHand:
     offer(stamp, position) -> accepted; evaluate(t) -> (x_d, xdot_d) or None before the first
     accepted sample; presence(t) -> WeightState of the hand's presence (weight in [0, 1],
     rate 1/s). Times must not go backwards between presence calls (the controller's joint
-    stamps). glitches, reanchors: the filter's counters.
+    stamps). glitches, reanchors: the filter's counters. dimension: 2 ([x, y]) or 3.
     """
 
-    def __init__(self, settings: TargetFilterSettings = TargetFilterSettings()):
+    def __init__(self, settings: TargetFilterSettings = TargetFilterSettings(),
+                 dimension: int = 2):
         self.settings = settings
         self.filter = TargetFilter(settings)
-        self._hold = HandHold(settings.filter_time, settings.max_extrapolation)
+        self._hold = HandHold(settings.filter_time, settings.max_extrapolation, dimension)
         self._presence = EventWeightSchedule(settings.fade_time, HAND)
         self._last_accepted = -math.inf
         self._clock = -math.inf

@@ -255,6 +255,25 @@ def task_term_3d(dx: np.ndarray, drive: TaskDrive) -> tuple[np.ndarray, np.ndarr
     return slope * e, hessian
 
 
+REACH_SAMPLES = 2000
+"""Joint configurations sampled (seeded, uniform within the limits) for `attained_reach`."""
+
+
+def attained_reach(model: RobotModel, samples: int = REACH_SAMPLES) -> float:
+    """The farthest the tool point gets from the model's shoulder (m) over `samples` seeded
+    random configurations within the joint limits: the reach the task drive works with.
+    model.reach is an upper bound (the chain's lengths added), for the Panda 1.09 m against
+    0.95 m attained; with it, Table I's avoid row (d2 = 2.0 m) would not count as open
+    outward (d2 >= 2 reach, task_variable.open_outward) and the arm would copy the hand."""
+    rng = np.random.default_rng(0)
+    lower = np.where(np.isfinite(model.limits.lower), model.limits.lower, -math.pi)
+    upper = np.where(np.isfinite(model.limits.upper), model.limits.upper, math.pi)
+    farthest = 0.0
+    for q in rng.uniform(lower, upper, (samples, model.dof)):
+        farthest = max(farthest, float(np.linalg.norm(model.tool_position(q) - model.shoulder)))
+    return farthest
+
+
 class ArmController:
     """The adaptive law for the arm `model` (a RobotModel; the SCARA through its URDF).
 
@@ -295,6 +314,7 @@ class ArmController:
         self._max_damping2 = gains.damping.max_damping ** 2
         self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._eye_n = np.eye(n)
+        self.reach = attained_reach(self.model)
         self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
         self._last: tuple = (None, 0.0, None)
         self._potentials: dict[tuple[TaskShape, float], PotentialAlongPath] = {}
@@ -330,7 +350,7 @@ class ArmController:
 
     def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
         """The TaskDrive of `shape` with gain k (cached; task_variable.task_drive with the
-        model's reach), None without a task."""
+        attained reach), None without a task."""
         if shape is None:
             return None
         if shape is self._last[0] and k == self._last[1]:
@@ -341,7 +361,7 @@ class ArmController:
             gains = self._gains
             drive = self._drives[key] = task_drive(
                 shape, k if gains.task_gain is None else gains.task_gain,
-                gains.max_task_speed, self.model.reach, gains.approach_speed,
+                gains.max_task_speed, self.reach, gains.approach_speed,
                 gains.region_margin, gains.rest_gain, gains.rest_gate)
         self._last = (shape, k, drive)
         return drive

@@ -187,3 +187,34 @@ def test_bad_gains_and_models_are_refused(panda):
         ArmController(ScaraModel(), ArmGains(ks=(1.0, 1.0), kp=1.0, adaptation=(0.0,) * 11))
     with pytest.raises(ValueError, match='theta_hat0 must be 77'):
         ArmController(panda, PANDA_GAINS, theta_hat0=np.zeros(3))
+
+
+def test_avoid_backs_away_from_a_hand_reaching_in_along_z(panda):
+    """Table I's avoid row (open outward with the Panda's attained reach, 0.95 m): a hand
+    comes down onto the tool at 0.5 m/s and stops there; within 2 s of its stop the tool is
+    at least d1 - 2 cm away, with every effort step <= 1 N m per 1 ms cycle."""
+    avoid = TaskShape(1, 0.056, 25.46, 0.183, 2.0)
+    controller = ArmController(panda, PANDA_GAINS, theta_hat0=0.7 * panda.theta)
+    assert controller.drive(avoid).open_outward
+    true = true_arm(panda, 7)
+    q, dq = panda.home.copy(), np.zeros(7)
+    start = panda.tool_position(q)
+    speed, height = 0.5, 0.35
+    stop_time = height / speed
+    previous, steps, distances = np.zeros(7), [], []
+    for i in range(round((stop_time + 2.0) / DT)):
+        t = i * DT
+        moving = t < stop_time
+        hand = HandState(start + [0.0, 0.0, max(height - speed * t, 0.0)],
+                         np.array([0.0, 0.0, -speed if moving else 0.0]), np.zeros(3))
+        out = controller.step(q, dq, hand, ActiveTask(avoid, 1.0), DT)
+        assert not out.fault, out.fault_reason
+        assert np.all(np.abs(out.tau) <= panda.limits.effort)
+        if i > 0:
+            steps.append(np.abs(out.tau - previous).max())
+        previous = out.tau
+        distances.append(out.distance)
+        q, dq = rk4_step(true, q, dq, out.tau, DT)
+    assert min(distances) < avoid.d1  # the hand did get in
+    assert distances[-1] >= avoid.d1 - 0.02, distances[-1]
+    assert max(steps) <= 1.0, max(steps)

@@ -70,11 +70,12 @@ from hri_adaptive_controller.task_variable import (
     JointReference,
     PotentialAlongPath,
     TaskDrive,
+    cached_potential,
+    gains_drive,
     joint_velocity_reference,
     rest_term,
     retreat_term,
     speed_cap,
-    task_drive,
     task_potential,
     task_term,
 )
@@ -438,11 +439,8 @@ class AdaptiveController:
         key = (shape, k)
         drive = self._drives.get(key)
         if drive is None:
-            gains = self._gains
-            drive = self._drives[key] = task_drive(
-                shape, k if gains.task_gain is None else gains.task_gain,
-                gains.max_task_speed, self._l1 + self._l2, gains.approach_speed,
-                gains.region_margin, gains.rest_gain, gains.rest_gate)
+            drive = self._drives[key] = gains_drive(self._gains, shape, k,
+                                                    self._l1 + self._l2)
         return drive
 
     def task_energy(self, distance: float, shape: TaskShape | None, k: float = 0.0) -> float:
@@ -455,11 +453,7 @@ class AdaptiveController:
         drive = self.drive(shape, k)
         if drive is None:
             return 0.0
-        key = (shape, k)
-        potential = self._potentials.get(key)
-        if potential is None:
-            potential = self._potentials[key] = PotentialAlongPath(drive)
-        return self._gains.kp * potential(distance)
+        return self._gains.kp * cached_potential(self._potentials, (shape, k), drive)(distance)
 
     def task_gain(self, shape: TaskShape | None, k: float = 0.0) -> float:
         """Task gain K (m^2/s) used for `shape` with gain k (0 for no task)."""

@@ -58,9 +58,10 @@ from hri_adaptive_controller.task_variable import (
     DampingSettings,
     PotentialAlongPath,
     TaskDrive,
+    cached_potential,
+    gains_drive,
     radial_drive,
     speed_cap,
-    task_drive,
     task_potential,
 )
 from hri_core.potential import TaskShape
@@ -358,11 +359,7 @@ class ArmController:
         key = (shape, k)
         drive = self._drives.get(key)
         if drive is None:
-            gains = self._gains
-            drive = self._drives[key] = task_drive(
-                shape, k if gains.task_gain is None else gains.task_gain,
-                gains.max_task_speed, self.reach, gains.approach_speed,
-                gains.region_margin, gains.rest_gain, gains.rest_gate)
+            drive = self._drives[key] = gains_drive(self._gains, shape, k, self.reach)
         self._last = (shape, k, drive)
         return drive
 
@@ -372,11 +369,7 @@ class ArmController:
         drive = self.drive(shape, k)
         if drive is None:
             return 0.0
-        key = (shape, k)
-        potential = self._potentials.get(key)
-        if potential is None:
-            potential = self._potentials[key] = PotentialAlongPath(drive)
-        return self._gains.kp * potential(distance)
+        return self._gains.kp * cached_potential(self._potentials, (shape, k), drive)(distance)
 
     def lyapunov(self, output: ArmOutput, q, task: ActiveTask | None, true_model=None) -> float:
         """V of eq. 21 with the barrier (J): 1/2 s^T M s + Kp a Q + B (+ 1/2 dtheta^T L^-1

@@ -781,9 +781,16 @@ class Controller(Node):
                                          (0.0, 0.0), weight, rate, shape, dt, monitor=monitor,
                                          k=k, rest=self._rest, with_potential=False)
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
-            self._status = f'fault: {type(error).__name__}'
-            self._warn('internal', f'zero torque: control step failed: {error!r}')
-            return None
+            return self._step_failed(error)
+        return self._checked(output)
+
+    def _step_failed(self, error: Exception) -> None:
+        """A control step that raised: zero torque (None) and a throttled warning."""
+        self._status = f'fault: {type(error).__name__}'
+        self._warn('internal', f'zero torque: control step failed: {error!r}')
+
+    def _checked(self, output):
+        """`output`, or None (zero torque, a throttled warning) if the law flagged a fault."""
         if output.fault:
             self._status = f'fault: {output.fault_reason}'
             self._warn('fault', f'zero torque: {output.fault_reason}')
@@ -806,14 +813,8 @@ class Controller(Node):
             if monitor and not output.fault:
                 output = output._replace(lyapunov=arm.lyapunov(output, q, None))
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
-            self._status = f'fault: {type(error).__name__}'
-            self._warn('internal', f'zero torque: control step failed: {error!r}')
-            return None
-        if output.fault:
-            self._status = f'fault: {output.fault_reason}'
-            self._warn('fault', f'zero torque: {output.fault_reason}')
-            return None
-        return output
+            return self._step_failed(error)
+        return self._checked(output)
 
     def _publish_state(self, now: float, output, command, published: int) -> None:
         started, ticks = self._window

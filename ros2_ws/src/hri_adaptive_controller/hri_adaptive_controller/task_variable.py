@@ -287,6 +287,15 @@ def task_drive(shape: TaskShape, k: float, max_task_speed: float, reach: float,
                      outer_floor=floor > 0.0 and not outward)
 
 
+def gains_drive(gains, shape: TaskShape, k: float, reach: float) -> TaskDrive:
+    """task_drive with a controller's task settings: `gains` has task_gain (None: the task's
+    own k), max_task_speed, approach_speed, region_margin, rest_gain and rest_gate
+    (adaptive_law.ControllerGains, arm_law.ArmGains); reach (m) the arm's."""
+    return task_drive(shape, k if gains.task_gain is None else gains.task_gain,
+                      gains.max_task_speed, reach, gains.approach_speed, gains.region_margin,
+                      gains.rest_gain, gains.rest_gate)
+
+
 def _smoothstep(u: float) -> tuple[float, float]:
     """Quintic smoothstep s(u) and ds/du (C2; 0 below u = 0, 1 above u = 1)."""
     if u <= 0.0:
@@ -604,6 +613,15 @@ class PotentialAlongPath:
         drive = self._drive
         return half * sum(weight * radial_drive(centre + half * node, drive)[0]
                           for node, weight in _PIECE_RULE)
+
+
+def cached_potential(cache: dict, key, drive: TaskDrive) -> PotentialAlongPath:
+    """The PotentialAlongPath of `drive`, made once per `key` (the task's shape and k) in
+    `cache`: the controllers' task_energy (adaptive_law, arm_law)."""
+    potential = cache.get(key)
+    if potential is None:
+        potential = cache[key] = PotentialAlongPath(drive)
+    return potential
 
 
 class _ChainTooShortError(Exception):

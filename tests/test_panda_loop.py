@@ -131,7 +131,9 @@ def test_the_panda_follows_a_still_3d_hand_and_holds(nodes, probe):
     print(f'panda follow: in the region {entered:.2f} s after the first state, held '
           f'{times[-1] - entered:.1f} s (farthest {distance[int(np.argmax(inside)):].max():.4f} '
           f'm of {region} m); largest effort step {step:.3f} N m; nearest limit '
-          f'{np.degrees(margin):.1f} deg; {len(sample) / times[-1]:.0f} joint states/s')
+          f'{np.degrees(margin):.1f} deg; {len(sample) / times[-1]:.0f} joint states/s; '
+          f'state->command median {1e3 * np.median([m.input_age for m in reports]):.2f} ms, '
+          f'{reports[-1].deadline_misses} deadline misses')
 
 
 def test_the_panda_backs_away_from_a_hand_reaching_in_along_z(nodes, probe):

@@ -218,3 +218,22 @@ def test_avoid_backs_away_from_a_hand_reaching_in_along_z(panda):
     assert min(distances) < avoid.d1  # the hand did get in
     assert distances[-1] >= avoid.d1 - 0.02, distances[-1]
     assert max(steps) <= 1.0, max(steps)
+
+
+def test_the_node_picks_the_law_by_robot(panda):
+    from hri_adaptive_controller.controller_node import arm_gains_from, arm_model_from
+
+    values = {'robot': 'scara', 'urdf_file': '', 'tool_frame': '', 'arm_ks': None,
+              'arm_adaptation_gain': None, 'kp': 10.0, 'approach_speed': 0.1,
+              'region_margin': 0.02, 'max_task_speed': 0.25, 'rest_gain': 2.0,
+              'rest_gate': 0.03, 'max_effort_rate': 1000.0, 'joint_limit_band': 0.15,
+              'barrier_torque': 3.0}
+    assert arm_model_from(values) is None  # the SCARA keeps adaptive_law's fast path
+    model = arm_model_from({**values, 'robot': 'panda'})
+    assert model.joint_names == panda.joint_names
+    assert arm_gains_from(values, model) == PANDA_GAINS
+    gains = arm_gains_from({**values, 'arm_ks': [5.0] * 6}, model)
+    with pytest.raises(ValueError, match='ks must have 7 values'):
+        ArmController(model, gains)
+    with pytest.raises(ValueError, match='unknown robot'):
+        arm_model_from({**values, 'robot': 'ur5'})

@@ -548,8 +548,8 @@ class Controller(Node):
             self._link.request(LINK, now)
 
     def _on_separation(self, msg: SeparationState) -> None:
-        self._separation_cap.observe(time.monotonic(), msg.separation,
-                                     msg.human_speed_used)
+        self._separation_cap.observe(time.monotonic(), msg.separation, msg.human_speed_used,
+                                     msg.human_speed + msg.robot_speed)
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
         changed = {p.name: p.value for p in parameters if p.name in GAIN_PARAMETERS}

@@ -17,8 +17,14 @@ from the hand and keep their caps. The arm itself runs up to 1.25 times its refe
 Kp term; adaptive_law.DEFAULT_GAINS), which T_r's margin has to cover. The paper has no
 such limit; this is the "monitor that acts".
 
+The separation is taken LOOKAHEAD s ahead at the measured closing speed (s - LOOKAHEAD
+max(v_closing, 0)): between a separation and the arm's response to it lie the detector's
+filter and tick (20 + 20 ms) and the arm's own lag behind its reference (tens of ms); without
+the look-ahead the arm, pulled at 0.31 m/s, ran up to 0.15 m/s above the limit for 80 ms
+once inside the band where the limit acts (tests/test_separation_cap.py).
+
 The knee follows its target at a bounded rate (DROP_RATE down, RISE_RATE up), so the
-torque changes by at most Kp |J| (1 + CAP_BAND) DROP_RATE dt (0.04 N m per 1 ms cycle with
+torque changes by at most Kp |J| (1 + CAP_BAND) DROP_RATE dt (0.08 N m per 1 ms cycle with
 the defaults) instead of stepping. A /hri/separation older than STALE_AFTER (or none yet)
 counts as a separation that allows no approach: the target is 0 (fail safe: the arm still
 follows the hand's own motion, moves away from it and fades as before, but no task pulls it
@@ -31,10 +37,12 @@ from dataclasses import dataclass
 from hri_adaptive_controller.task_variable import CAP_BAND
 from hri_core.separation import ProtectiveSeparation
 
-DROP_RATE = 5.0
-"""m/s^2: how fast the knee falls (0.25 m/s to 0 in 50 ms, half the reaction time T_r)."""
+DROP_RATE = 10.0
+"""m/s^2: how fast the knee falls (0.25 m/s to 0 in 25 ms, a quarter of T_r)."""
 RISE_RATE = 0.5
 """m/s^2: how fast it rises again (0 to 0.25 m/s in 0.5 s)."""
+LOOKAHEAD = 0.1
+"""s: how far ahead the separation is taken at the closing speed (module docstring)."""
 STALE_AFTER = 0.5
 """s without a /hri/separation (published at 50 Hz) after which the target knee is 0."""
 
@@ -72,9 +80,12 @@ class SeparationCap:
     value: float = 0.0
     updated: float | None = None
 
-    def observe(self, now: float, separation: float, human_speed_used: float) -> None:
-        """A /hri/separation received at `now` (s): separation (m), human_speed_used (m/s)."""
-        self.target = pull_speed_knee(separation, human_speed_used, self.settings,
+    def observe(self, now: float, separation: float, human_speed_used: float,
+                closing_speed: float) -> None:
+        """A /hri/separation received at `now` (s): separation (m), human_speed_used (m/s)
+        and the measured closing speed (m/s, hand and tool towards each other)."""
+        ahead = separation - LOOKAHEAD * max(closing_speed, 0.0)  # NaN stays NaN: knee 0
+        self.target = pull_speed_knee(ahead, human_speed_used, self.settings,
                                       self.max_task_speed)
         self.heard = now
 

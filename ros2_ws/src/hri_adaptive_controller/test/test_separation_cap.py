@@ -10,6 +10,7 @@ import pytest
 from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS, AdaptiveController
 from hri_adaptive_controller.separation_cap import (
     DROP_RATE,
+    LOOKAHEAD,
     RISE_RATE,
     STALE_AFTER,
     SeparationCap,
@@ -55,7 +56,7 @@ def test_bad_input_gives_the_safe_knee(separation, speed):
 def test_cap_starts_at_zero_and_moves_at_its_rates():
     cap = SeparationCap(SETTINGS, V_MAX)
     assert cap.knee(0.0) == 0.0  # nothing heard: no approach
-    cap.observe(0.0, 5.0, 0.0)
+    cap.observe(0.0, 5.0, 0.0, 0.0)
     assert cap.knee(0.1) == pytest.approx(RISE_RATE * 0.1)
     assert cap.knee(10.0 * STALE_AFTER) == 0.0  # stale: falls to 0 (at DROP_RATE)
 
@@ -63,7 +64,7 @@ def test_cap_starts_at_zero_and_moves_at_its_rates():
         knees = []
         for t in times:  # /hri/separation at 50 Hz, control at 1 kHz
             if round(t * 1000) % 20 == 0:
-                cap.observe(t, separation, 0.0)
+                cap.observe(t, separation, 0.0, 0.0)
             knees.append(cap.knee(t))
         return np.array(knees)
 
@@ -77,9 +78,22 @@ def test_cap_starts_at_zero_and_moves_at_its_rates():
     assert np.all(knees >= 0.0)
 
 
+def test_cap_looks_ahead_at_the_closing_speed():
+    cap = SeparationCap(SETTINGS, V_MAX)
+    still = SETTINGS.distance(0.0, 0.0)
+    cap.observe(0.0, still + 0.01, 0.0, 0.0)
+    assert cap.target == pytest.approx(pull_speed_knee(still + 0.01, 0.0, SETTINGS, V_MAX))
+    cap.observe(0.0, still + 0.01, 0.0, 0.1 / LOOKAHEAD)  # 0.1 m/s x LOOKAHEAD closer
+    assert cap.target == 0.0
+    cap.observe(0.0, still + 0.01, 0.0, -1.0)  # moving apart: no credit
+    assert cap.target == pytest.approx(pull_speed_knee(still + 0.01, 0.0, SETTINGS, V_MAX))
+    cap.observe(0.0, math.nan, 0.0, 0.0)
+    assert cap.target == 0.0
+
+
 def test_cap_goes_stale_after_its_timeout():
     cap = SeparationCap(SETTINGS, V_MAX)
-    cap.observe(0.0, 5.0, 0.0)
+    cap.observe(0.0, 5.0, 0.0, 0.0)
     assert not cap.stale(STALE_AFTER * 0.9)
     assert cap.stale(STALE_AFTER * 1.1)
 

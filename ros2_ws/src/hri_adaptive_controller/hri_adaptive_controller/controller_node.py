@@ -564,6 +564,8 @@ class Controller(Node):
             return SetParametersResult(successful=False, reason=str(error))
         self._values, self._law = values, law
         self._limiter.max_rate = values['max_effort_rate']
+        if self._separation_cap is not None:
+            self._separation_cap.max_task_speed = values['max_task_speed']
         self.get_logger().info(f'gains changed: {changed}')
         return SetParametersResult(successful=True)
 

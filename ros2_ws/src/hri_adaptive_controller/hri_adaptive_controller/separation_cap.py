@@ -24,8 +24,10 @@ the look-ahead the arm, pulled at 0.31 m/s, ran up to 0.15 m/s above the limit f
 once inside the band where the limit acts (tests/test_separation_cap.py).
 
 The knee follows its target at a bounded rate (DROP_RATE down, RISE_RATE up), so the
-torque changes by at most Kp |J| (1 + CAP_BAND) DROP_RATE dt (0.08 N m per 1 ms cycle with
-the defaults) instead of stepping. A /hri/separation older than STALE_AFTER (or none yet)
+torque changes gradually: a knee falling from 0.25 m/s to 0 under follow's full pull changed
+it by at most 0.31 N m per 1 ms step (mostly Ks through qdot_r), against 7.7 N m at once for
+the same fall in one step (test_separation_cap), and the continuity bar of 1 N m per cycle.
+qddot_r leaves the knee's rate out. A /hri/separation older than STALE_AFTER (or none yet)
 counts as a separation that allows no approach: the target is 0 (fail safe: the arm still
 follows the hand's own motion, moves away from it and fades as before, but no task pulls it
 towards the hand). No ROS import.

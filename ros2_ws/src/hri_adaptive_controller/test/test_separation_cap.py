@@ -127,3 +127,31 @@ def test_controller_applies_the_pull_limit_and_refuses_a_bad_one():
     for bad in (-0.1, math.nan):
         with pytest.raises(ValueError, match='pull speed limit must be >= 0'):
             law.limit_pull_speed(bad)
+
+
+def test_a_falling_knee_changes_the_torque_gradually():
+    """The knee falling at DROP_RATE from max_task_speed to 0 under a follow task that pulls
+    at full speed keeps the torque's change per 1 ms step below the continuity bar
+    (max_effort_rate dt = 1 N m), which the same fall in one step breaks."""
+    law = AdaptiveController(DEFAULT_GAINS, [0.66, 0.19, 0.13, 1.0, 0.5, 1.75, 0.54])
+    cap = SeparationCap(SETTINGS, V_MAX)
+    dt = 1e-3
+    for step in range(600):  # the knee rises to max_task_speed (0.5 s at RISE_RATE)
+        cap.observe(step * dt, 5.0, 0.0, 0.0)
+        cap.knee(step * dt)
+    assert cap.value == V_MAX
+    q, dq, hand = (0.3, 1.2), (0.0, 0.0), (0.1, 0.3)
+    torques, knees = [], []
+    for step in range(600, 700):
+        cap.observe(step * dt, SETTINGS.distance(0.0, 0.0), 0.0, 0.0)  # no room: target 0
+        knees.append(cap.knee(step * dt))
+        law.limit_pull_speed(knees[-1])
+        out = law.step_lean(q, dq, hand, (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, dt)
+        torques.append(out.tau)
+    assert knees[-1] == 0.0
+    steps = np.max(np.abs(np.diff(np.array(torques), axis=0)))
+    bar = DEFAULT_GAINS.max_effort_rate * dt
+    law.limit_pull_speed(math.inf)
+    full = law.step_lean(q, dq, hand, (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, dt).tau
+    jump = np.max(np.abs(np.array(full) - np.array(torques[-1])))
+    assert 0.0 < steps < 0.5 * bar < bar < jump, (steps, jump)

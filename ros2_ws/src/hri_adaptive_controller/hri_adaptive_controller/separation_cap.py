@@ -25,7 +25,7 @@ once inside the band where the limit acts (tests/test_separation_cap.py).
 
 The knee follows its target at a bounded rate (DROP_RATE down, RISE_RATE up), so the
 torque changes gradually: a knee falling from 0.25 m/s to 0 under follow's full pull changed
-it by at most 0.31 N m per 1 ms step (mostly Ks through qdot_r), against 7.7 N m at once for
+it by at most 0.31 N m per 1 ms step (through qdot_r and the task term), against 7.7 N m for
 the same fall in one step (test_separation_cap), and the continuity bar of 1 N m per cycle.
 qddot_r leaves the knee's rate out. A /hri/separation older than STALE_AFTER (or none yet)
 counts as a separation that allows no approach: the target is 0 (fail safe: the arm still

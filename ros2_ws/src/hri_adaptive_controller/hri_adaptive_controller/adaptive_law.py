@@ -390,6 +390,8 @@ class AdaptiveController:
         self._adaptation = np.asarray(gains.adaptation, dtype=float)
         self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
         self._potentials: dict[tuple[TaskShape, float], PotentialAlongPath] = {}
+        self._pull_limit = math.inf  # limit_pull_speed
+        self._limited_drive: tuple[TaskDrive, float, TaskDrive] | None = None
         # The lean step's constants as Python floats.
         self._ks_floats = tuple(self._ks.tolist())
         self._adaptation_floats = tuple(self._adaptation.tolist())
@@ -444,6 +446,29 @@ class AdaptiveController:
                 gains.max_task_speed, self._l1 + self._l2, gains.approach_speed,
                 gains.region_margin, gains.rest_gain, gains.rest_gate)
         return drive
+
+    def limit_pull_speed(self, limit: float) -> None:
+        """From the next step on, cap the task's speed towards the hand and the return to rest
+        at `limit` m/s (the cap's knee, task_variable.TaskDrive.pull_limit; inf: none, 0: no
+        such speed at all), below max_task_speed. Speeds away from the hand (an avoid task's
+        push out of d1 and its retreat) and the hand's velocity fed forward keep their caps.
+        The caller changes it gradually: qddot_r leaves out its rate of change. task_energy
+        (the node's V) stays that of the unlimited task."""
+        if not (limit >= 0.0):  # also NaN
+            raise ValueError(f'pull speed limit must be >= 0 m/s, got {limit}')
+        self._pull_limit = float(limit)
+
+    def _control_drive(self, shape: TaskShape | None, k: float) -> TaskDrive | None:
+        """drive(shape, k) with the pull limit of limit_pull_speed (the last one kept)."""
+        drive = self.drive(shape, k)
+        limit = self._pull_limit
+        if drive is None or limit >= drive.max_task_speed:
+            return drive
+        last = self._limited_drive
+        if last is None or last[0] is not drive or last[1] != limit:
+            last = self._limited_drive = (drive, limit,
+                                          dataclasses.replace(drive, pull_limit=limit))
+        return last[2]
 
     def task_energy(self, distance: float, shape: TaskShape | None, k: float = 0.0) -> float:
         """kp Q(distance) (J per unit of a): the task's part of V (eq. 21) that
@@ -567,7 +592,7 @@ class AdaptiveController:
         if not (math.isfinite(a) and 0.0 <= a <= 1.0):
             raise ValueError(f'a(E, t) must be in [0, 1], got {a}')
         theta_hat = np.array(self._theta)
-        shaped = self.drive(shape, k)
+        shaped = self._control_drive(shape, k)
         k = 0.0 if shaped is None else shaped.task_gain
         measurements = [np.asarray(v, dtype=float) for v in (q, dq, x_d, xdot_d, xddot_d)]
         if any(m.shape != (2,) for m in measurements):
@@ -686,7 +711,7 @@ class AdaptiveController:
         a11, a22 = g11 + lam2, g22 + lam2
         det = a11 * a22 - g12 * g12
         theta = self._theta
-        drive = None if shape is None else self.drive(shape, k)
+        drive = None if shape is None else self._control_drive(shape, k)
         k = 0.0 if drive is None else drive.task_gain
         if abs(det) <= 1e-300:
             return self._lean_fault(theta, k, 'singular Jacobian and no damping '

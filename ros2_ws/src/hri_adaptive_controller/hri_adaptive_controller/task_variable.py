@@ -166,7 +166,10 @@ class TaskDrive:
     0 = none); margin (m): how far inside the region the approach term reaches (0 when the
     task has no approach term); open_outward: an avoid task (no xdot_d feed-forward, return to
     the rest position); rest_gain k_rest (1/s); rest_gate (m): width of the rest term's gate;
-    outer_floor: whether the approach term acts outside d2. Build it with `task_drive`.
+    outer_floor: whether the approach term acts outside d2; pull_limit (m/s, >= 0): the
+    cap's knee for a task speed towards the hand (Q' > 0) and for the return to rest, when
+    below max_task_speed (the controller's separation_speed_limit; a speed away from the hand
+    keeps max_task_speed). Build it with `task_drive`.
     """
 
     shape: TaskShape
@@ -178,6 +181,7 @@ class TaskDrive:
     rest_gain: float = 0.0
     rest_gate: float = 0.01
     outer_floor: bool = False
+    pull_limit: float = math.inf
 
     @property
     def task_gain(self) -> float:
@@ -303,6 +307,8 @@ def speed_cap(speed: float, v_max: float) -> tuple[float, float]:
     magnitude = abs(speed)
     if magnitude <= v_max:
         return speed, 1.0
+    if v_max <= 0.0:  # a zero cap (separation_speed_limit): no speed at all
+        return 0.0, 0.0
     band = CAP_BAND * v_max
     x = (magnitude - v_max) / band
     capped = v_max + band * math.tanh(x)
@@ -368,7 +374,9 @@ def radial_drive(r: float, drive: TaskDrive) -> tuple[float, float]:
         raw_rate = pull_rate + floor_rate * (1.0 - s) - floor * ds * (du if ds else 0.0)
     else:
         raw, raw_rate = pull, pull_rate
-    value, slope = speed_cap(raw, drive.max_task_speed)
+    # Q' > 0 moves the arm towards the hand: capped at the pull limit (if lower).
+    knee = drive.max_task_speed if raw <= 0.0 else min(drive.max_task_speed, drive.pull_limit)
+    value, slope = speed_cap(raw, knee)
     rate = slope * raw_rate if slope else 0.0
     return value, min(max(rate, -MAX_TASK_HESSIAN), MAX_TASK_HESSIAN)
 
@@ -434,7 +442,8 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, k, 0.0, k
         return (0.0,) * 9
     n1, n2 = y1 / rho, y2 / rho
-    speed, slope = speed_cap(drive.rest_gain * rho, drive.max_task_speed)
+    speed, slope = speed_cap(drive.rest_gain * rho,
+                             min(drive.max_task_speed, drive.pull_limit))
     c1, c2 = -speed * n1, -speed * n2
     radial, tangential = -slope * drive.rest_gain, -speed / rho
     b11 = w * (radial * n1 * n1 + tangential * (1.0 - n1 * n1))

@@ -40,7 +40,7 @@ from hri_bringup.processes import (  # noqa: E402
 )
 from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
-from hri_core.separation import ProtectiveSeparation  # noqa: E402
+from hri_core.separation import ProtectiveSeparation, separation_verdict  # noqa: E402
 from hri_core.task_file import load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from hri_demo_learning.figures import plot_task_fit  # noqa: E402
@@ -592,19 +592,9 @@ class Demo:
         constants = load_defaults('hri_adaptive_controller', 'event_detector')
         settings = ProtectiveSeparation.from_mapping(constants)
         speed = load_defaults('hri_adaptive_controller', 'controller')['max_task_speed']
-        verdicts = {}
-        for name, learned in self.metrics['learning'].items():
-            d1 = learned['d1']
-            if d1 <= 0.0:
-                continue
-            iso = settings.iso_human_speed(d1)
-            verdicts[name] = {
-                'd1_m': d1, 'arm_speed_m_s': speed,
-                'protective_distance_m': settings.distance(iso, speed),
-                'protective_distance_still_hand_m': settings.distance(0.0, speed),
-                'arm_speed_limit_m_s': settings.arm_speed_limit(d1),
-                'arm_speed_limit_still_hand_m_s': settings.arm_speed_limit(d1, 0.0),
-            }
+        verdicts = {name: separation_verdict(learned['d1'], speed, settings).metrics()
+                    for name, learned in self.metrics['learning'].items()
+                    if learned['d1'] > 0.0}
         self.metrics['separation_verdicts'] = verdicts
 
         def limit(value):

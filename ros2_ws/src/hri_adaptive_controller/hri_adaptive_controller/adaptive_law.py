@@ -68,10 +68,7 @@ from hri_adaptive_controller.joint_limits import (
 from hri_adaptive_controller.task_variable import (
     DampingSettings,
     JointReference,
-    PotentialAlongPath,
-    TaskDrive,
-    cached_potential,
-    gains_drive,
+    TaskDrives,
     joint_velocity_reference,
     rest_term,
     retreat_term,
@@ -367,7 +364,7 @@ def predicted_lyapunov_rate(s, weighted_task_variable, weight_rate: float,
                  + kp * weight_rate * task_potential_value + kp * (task @ offset))
 
 
-class AdaptiveController:
+class AdaptiveController(TaskDrives):
     """The adaptive controller of eq. 16-19 with its parameter estimate theta_hat.
 
     gains: ControllerGains; theta_hat0 (7,): initial estimate (projected onto the gains' box);
@@ -383,14 +380,12 @@ class AdaptiveController:
                 raise ValueError(f'{name} must be finite and > 0 m, got {value}')
         if not math.isfinite(gravity):
             raise ValueError(f'gravity must be finite, got {gravity}')
-        self._gains = gains
+        super().__init__(gains, float(l1) + float(l2))
         self._l1, self._l2, self._gravity = float(l1), float(l2), float(gravity)
         self._lower = np.asarray(gains.theta_lower, dtype=float)
         self._upper = np.asarray(gains.theta_upper, dtype=float)
         self._ks = np.asarray(gains.ks, dtype=float)
         self._adaptation = np.asarray(gains.adaptation, dtype=float)
-        self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
-        self._potentials: dict[tuple[TaskShape, float], PotentialAlongPath] = {}
         # The lean step's constants as Python floats.
         self._ks_floats = tuple(self._ks.tolist())
         self._adaptation_floats = tuple(self._adaptation.tolist())
@@ -429,36 +424,6 @@ class AdaptiveController:
     def reaching_round(self) -> bool:
         """Whether the reach-round blend is heading to (or at) the joint-space motion."""
         return self._reach is not None and self._reach.engaged
-
-    def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
-        """The TaskDrive (eq. 12') of the task `shape` with gain k (m^2/s; 0 = not given), or
-        None without a task (cached). Raises ValueError for a k < 0 or a potential with no
-        slope to take a default gain from."""
-        if shape is None:
-            return None
-        key = (shape, k)
-        drive = self._drives.get(key)
-        if drive is None:
-            drive = self._drives[key] = gains_drive(self._gains, shape, k,
-                                                    self._l1 + self._l2)
-        return drive
-
-    def task_energy(self, distance: float, shape: TaskShape | None, k: float = 0.0) -> float:
-        """kp Q(distance) (J per unit of a): the task's part of V (eq. 21) that
-        `step_lean(..., with_potential=False)` leaves out, for a caller that adds a kp Q once
-        the cycle's command is out. Q along the controller's path of distances
-        (task_variable.PotentialAlongPath, one per task: 0.05-0.1 ms a call, against
-        0.25-0.4 ms for task_potential, which it agrees with to the latter's accuracy).
-        distance m, finite and >= 0; 0 without a task."""
-        drive = self.drive(shape, k)
-        if drive is None:
-            return 0.0
-        return self._gains.kp * cached_potential(self._potentials, (shape, k), drive)(distance)
-
-    def task_gain(self, shape: TaskShape | None, k: float = 0.0) -> float:
-        """Task gain K (m^2/s) used for `shape` with gain k (0 for no task)."""
-        drive = self.drive(shape, k)
-        return 0.0 if drive is None else drive.task_gain
 
     def _smooth_hand_velocity(self, xdot_d, dt: float):
         """The hand's velocity through a critically damped second-order filter (HAND_RATE),
@@ -561,7 +526,7 @@ class AdaptiveController:
         if not (math.isfinite(a) and 0.0 <= a <= 1.0):
             raise ValueError(f'a(E, t) must be in [0, 1], got {a}')
         theta_hat = np.array(self._theta)
-        shaped = self.drive(shape, k)
+        shaped = self._control_drive(shape, k)
         k = 0.0 if shaped is None else shaped.task_gain
         measurements = [np.asarray(v, dtype=float) for v in (q, dq, x_d, xdot_d, xddot_d)]
         if any(m.shape != (2,) for m in measurements):
@@ -680,7 +645,7 @@ class AdaptiveController:
         a11, a22 = g11 + lam2, g22 + lam2
         det = a11 * a22 - g12 * g12
         theta = self._theta
-        drive = None if shape is None else self.drive(shape, k)
+        drive = None if shape is None else self._control_drive(shape, k)
         k = 0.0 if drive is None else drive.task_gain
         if abs(det) <= 1e-300:
             return self._lean_fault(theta, k, 'singular Jacobian and no damping '

@@ -56,10 +56,8 @@ from hri_adaptive_controller.joint_limits import FEED_SPEED
 from hri_adaptive_controller.task_variable import (
     MAX_TASK_HESSIAN,
     DampingSettings,
-    PotentialAlongPath,
     TaskDrive,
-    cached_potential,
-    gains_drive,
+    TaskDrives,
     radial_drive,
     speed_cap,
     task_potential,
@@ -275,7 +273,7 @@ def attained_reach(model: RobotModel, samples: int = REACH_SAMPLES) -> float:
     return farthest
 
 
-class ArmController:
+class ArmController(TaskDrives):
     """The adaptive law for the arm `model` (a RobotModel; the SCARA through its URDF).
 
     gains: ArmGains (len(ks) = model.dof); theta_hat0 (p,): the initial estimate (default: the
@@ -290,7 +288,7 @@ class ArmController:
                              '(the planar SCARA runs adaptive_law)')
         if len(gains.ks) != n:
             raise ValueError(f'ks must have {n} values for {self.model.name}, got {gains.ks}')
-        self._gains = gains
+        super().__init__(gains, attained_reach(self.model))
         import pinocchio as pin  # the model already imported it
 
         self._pin = pin
@@ -315,10 +313,7 @@ class ArmController:
         self._max_damping2 = gains.damping.max_damping ** 2
         self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._eye_n = np.eye(n)
-        self.reach = attained_reach(self.model)
-        self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
         self._last: tuple = (None, 0.0, None)
-        self._potentials: dict[tuple[TaskShape, float], PotentialAlongPath] = {}
         self.reset(self.model.theta if theta_hat0 is None else theta_hat0)
 
     @property
@@ -349,27 +344,20 @@ class ArmController:
                              f'got shape {theta.shape}')
         self._theta = np.clip(theta, self.model.theta_lower, self.model.theta_upper)
 
-    def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
-        """The TaskDrive of `shape` with gain k (cached; task_variable.task_drive with the
-        attained reach), None without a task."""
-        if shape is None:
-            return None
-        if shape is self._last[0] and k == self._last[1]:
-            return self._last[2]  # the same task as the last cycle (hashing costs 5 us)
-        key = (shape, k)
-        drive = self._drives.get(key)
-        if drive is None:
-            drive = self._drives[key] = gains_drive(self._gains, shape, k, self.reach)
-        self._last = (shape, k, drive)
-        return drive
+    @property
+    def reach(self) -> float:
+        """The attained reach (m) the task drives work with (attained_reach)."""
+        return self._task_reach
 
-    def task_energy(self, distance: float, shape: TaskShape | None, k: float = 0.0) -> float:
-        """Kp Q(distance) (J per unit of a; adaptive_law.AdaptiveController.task_energy),
-        the task's part of V; 0 without a task."""
-        drive = self.drive(shape, k)
-        if drive is None:
-            return 0.0
-        return self._gains.kp * cached_potential(self._potentials, (shape, k), drive)(distance)
+    def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
+        """TaskDrives.drive with the attained reach, the last task's drive kept at hand (the
+        cache's hashing of a TaskShape costs 5 us a cycle)."""
+        if shape is not None and shape is self._last[0] and k == self._last[1]:
+            return self._last[2]
+        drive = super().drive(shape, k)
+        if drive is not None:
+            self._last = (shape, k, drive)
+        return drive
 
     def lyapunov(self, output: ArmOutput, q, task: ActiveTask | None, true_model=None) -> float:
         """V of eq. 21 with the barrier (J): 1/2 s^T M s + Kp a Q + B (+ 1/2 dtheta^T L^-1
@@ -472,7 +460,7 @@ class ArmController:
         theta = self._theta
         q = np.asarray(q, dtype=float)
         dq = np.asarray(dq, dtype=float)
-        drive = None if task is None else self.drive(task.shape, task.k)
+        drive = None if task is None else self._control_drive(task.shape, task.k)
         k = 0.0 if drive is None else drive.task_gain
         try:
             with np.errstate(all='ignore'):

@@ -51,7 +51,10 @@ Safety (the choices are argued in docs/design.md):
   again when the hand returns;
 - the task's K comes with its TaskState (0: hri_core.potential.default_task_gain); an avoid
   task returns the arm to `rest_position`, by default where the arm was when the task became
-  active (task_variable's module docstring).
+  active (task_variable's module docstring);
+- with `separation_speed_limit` on, the task's speed towards the hand is capped from each
+  /hri/separation so that ISO/TS 15066's S_p stays within the separation, rate-limited, 0
+  while /hri/separation is stale (separation_cap; S_p's constants: the event_detector's).
 """
 
 import dataclasses
@@ -61,7 +64,7 @@ import time
 
 import numpy as np
 from geometry_msgs.msg import PointStamped
-from hri_interfaces.msg import ControllerState, TaskState
+from hri_interfaces.msg import ControllerState, SeparationState, TaskState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -94,6 +97,7 @@ from hri_adaptive_controller.event_weight import (
     WeightState,
 )
 from hri_adaptive_controller.joint_limits import JointLimits
+from hri_adaptive_controller.separation_cap import SeparationCap
 from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_core import topics
@@ -122,6 +126,7 @@ from hri_core.node_common import (
 from hri_core.potential import TaskShape
 from hri_core.robot_description import urdf_joint_names
 from hri_core.robot_model import ROBOT_NAMES, RobotModel, robot_model
+from hri_core.separation import ProtectiveSeparation
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
 
 PACKAGE = 'hri_adaptive_controller'
@@ -209,6 +214,10 @@ PARAMETERS = {
                                       'near a joint limit (rad)', low=0.01, high=1.0),
     'barrier_torque': ParameterSpec(float, "the barrier's torque at a joint limit (N m; above "
                                     "the task's largest)", low=0.0, high=100.0),
+    'separation_speed_limit': ParameterSpec(
+        bool, "cap the task's speed towards the hand from /hri/separation so that ISO/TS "
+        "15066's S_p stays within the separation (separation_cap; no approach while "
+        '/hri/separation is stale)', read_only=True),
     'reach_round': ParameterSpec(bool, 'blend in a joint-space motion where the straight '
                                  'task-space descent is blocked or the hand out of reach'),
     'target_max_speed': ParameterSpec(float, 'a /target implying a faster hand is held as a '
@@ -400,6 +409,13 @@ class Controller(Node):
         # The arm a simulator or robot_state_publisher describes, checked once it comes.
         self.create_subscription(String, topics.ROBOT_DESCRIPTION.name,
                                  self._on_robot_description, topics.ROBOT_DESCRIPTION.qos)
+        # ISO/TS 15066 speed cap (separation_cap), with S_p's constants from the detector's YAML.
+        self._separation_cap = None
+        if values['separation_speed_limit']:
+            self._separation_cap = SeparationCap(ProtectiveSeparation.from_mapping(
+                load_defaults(PACKAGE, 'event_detector')), values['max_task_speed'])
+            self.create_subscription(SeparationState, topics.SEPARATION.name,
+                                     self._on_separation, topics.SEPARATION.qos)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.create_timer(values['joint_state_timeout'] / WATCHDOG_CHECKS, self._watchdog)
         # Zero torque at the control rate while joint states are missing or stale; running
@@ -637,6 +653,10 @@ class Controller(Node):
             self.get_logger().info('task states resumed: fading the task in')
             self._link.request(LINK, now)
 
+    def _on_separation(self, msg: SeparationState) -> None:
+        self._separation_cap.observe(time.monotonic(), msg.separation, msg.human_speed_used,
+                                     msg.human_speed + msg.robot_speed)
+
     def _validate_parameters(self, parameters) -> SetParametersResult:
         changed = {p.name: p.value for p in parameters if p.name in GAIN_PARAMETERS}
         if not changed:
@@ -655,6 +675,8 @@ class Controller(Node):
         if self._arm is not None:
             self._arm = law
         self._limiter.max_rate = values['max_effort_rate']
+        if self._separation_cap is not None:
+            self._separation_cap.max_task_speed = values['max_task_speed']
         self.get_logger().info(f'gains changed: {changed}')
         return SetParametersResult(successful=True)
 
@@ -772,6 +794,8 @@ class Controller(Node):
         target, target_velocity = self._hand.evaluate(self._joint_stamp)
         k = 0.0 if shape is None else k
         self._cycle_task = (shape, k)
+        if self._separation_cap is not None:
+            self._law.limit_pull_speed(self._separation_cap.knee(now))
         if self._arm is not None:
             return self._arm_step((target, target_velocity), weight, rate,
                                   None if shape is None else (shape, k), dt, monitor)

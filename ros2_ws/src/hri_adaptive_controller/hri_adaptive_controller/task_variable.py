@@ -70,6 +70,7 @@ speed by |v_r| / (2 lambda_max). dJ+/dt is differentiated analytically, includin
 d(lambda^2)/dt, from J and Jdot = hri_core.dynamics.jacobian_derivative.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -166,7 +167,10 @@ class TaskDrive:
     0 = none); margin (m): how far inside the region the approach term reaches (0 when the
     task has no approach term); open_outward: an avoid task (no xdot_d feed-forward, return to
     the rest position); rest_gain k_rest (1/s); rest_gate (m): width of the rest term's gate;
-    outer_floor: whether the approach term acts outside d2. Build it with `task_drive`.
+    outer_floor: whether the approach term acts outside d2; pull_limit (m/s, >= 0): the
+    cap's knee for a task speed towards the hand (Q' > 0) and for the return to rest, when
+    below max_task_speed (the controller's separation_speed_limit; a speed away from the hand
+    keeps max_task_speed). Build it with `task_drive`.
     """
 
     shape: TaskShape
@@ -178,6 +182,7 @@ class TaskDrive:
     rest_gain: float = 0.0
     rest_gate: float = 0.01
     outer_floor: bool = False
+    pull_limit: float = math.inf
 
     @property
     def task_gain(self) -> float:
@@ -312,6 +317,8 @@ def speed_cap(speed: float, v_max: float) -> tuple[float, float]:
     magnitude = abs(speed)
     if magnitude <= v_max:
         return speed, 1.0
+    if v_max <= 0.0:  # a zero cap (separation_speed_limit): no speed at all
+        return 0.0, 0.0
     band = CAP_BAND * v_max
     x = (magnitude - v_max) / band
     capped = v_max + band * math.tanh(x)
@@ -377,7 +384,9 @@ def radial_drive(r: float, drive: TaskDrive) -> tuple[float, float]:
         raw_rate = pull_rate + floor_rate * (1.0 - s) - floor * ds * (du if ds else 0.0)
     else:
         raw, raw_rate = pull, pull_rate
-    value, slope = speed_cap(raw, drive.max_task_speed)
+    # Q' > 0 moves the arm towards the hand: capped at the pull limit (if lower).
+    knee = drive.max_task_speed if raw <= 0.0 else min(drive.max_task_speed, drive.pull_limit)
+    value, slope = speed_cap(raw, knee)
     rate = slope * raw_rate if slope else 0.0
     return value, min(max(rate, -MAX_TASK_HESSIAN), MAX_TASK_HESSIAN)
 
@@ -443,7 +452,8 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, k, 0.0, k
         return (0.0,) * 9
     n1, n2 = y1 / rho, y2 / rho
-    speed, slope = speed_cap(drive.rest_gain * rho, drive.max_task_speed)
+    speed, slope = speed_cap(drive.rest_gain * rho,
+                             min(drive.max_task_speed, drive.pull_limit))
     c1, c2 = -speed * n1, -speed * n2
     radial, tangential = -slope * drive.rest_gain, -speed / rho
     b11 = w * (radial * n1 * n1 + tangential * (1.0 - n1 * n1))
@@ -615,13 +625,78 @@ class PotentialAlongPath:
                           for node, weight in _PIECE_RULE)
 
 
-def cached_potential(cache: dict, key, drive: TaskDrive) -> PotentialAlongPath:
-    """The PotentialAlongPath of `drive`, made once per `key` (the task's shape and k) in
-    `cache`: the controllers' task_energy (adaptive_law, arm_law)."""
-    potential = cache.get(key)
-    if potential is None:
-        potential = cache[key] = PotentialAlongPath(drive)
-    return potential
+class TaskDrives:
+    """The task drives of a controller (adaptive_law.AdaptiveController, arm_law.ArmController
+    derive from it): one TaskDrive per task shape and gain, the pull limit of
+    limit_pull_speed, and the task's share of V.
+
+    gains: the controller's gains (task_gain, max_task_speed, approach_speed, region_margin,
+    rest_gain, rest_gate, kp; gains_drive); reach (m): the arm's, for the default gain and the
+    open-outward rule.
+    """
+
+    def __init__(self, gains, reach: float):
+        self._gains = gains
+        self._task_reach = float(reach)
+        self._drives: dict[tuple[TaskShape, float], TaskDrive] = {}
+        self._potentials: dict[tuple[TaskShape, float], PotentialAlongPath] = {}
+        self._pull_limit = math.inf  # limit_pull_speed
+        self._limited_drive: tuple[TaskDrive, float, TaskDrive] | None = None
+
+    def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
+        """The TaskDrive (eq. 12') of the task `shape` with gain k (m^2/s; 0 = not given), or
+        None without a task (cached). Raises ValueError for a k < 0 or a potential with no
+        slope to take a default gain from."""
+        if shape is None:
+            return None
+        key = (shape, k)
+        drive = self._drives.get(key)
+        if drive is None:
+            drive = self._drives[key] = gains_drive(self._gains, shape, k, self._task_reach)
+        return drive
+
+    def limit_pull_speed(self, limit: float) -> None:
+        """From the next step on, cap the task's speed towards the hand and the return to rest
+        at `limit` m/s (the cap's knee, TaskDrive.pull_limit; inf: none, 0: no such speed at
+        all), below max_task_speed. Speeds away from the hand (an avoid task's push out of d1
+        and its retreat) and the hand's velocity fed forward keep their caps. The caller
+        changes it gradually: qddot_r leaves out its rate of change. task_energy (the node's
+        V) stays that of the unlimited task."""
+        if not (limit >= 0.0):  # also NaN
+            raise ValueError(f'pull speed limit must be >= 0 m/s, got {limit}')
+        self._pull_limit = float(limit)
+
+    def _control_drive(self, shape: TaskShape | None, k: float) -> TaskDrive | None:
+        """drive(shape, k) with the pull limit of limit_pull_speed (the last one kept)."""
+        drive = self.drive(shape, k)
+        limit = self._pull_limit
+        if drive is None or limit >= drive.max_task_speed:
+            return drive
+        last = self._limited_drive
+        if last is None or last[0] is not drive or last[1] != limit:
+            last = self._limited_drive = (drive, limit,
+                                          dataclasses.replace(drive, pull_limit=limit))
+        return last[2]
+
+    def task_energy(self, distance: float, shape: TaskShape | None, k: float = 0.0) -> float:
+        """kp Q(distance) (J per unit of a): the task's part of V (eq. 21) that the
+        controllers' steps leave out, for a caller that adds a kp Q once the cycle's command
+        is out. Q along the controller's path of distances (PotentialAlongPath, one per task:
+        0.05-0.1 ms a call, against 0.25-0.4 ms for task_potential, which it agrees with to
+        the latter's accuracy). distance m, finite and >= 0; 0 without a task."""
+        drive = self.drive(shape, k)
+        if drive is None:
+            return 0.0
+        key = (shape, k)
+        potential = self._potentials.get(key)
+        if potential is None:
+            potential = self._potentials[key] = PotentialAlongPath(drive)
+        return self._gains.kp * potential(distance)
+
+    def task_gain(self, shape: TaskShape | None, k: float = 0.0) -> float:
+        """Task gain K (m^2/s) used for `shape` with gain k (0 for no task)."""
+        drive = self.drive(shape, k)
+        return 0.0 if drive is None else drive.task_gain
 
 
 class _ChainTooShortError(Exception):

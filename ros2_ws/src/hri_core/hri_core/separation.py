@@ -13,12 +13,13 @@ Z_r: position uncertainty of the human and of the robot (m). v_r enters at max(v
 moving away needs no less than a still one. v_h enters at max(v_h, 0) and, unless
 `assume_iso_speed` is off, at least at ISO 13855's approach speed K of a hand or an arm:
 2.0 m/s within 0.5 m, 1.6 m/s beyond (ISO 13855, 6.2). The paper has no equation for this;
-the event_detector publishes it (/hri/separation), the demo's report judges the learned d1
-by it. No ROS import.
+the event_detector publishes it (/hri/separation), the controller's separation_speed_limit
+caps its speed by it, and the learner and the demo's report judge the learned d1 by it
+(separation_verdict). No ROS import.
 """
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -138,3 +139,69 @@ def separation_sample(hand, hand_velocity, tool, tool_velocity,
     used = settings.human_speed_used(human_speed, separation)
     return SeparationSample(separation, human_speed, robot_speed, used,
                             settings.distance(used, robot_speed))
+
+
+@dataclass(frozen=True)
+class SeparationVerdict:
+    """Whether a task that keeps the hand at d1 > 0 keeps ISO/TS 15066's S_p (m, m/s).
+
+    d1: the task's inner boundary; arm_speed: the arm's speed towards the hand (its
+    max_task_speed); protective_distance, protective_distance_still_hand: S_p at that speed
+    for a hand at ISO 13855's speed at d1 and for a still hand; arm_speed_limit,
+    arm_speed_limit_still_hand: the highest arm speed at which d1 >= S_p for each (None: no
+    speed, not even a still arm; inf: any)."""
+
+    d1: float
+    arm_speed: float
+    protective_distance: float
+    protective_distance_still_hand: float
+    arm_speed_limit: float | None
+    arm_speed_limit_still_hand: float | None
+
+    @property
+    def meets(self) -> bool:
+        """d1 >= S_p with the hand at ISO 13855's speed."""
+        return self.d1 >= self.protective_distance
+
+    @property
+    def meets_still_hand(self) -> bool:
+        """d1 >= S_p with a still hand."""
+        return self.d1 >= self.protective_distance_still_hand
+
+    def metrics(self) -> dict:
+        """The verdict as a flat mapping with units in its keys (reports, YAML)."""
+        return {'d1_m': self.d1, 'arm_speed_m_s': self.arm_speed,
+                'protective_distance_m': self.protective_distance,
+                'protective_distance_still_hand_m': self.protective_distance_still_hand,
+                'arm_speed_limit_m_s': self.arm_speed_limit,
+                'arm_speed_limit_still_hand_m_s': self.arm_speed_limit_still_hand}
+
+    def summary(self) -> str:
+        """One line: S_p and the arm speed for d1 >= S_p, hand at ISO speed and still."""
+        def limit(value):
+            return 'no arm speed' if value is None else f'arm speed <= {value:.2f} m/s'
+        return (f'd1 = {self.d1:.3f} m vs ISO/TS 15066 S_p at arm speed {self.arm_speed:g} '
+                f'm/s: {self.protective_distance:.3f} m with the hand at ISO 13855 speed '
+                f'({"met" if self.meets else "not met"}; met at '
+                f'{limit(self.arm_speed_limit)}), {self.protective_distance_still_hand:.3f} m '
+                f'with a still hand ({"met" if self.meets_still_hand else "not met"}; met at '
+                f'{limit(self.arm_speed_limit_still_hand)})')
+
+
+def separation_verdict(d1: float, arm_speed: float,
+                       settings: ProtectiveSeparation) -> SeparationVerdict:
+    """The SeparationVerdict of a task with inner boundary d1 (m, > 0) for an arm moving
+    towards the hand at arm_speed (m/s, >= 0). Raises ValueError for values out of range."""
+    for name, value, floor in (('d1', d1, '> 0'), ('arm_speed', arm_speed, '>= 0')):
+        if not (isinstance(value, int | float) and math.isfinite(value)
+                and (value > 0.0 if floor == '> 0' else value >= 0.0)):
+            raise ValueError(f'{name} must be a finite number {floor}, got {value!r}')
+    iso = settings.iso_human_speed(d1)
+    return SeparationVerdict(
+        d1=float(d1), arm_speed=float(arm_speed),
+        protective_distance=settings.distance(iso, arm_speed),
+        protective_distance_still_hand=settings.distance(0.0, arm_speed),
+        arm_speed_limit=settings.arm_speed_limit(d1),
+        # A still hand whatever assume_iso_speed says (with it, 0 m/s would be raised to K).
+        arm_speed_limit_still_hand=replace(settings, assume_iso_speed=False).arm_speed_limit(
+            d1, 0.0))

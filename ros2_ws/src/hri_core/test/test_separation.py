@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from hri_core.separation import ProtectiveSeparation, separation_sample
+from hri_core.separation import ProtectiveSeparation, separation_sample, separation_verdict
 
 # A set of constants with distinct values, so that a term mixed up with another shows.
 SETTINGS = ProtectiveSeparation(reaction_time=0.1, stopping_time=0.3, stopping_distance=0.05,
@@ -86,3 +86,35 @@ def test_from_mapping_takes_the_constants_and_names_a_missing_one():
 def test_bad_constants_are_refused(change, message):
     with pytest.raises(ValueError, match=message):
         ProtectiveSeparation(**{**SETTINGS.__dict__, **change})
+
+
+def test_verdict_against_the_formula():
+    iso = ProtectiveSeparation(**{**SETTINGS.__dict__, 'assume_iso_speed': True})
+    d1, speed = 0.6, 0.25
+    verdict = separation_verdict(d1, speed, iso)
+    constant = 0.05 + 0.02 + 0.004 + 0.001  # B + C + Z_d + Z_r
+    # Beyond 0.5 m the hand counts at 1.6 m/s: S_p = 1.6 (0.1 + 0.3) + 0.25 x 0.1 + ...
+    assert verdict.protective_distance == pytest.approx(1.6 * 0.4 + 0.025 + constant)
+    assert verdict.protective_distance_still_hand == pytest.approx(0.025 + constant)
+    assert not verdict.meets and verdict.meets_still_hand
+    assert verdict.arm_speed_limit is None  # 1.6 x 0.4 + 0.075 > 0.6 m even for a still arm
+    assert verdict.arm_speed_limit_still_hand == pytest.approx((d1 - constant) / 0.1)
+    assert verdict.metrics()['arm_speed_limit_still_hand_m_s'] == \
+        verdict.arm_speed_limit_still_hand
+    assert 'not met' in verdict.summary() and 'no arm speed' in verdict.summary()
+
+
+def test_verdict_at_its_own_limit_is_met():
+    d1 = 0.3
+    limit = separation_verdict(d1, 0.0, SETTINGS).arm_speed_limit_still_hand
+    at_limit = separation_verdict(d1, limit, SETTINGS)
+    assert at_limit.protective_distance_still_hand == pytest.approx(d1)
+    assert not separation_verdict(d1, limit + 0.01, SETTINGS).meets_still_hand
+
+
+@pytest.mark.parametrize('d1, speed, match', [(0.0, 0.25, 'd1 must be'),
+                                              (math.nan, 0.25, 'd1 must be'),
+                                              (0.2, -0.1, 'arm_speed must be')])
+def test_verdict_refuses_bad_values(d1, speed, match):
+    with pytest.raises(ValueError, match=match):
+        separation_verdict(d1, speed, SETTINGS)

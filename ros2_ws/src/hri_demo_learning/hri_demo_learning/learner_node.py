@@ -19,6 +19,12 @@ model does not describe (fit cost above `max_cost`) or a task whose pull would v
 arm's reach of its region (the reach of the arm on the bag's /robot_description, l1 + l2 for a
 bag without one).
 
+A task that keeps the hand at a distance (d1 > 0) gets one more info line: whether d1 >=
+ISO/TS 15066's S_p with the arm at `max_task_speed` (the hand at ISO 13855's speed, and
+still), and up to what arm speed it would be (hri_core.separation.separation_verdict; S_p's
+constants are parameters, the event_detector's defaults). The line only: a task file holds
+TaskParameters' keys alone (hri_core.task_file refuses others).
+
 Positions are 3-D. A bag without /ee_position is turned into tool positions through the
 forward kinematics of its /robot_description (the URDF, tool link `tool_frame`); a bag recorded
 before bags carried their robot, through the SCARA's (`l1`, `l2`); a bag with neither, or whose
@@ -42,6 +48,7 @@ from hri_core.node_common import (
     load_defaults,
     run_node,
 )
+from hri_core.separation import ProtectiveSeparation, separation_verdict
 from hri_core.task_message import task_message
 from hri_demo_learning.learning import (
     SETTING_RANGES,
@@ -92,6 +99,25 @@ PARAMETERS = {
                         '/robot_description', *SETTING_RANGES['l1']),
     'l2': ParameterSpec(float, "the SCARA's link 2 (m), for bags with joint states and no "
                         '/robot_description', *SETTING_RANGES['l2']),
+    # ISO/TS 15066 S_p's constants (hri_core.separation.ProtectiveSeparation), for the verdict
+    # on a learned d1 > 0; the same names and defaults as the event_detector's.
+    'reaction_time': ParameterSpec(float, 'S_p verdict: T_r, reaction time (s)', 0.0, 10.0),
+    'stopping_time': ParameterSpec(float, "S_p verdict: T_s, the arm's stopping time (s)",
+                                   0.0, 10.0),
+    'stopping_distance': ParameterSpec(float, "S_p verdict: B, the arm's stopping distance (m)",
+                                       0.0, 5.0),
+    'intrusion_distance': ParameterSpec(float, "S_p verdict: C, a hand's reach beyond its "
+                                        'tracked point (m)', 0.0, 5.0),
+    'human_uncertainty': ParameterSpec(float, "S_p verdict: Z_d, the hand's position "
+                                       'uncertainty (m)', 0.0, 5.0),
+    'robot_uncertainty': ParameterSpec(float, "S_p verdict: Z_r, the tool's position "
+                                       'uncertainty (m)', 0.0, 5.0),
+    'near_speed': ParameterSpec(float, "S_p verdict: ISO 13855's hand speed within near_limit "
+                                '(m/s)', 0.01, 10.0),
+    'far_speed': ParameterSpec(float, "S_p verdict: ISO 13855's hand speed beyond near_limit "
+                               '(m/s)', 0.01, 10.0),
+    'near_limit': ParameterSpec(float, 'S_p verdict: the distance the two speeds change at (m)',
+                                0.01, 10.0),
     'tool_frame': ParameterSpec(str, "the tool link of a bag's URDF, for bags with joint "
                                 "states only ('' = the robot's own, or the URDF's one end "
                                 'link)'),
@@ -109,6 +135,11 @@ class Learner(Node):
             self._settings = LearningSettings.from_parameters(self._values)
         except LearningError as error:
             raise StartupError(str(error)) from None
+        try:
+            self._separation = ProtectiveSeparation.from_mapping(
+                {**self._values, 'assume_iso_speed': True})
+        except ValueError as error:
+            raise StartupError(f'bad S_p constants: {error}') from None
         self.exit_code: int | None = None  # set when a `once` run is over
         self.add_on_set_parameters_callback(self._reject_changes)
         self._publisher = self.create_publisher(TaskParameters, topics.TASK.name,
@@ -135,6 +166,9 @@ class Learner(Node):
             f'C={task.cost:.3g} iterations={task.iterations} ({learned.method}'
             f'{"" if learned.converged else ", not converged"}, fit {learned.fit_seconds:.3f} '
             f's, total {learned.total_seconds:.2f} s) -> {learned.task_file}, {learned.figure}')
+        if task.d1 > 0.0:
+            verdict = separation_verdict(task.d1, values['max_task_speed'], self._separation)
+            self.get_logger().info(f"task '{task.name}': {verdict.summary()}")
         if not learned.converged:
             self.get_logger().warning(
                 f'the {learned.method} fit did not converge '

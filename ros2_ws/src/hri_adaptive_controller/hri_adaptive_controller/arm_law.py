@@ -432,7 +432,7 @@ class ArmController(TaskDrives):
             capped = [speed_cap(value, gains.posture_speed) for value in z.tolist()]
             z = np.array([value for value, _ in capped])
             z_rate = z_rate * np.array([slope for _, slope in capped])
-        if gains.barrier_torque > 0.0:
+        if gains.barrier_torque > 0.0 and barrier_gradient is not None:
             push = gains.limit_speed / gains.barrier_torque
             z = z - push * barrier_gradient
             z_rate = z_rate - push * barrier_rate
@@ -483,21 +483,25 @@ class ArmController(TaskDrives):
                     feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
                 g_b, g_b_rate, near = barrier_n(q, dq, self._lower, self._upper,
                                                 gains.limit_band, gains.barrier_torque)
-                joint_ff = pinv @ ff
-                joint_ff_rate = pinv_rate @ ff + pinv @ ff_rate
-                if near > 0.0:
+                if near == 0.0:
+                    # Off every band (the usual case): no gate, no barrier, one J+ for all.
+                    velocity = ff - weighted
+                    qdot_r = pinv @ velocity
+                    qddot_r = pinv_rate @ velocity + pinv @ (ff_rate - weighted_rate)
+                else:
                     joint_ff, joint_ff_rate = gate_feed_forward_n(
-                        q, dq, joint_ff, joint_ff_rate, self._lower, self._upper,
-                        gains.limit_band)
-                # The barrier's task-space velocity J+^T g_B / Kp and its rate.
-                barrier_task = (pinv.T @ g_b) / gains.kp
-                barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
-                task_velocity = -weighted - barrier_task
-                task_rate = -weighted_rate - barrier_task_rate
-                qdot_r = joint_ff + pinv @ task_velocity
-                qddot_r = joint_ff_rate + pinv_rate @ task_velocity + pinv @ task_rate
+                        q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
+                        self._upper, gains.limit_band)
+                    # The barrier's task-space velocity J+^T g_B / Kp and its rate.
+                    barrier_task = (pinv.T @ g_b) / gains.kp
+                    barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
+                    task_velocity = -weighted - barrier_task
+                    task_rate = -weighted_rate - barrier_task_rate
+                    qdot_r = joint_ff + pinv @ task_velocity
+                    qddot_r = joint_ff_rate + pinv_rate @ task_velocity + pinv @ task_rate
                 if self.model.dof > 3:
-                    z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate)
+                    z, z_rate = self._null_velocity(q, dq, *((None, None) if near == 0.0
+                                                            else (g_b, g_b_rate)))
                     null = self._eye_n - pinv @ jac
                     null_rate = -(pinv_rate @ jac + pinv @ jac_rate)
                     qdot_r = qdot_r + null @ z

@@ -237,3 +237,25 @@ def test_the_node_picks_the_law_by_robot(panda):
         ArmController(model, gains)
     with pytest.raises(ValueError, match='unknown robot'):
         arm_model_from({**values, 'robot': 'ur5'})
+
+
+def test_a_joint_started_in_its_limit_band_is_pushed_out(panda):
+    """Joint 4 starts 0.08 rad (4.6 deg) from its upper limit, inside the 0.15 rad band, the
+    hand still at the tool: the barrier and the null-space push take it out of the band
+    while the tool stays in the follow region."""
+    controller = ArmController(panda, PANDA_GAINS, theta_hat0=0.7 * panda.theta)
+    true = true_arm(panda, 8)
+    q, dq = panda.home.copy(), np.zeros(7)
+    q[3] = panda.limits.upper[3] - 0.08
+    hand = HandState(panda.tool_position(q), np.zeros(3), np.zeros(3))
+    nears, distances = [], []
+    for _ in range(3000):
+        out = controller.step(q, dq, hand, ActiveTask(FOLLOW, 1.0), DT)
+        assert not out.fault, out.fault_reason
+        assert np.all(np.abs(out.tau) <= panda.limits.effort)
+        nears.append(out.near)
+        distances.append(out.distance)
+        q, dq = rk4_step(true, q, dq, out.tau, DT)
+    assert nears[0] > 0.0 and nears[-1] == 0.0
+    assert panda.limits.upper[3] - q[3] > PANDA_GAINS.limit_band
+    assert max(distances) <= FOLLOW.d2

@@ -1,9 +1,10 @@
 """The Panda in the live loop: arm_sim robot:=panda at 1 kHz, the event_manager with Table I's
-rows fading `follow` in, the controller robot:=panda (arm_law), and a still 3-D hand 0.3 m
-from the tool on /target. The tool enters the follow region within 5 s and stays there under
-gravity while theta_hat adapts from the URDF's values (the sim's arm is perturbed); every
-command within the Panda's per-joint effort limits and at most 1 N m from the one before;
-no joint within 5 deg of a limit."""
+rows, the controller robot:=panda (arm_law) and a probe hand on /target. follow: a still 3-D
+hand 0.3 m from the tool; the tool enters the region within 5 s and stays there under gravity
+while theta_hat adapts from the URDF's values (the sim's arm is perturbed). avoid: a hand
+coming down along z onto the tool at 0.5 m/s; 2 s after it stops the tool is >= d1 - 2 cm
+away. Both: every command within the Panda's per-joint effort limits and at most 1 N m from
+the one before; no joint within 5 deg of a limit."""
 
 import math
 import threading

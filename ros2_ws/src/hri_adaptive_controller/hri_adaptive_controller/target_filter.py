@@ -212,7 +212,14 @@ class FilteredHand:
     offer(stamp, position) -> accepted; evaluate(t) -> (x_d, xdot_d) or None before the first
     accepted sample; presence(t) -> WeightState of the hand's presence (weight in [0, 1],
     rate 1/s). Times must not go backwards between presence calls (the controller's joint
-    stamps). glitches, reanchors: the filter's counters.
+    stamps). glitches, reanchors: the filter's counters. A control loop (controller_node,
+    closed_loop) uses it as:
+
+        hand = FilteredHand(TargetFilterSettings(filter_time=..., max_extrapolation=...))
+        hand.offer(stamp, (x, y))          # each hand sample; False: held as a glitch
+        x_d, xdot_d = hand.evaluate(t)     # each cycle (None before the first sample)
+        present = hand.presence(t)         # each cycle: a *= present.weight, and
+                                           # da/dt = da_task/dt * w + a_task * present.rate
     """
 
     def __init__(self, settings: TargetFilterSettings = TargetFilterSettings()):

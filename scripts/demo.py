@@ -524,6 +524,7 @@ class Demo:
         distance_axis.legend(loc='upper right', fontsize=8)
         effort_axis.plot(command_t - t0, commands[:, 0], label='tau1', linewidth=0.8)
         effort_axis.plot(command_t - t0, commands[:, 1], label='tau2', linewidth=0.8)
+        effort_axis.set_xlim(0.0, float(arm_t[-1] - t0))   # from the first hand sample
         effort_axis.set_xlabel('t (s)')
         effort_axis.set_ylabel('torque (N m)')
         effort_axis.legend(loc='upper right', fontsize=8)

@@ -19,8 +19,6 @@ bad recording ends hand_sim with one line and exit code 1.
 """
 
 import math
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -38,6 +36,7 @@ from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.recorded_motion import ReachAnnulus
 from tests.common import PAPER_TASKS, REPO_ROOT
 from tests.fault_tools import RawListener, effort_change_per_step
+from tests.test_bad_input import HAND_OFFSET, StandInArm
 
 pytestmark = pytest.mark.integration
 
@@ -168,49 +167,7 @@ def test_a_recorded_person_on_the_live_loop(live_loop, probe, take, task):
     judge(replay_take(live_loop, probe, take, task))
 
 
-# -- without the 1 kHz loop ---------------------------------------------------------------
-Q_ARM = (0.3, 1.2)  # rad: the stand-in arm's pose
-HAND = forward_kinematics(np.array(Q_ARM), L1, L2) + (0.1, 0.0)  # m, 0.1 m from the arm
-
-
-class StandIn:
-    """Joint states at Q_ARM (500 Hz) and the hand (100 Hz) from a thread; `jump(k)` says
-    where sample k of the hand is instead (None: where it is), `lost(k)` skips it."""
-
-    def __init__(self, probe, jump=lambda k: None, lost=lambda k: False):
-        self.probe, self.jump, self.lost = probe, jump, lost
-        self.joints = probe.publisher(topics.JOINT_STATES.name, JointState, 10)
-        self.targets = probe.publisher(topics.TARGET.name, PointStamped, 10)
-        self.sent = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        tick = 0
-        while not self._stop.is_set():
-            joint = JointState(name=['joint1', 'joint2'], position=list(Q_ARM),
-                               velocity=[0.0, 0.0])
-            joint.header.stamp = self.probe.now()
-            self.joints.publish(joint)
-            if tick % 5 == 0:
-                k = tick // 5
-                if not self.lost(k):
-                    where = self.jump(k)
-                    msg = PointStamped()
-                    msg.header.frame_id = 'base'
-                    msg.header.stamp = self.probe.now()
-                    msg.point.x, msg.point.y = map(float, HAND if where is None else where)
-                    self.targets.publish(msg)
-                    self.sent = k
-            tick += 1
-            time.sleep(0.002)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-
-
+# -- without the 1 kHz loop: the controller on test_bad_input's stand-in arm ------------------
 def start_controller(nodes, probe):
     states = probe.collect(topics.CONTROLLER_STATE.name, ControllerState,
                            topics.CONTROLLER_STATE.qos)
@@ -222,33 +179,35 @@ def start_controller(nodes, probe):
 
 
 def test_jumps_on_target_are_held_and_counted(nodes, probe):
-    # Every 0.5 s a marker swap: 3 frames 1.5 m away (150 m/s); the distance the controller
+    # Every second a marker swap: 3 samples (60 ms) 1.5 m away; the distance the controller
     # reports is to the target it used, so a followed jump would show as ~1.5 m.
-    swap_frames = {k for k in range(50, 10_000, 50) for k in (k, k + 1, k + 2)}
-    far = HAND + (0.0, 1.5)
+    swap_samples = {k for k in range(50, 10_000, 50) for k in (k, k + 1, k + 2)}
     controller, _, states = start_controller(nodes, probe)
-    stand_in = StandIn(probe, jump=lambda k: far if k in swap_frames else None)
+    stand_in = StandInArm(probe)
+    far = stand_in.hand + (0.0, 1.5)
+    stand_in.hand_at = lambda k: far if k in swap_samples else stand_in.hand
     try:
         assert wait_for(lambda: states and states[-1].status == 'ok'
                         and stand_in.sent > 420, 30.0), controller.log()
-        sent_swaps = len([k for k in swap_frames if k <= stand_in.sent])
+        sent_swaps = len([k for k in swap_samples if k <= stand_in.sent])
     finally:
         stand_in.close()
     assert wait_for(lambda: states[-1].target_glitches > 0, 5.0)
     counted = states[-1].target_glitches
     used = [s for s in states if s.status == 'ok']
-    print(f'{sent_swaps} swap frames sent, {counted} held; distance to the used target '
+    print(f'{sent_swaps} swap samples sent, {counted} held; distance to the used target '
           f'{min(s.distance for s in used):.4f}-{max(s.distance for s in used):.4f} m')
-    # The controller keeps only the newest /target: a frame may be replaced unseen.
+    # The controller keeps only the newest /target: a sample may be replaced unseen.
     assert 0.8 * sent_swaps <= counted <= sent_swaps
-    assert all(abs(s.distance - 0.1) < 0.01 for s in used)
+    assert all(abs(s.distance - np.linalg.norm(HAND_OFFSET)) < 0.01 for s in used)
     assert 'target held' in controller.log() and 'Traceback' not in controller.log()
 
 
 def test_a_lost_hand_fades_the_task_out_and_in_again(nodes, probe):
-    # The hand is lost from 2 s to 4.5 s after the first target (frames 200-449).
+    # The hand is lost from 2 s to 4.5 s after the first sample (samples 100-224, 50 Hz).
     controller, _, states = start_controller(nodes, probe)
-    stand_in = StandIn(probe, lost=lambda k: 200 <= k < 450)
+    stand_in = StandInArm(probe)
+    stand_in.hand_at = lambda k: None if 100 <= k < 225 else stand_in.hand
     try:
         assert wait_for(lambda: any(s.status == 'target_lost' for s in states), 30.0), \
             controller.log()

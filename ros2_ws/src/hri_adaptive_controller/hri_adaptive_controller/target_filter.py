@@ -50,6 +50,7 @@ from hri_adaptive_controller.event_weight import (
     WeightState,
 )
 from hri_adaptive_controller.signal_hold import HandHold
+from hri_core.validation import positive
 
 HAND = 'hand'  # the presence schedule's one "task"
 STAMP_TOLERANCE = 1e-9  # s: stamps built by adding periods are not exact
@@ -79,11 +80,10 @@ class TargetFilterSettings:
     fade_time: float = 1.0
 
     def __post_init__(self):
-        for name in ('max_speed', 'max_acceleration', 'tolerance', 'confirm_time',
-                     'blend_speed', 'filter_time', 'timeout', 'fade_time'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'{name} must be finite and > 0, got {value}')
+        for name, unit in (('max_speed', 'm/s'), ('max_acceleration', 'm/s^2'),
+                           ('tolerance', 'm'), ('confirm_time', 's'), ('blend_speed', 'm/s'),
+                           ('filter_time', 's'), ('timeout', 's'), ('fade_time', 's')):
+            positive(getattr(self, name), name, unit)
         if not (math.isfinite(self.max_extrapolation) and self.max_extrapolation >= 0.0):
             raise ValueError(f'max_extrapolation must be finite and >= 0 s, got '
                              f'{self.max_extrapolation}')

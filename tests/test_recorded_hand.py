@@ -182,6 +182,7 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     # Every second a marker swap: 3 samples (60 ms) 1.5 m away; the distance the controller
     # reports is to the target it used, so a followed jump would show as ~1.5 m.
     swap_samples = {k for k in range(50, 10_000, 50) for k in (k, k + 1, k + 2)}
+    commands = RawListener(probe, topics.EFFORT_COMMANDS.name, Float64MultiArray)
     controller, _, states = start_controller(nodes, probe)
     stand_in = StandInArm(probe)
     far = stand_in.hand + (0.0, 1.5)
@@ -200,6 +201,8 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     # The controller keeps only the newest /target: a sample may be replaced unseen.
     assert 0.8 * sent_swaps <= counted <= sent_swaps
     assert all(abs(s.distance - np.linalg.norm(HAND_OFFSET)) < 0.01 for s in used)
+    sent = np.array([list(m.data) for m in commands.messages()])
+    assert len(sent) > 100 and np.max(np.abs(np.diff(sent, axis=0))) <= 1.0 + 1e-9
     assert 'target held' in controller.log() and 'Traceback' not in controller.log()
 
 

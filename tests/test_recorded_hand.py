@@ -33,7 +33,7 @@ from hri_bringup.processes import LIVE_LOOP, wait_for
 from hri_core import topics
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
-from hri_core.recorded_motion import ReachAnnulus
+from hri_core.recorded_motion import Placement, ReachAnnulus, read_vicon_csv
 from tests.common import PAPER_TASKS, REPO_ROOT
 from tests.fault_tools import RawListener, effort_change_per_step
 from tests.test_bad_input import HAND_OFFSET, StandInArm
@@ -223,6 +223,41 @@ def test_a_lost_hand_fades_the_task_out_and_in_again(nodes, probe):
     assert min(weights) == 0.0
     assert np.max(np.abs(np.diff(weights))) < 0.05              # a ramp, not a step
     assert 'Traceback' not in controller.log()
+
+
+def test_hand_sim_replays_a_take_at_its_pace_in_the_base_frame(nodes, probe):
+    # Hammering at half speed: frames 20 ms apart on the replay's clock; the cameras lost
+    # the hand in frames 202-400 (but 276): nothing is published for them.
+    take, scale = TAKES / 'CollaborativeHammering_1.csv', 2.0
+    placement = Placement((0.1, -0.2, -0.5), 0.7)
+    motion = read_vicon_csv(take, placement=placement, time_scale=scale)
+    targets = RawListener(probe, topics.TARGET.name, PointStamped, topics.TARGET.qos)
+    hand = nodes('scara_sim', 'hand_sim', params={
+        'profile': 'recording', 'recording': str(take), 'translation': [0.1, -0.2, -0.5],
+        'yaw': 0.7, 'time_scale': scale, 'at_end': 'stop'})
+
+    def replayed() -> float:
+        if not targets.arrivals:
+            return 0.0
+        first, last = (deserialize_message(targets.arrivals[i][1], PointStamped)
+                       for i in (0, -1))
+        return stamp_seconds(last.header.stamp) - stamp_seconds(first.header.stamp)
+
+    assert wait_for(lambda: replayed() > 8.5, 30.0), hand.log()
+    messages = [deserialize_message(data, PointStamped) for _, data, _ in targets.arrivals]
+    points = np.array([(m.point.x, m.point.y, m.point.z) for m in messages])
+    # The probe may have matched after the first frames: which frame the first one heard is
+    first = int(np.nanargmin(np.linalg.norm(motion.positions - points[0], axis=1)))
+    t = np.array([stamp_seconds(m.header.stamp) for m in messages])
+    t += motion.times[first] - t[0]
+    index = np.round(t / (scale / motion.rate_hz)).astype(int)
+    np.testing.assert_allclose(t, motion.times[index], atol=1e-6)   # stamped when recorded
+    np.testing.assert_allclose(points, motion.positions[index], atol=1e-9)
+    assert motion.valid[index].all()                                # nothing for a lost frame
+    due = np.count_nonzero(motion.valid[first:index[-1] + 1])
+    print(f'{len(messages)} of {due} seen frames published in {t[-1]:.2f} s')
+    assert len(messages) >= 0.9 * due and np.all(np.diff(index) > 0)
+    assert set(range(202, 401)) - {276} <= set(range(index[-1])) - set(index)
 
 
 def test_a_bad_recording_ends_hand_sim_with_one_line(nodes, tmp_path):

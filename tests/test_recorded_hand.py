@@ -24,6 +24,8 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped
 from hri_interfaces.msg import ControllerState
+from rcl_interfaces.srv import SetParametersAtomically
+from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -34,7 +36,7 @@ from hri_core import topics
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.recorded_motion import Placement, ReachAnnulus, read_vicon_csv
-from tests.common import PAPER_TASKS, REPO_ROOT
+from tests.common import PAPER_TASKS, REPO_ROOT, call_service
 from tests.fault_tools import RawListener, effort_change_per_step
 from tests.test_bad_input import HAND_OFFSET, StandInArm
 
@@ -273,3 +275,26 @@ def test_a_bad_recording_ends_hand_sim_with_one_line(nodes, tmp_path):
         assert process.wait(30.0) == 1, process.log()
         lines = [line for line in process.log().splitlines() if line.strip()]
         assert len(lines) == 1 and 'ERROR' in lines[0] and reason in lines[0], lines
+
+
+def test_hand_sim_takes_a_recording_at_run_time_and_refuses_a_bad_one(nodes, probe, tmp_path):
+    bad = tmp_path / 'take.csv'
+    bad.write_text('Objects\n100\n')
+    hand = nodes('scara_sim', 'hand_sim')
+    client = probe.node.create_client(SetParametersAtomically,
+                                      '/hand_sim/set_parameters_atomically')
+    assert client.wait_for_service(timeout_sec=20.0), hand.log()
+
+    def set_all(**values):
+        return call_service(client, SetParametersAtomically.Request(parameters=[
+            Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
+        ])).result
+
+    refused = set_all(profile='recording')
+    assert not refused.successful and 'needs the parameter recording' in refused.reason
+    refused = set_all(profile='recording', recording=str(bad))
+    assert not refused.successful and 'ends before its segment-name line' in refused.reason
+    assert set_all(profile='recording', recording=str(TAKES / 'TossTheCan_0.csv'),
+                   auto_place=True).successful
+    assert wait_for(lambda: 'hand profile restarted: recording' in hand.log(), 10.0), hand.log()
+    assert hand.alive() and 'Traceback' not in hand.log()

@@ -8,10 +8,10 @@ the run, so the probe takes little of the machine from the loop. One loop serves
 checks: follow reaches a still hand, tracks it when it moves (Fig. 4), then switches to
 avoid. Thresholds are the issue's: effort changes <= 1 N m per 1 ms control cycle; under
 avoid, the arm ends at >= d1 - 2 cm within 2 s of a hand that reached in at 0.5 m/s
-stopping, stays within 5 cm of its rest position while the hand walks 0.2 m away, and is
-back within 1 cm of it 3 s after the hand has gone; a1, a2 x 4 change the time to region by
->= 15 %. The follow_safe band on topics: tests/test_demo.py (each learned behaviour ends in
-its region); bad joint states: tests/test_bad_input.py.
+stopping (backing away as the hand comes), stays within 5 cm of its rest position while the
+hand walks 0.2 m away, and is back within 1 cm of it 3 s after the hand has gone; a1, a2 x 4
+change the time to region by >= 15 %. The follow_safe band on topics: tests/test_demo.py
+(each learned behaviour ends in its region); bad joint states: tests/test_bad_input.py.
 """
 
 import math
@@ -160,9 +160,11 @@ def test_avoid_backs_away_returns_to_rest_and_never_copies_the_hand(live_loop, p
     # The hand walks away: the arm stays (it does not copy the hand's velocity).
     _, arm = streams.arm(walk[0], reach[0])
     assert np.max(np.linalg.norm(arm - rest, axis=1)) <= 0.05
-    # The hand reached well inside d1; within 2 s of it stopping the arm is at >= d1 - 2 cm.
+    # The hand reached in to the arm's edge (the arm backs away as fast as the hand comes:
+    # task_variable.retreat_term; before, the hand got 5 cm inside d1); within 2 s of it
+    # stopping the arm is at >= d1 - 2 cm.
     _, near = streams.distance(reach[0], leave[0])
-    assert np.min(near) < D1_AVOID - 0.05
+    assert np.min(near) < D1_AVOID + 0.03
     _, settled = streams.distance(reach[1] + 2.0, leave[0])
     assert settled.size and np.min(settled) >= D1_AVOID - 0.02
     _, pushed = streams.arm(reach[0], leave[0])

@@ -24,8 +24,12 @@ text, both needed for eq. 22 to follow from eq. 16-21:
 Safety: the torque is limited by scaling the whole vector (direction kept) so that
 max |tau_i| <= effort_limit, and any non-finite intermediate result gives zero torque and a
 fault flag (theta_hat is then left unchanged). theta_hat is integrated with explicit Euler and
-projected onto a box of physically plausible values (pi1, pi3 >= 1e-3 kg m^2, pi2, b1, b2 >= 0);
-projection onto a convex set that contains the true parameters never increases V.
+projected onto a bounded box of physically plausible values (DEFAULT_THETA_LOWER, _UPPER);
+projection onto a convex set that contains the true parameters never increases V. eq. 19 is
+paused (a dead zone in state) where its premise fails: scaled by 1 - w near a joint limit (w
+the barrier's proximity, joint_limits: at the stop its force is outside the model) and off
+while the torque is clamped (the drive does not apply the law's torque); the s-term of V is
+then not decreased by the update, and theta_hat stays where it was.
 
 Two paths compute the same step. `AdaptiveController.step` is the general numpy code, the
 reference (any caller, every argument checked). `AdaptiveController.step_lean` is the 1 kHz
@@ -39,12 +43,21 @@ Units: q rad, qdot rad/s, tau N m, x m; theta = [pi1, pi2, pi3 (kg m^2), b1, b2 
 mlc1, mlc2 (kg m)] as in hri_core.dynamics.dynamic_parameters.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
+from hri_adaptive_controller.joint_limits import (
+    JointLimits,
+    ReachRound,
+    ReachRoundSettings,
+    barrier,
+    barrier_energy,
+    gate_feed_forward,
+)
 from hri_adaptive_controller.task_variable import (
     DampingSettings,
     JointReference,
@@ -52,6 +65,8 @@ from hri_adaptive_controller.task_variable import (
     TaskDrive,
     joint_velocity_reference,
     rest_term,
+    retreat_term,
+    speed_cap,
     task_drive,
     task_potential,
     task_term,
@@ -60,12 +75,19 @@ from hri_core.dynamics import regressor
 from hri_core.potential import TaskShape
 
 PARAMETER_COUNT = 7
+HAND_RATE = 40.0
+"""1/s: the hand-velocity filter of an avoid task's retreat (lag 2 / HAND_RATE = 50 ms)."""
+FEED_FORWARD_RATIO = 2.0
+"""The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
 PARAMETER_NAMES = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
 
-# Box for the projection of theta_hat: inertias positive, friction and pi2 = m2 l1 lc2 >= 0,
-# the gravity moments (unused by a horizontal arm) free.
-DEFAULT_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, -math.inf, -math.inf)
-DEFAULT_THETA_UPPER = (math.inf,) * PARAMETER_COUNT
+# Box for the projection of theta_hat (physical bounds): inertias positive, friction,
+# pi2 = m2 l1 lc2 and the mass moments >= 0; above, what a 2-link arm of this size (links up
+# to 0.5 m, up to 10 kg each) can have: pi1 <= 3, pi2, pi3 <= 1 kg m^2, b1, b2 <= 5 N m s/rad,
+# mlc1, mlc2 <= 10 kg m (scara_sim's arm: 0.66, 0.19, 0.13, 1.0, 0.5, 1.75, 0.54). A bounded
+# box keeps theta_hat bounded whatever the regressor sees (a stop's force, a saturated drive).
+DEFAULT_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, 0.0, 0.0)
+DEFAULT_THETA_UPPER = (3.0, 1.0, 1.0, 5.0, 5.0, 10.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -97,6 +119,8 @@ class ControllerGains:
     damping: DampingSettings = field(default_factory=DampingSettings)
     theta_lower: tuple[float, ...] = DEFAULT_THETA_LOWER
     theta_upper: tuple[float, ...] = DEFAULT_THETA_UPPER
+    joint_limits: JointLimits | None = field(default_factory=JointLimits)
+    reach_round: ReachRoundSettings = field(default_factory=ReachRoundSettings)
 
     def __post_init__(self):
         ks = np.asarray(self.ks, dtype=float)
@@ -152,10 +176,14 @@ DEFAULT_GAINS = ControllerGains(
     # K: each task's own (the learner's k; Table I's rows, which have none, get
     # hri_core.potential.default_task_gain): a1, a2 and K set the speed.
     task_gain=None,
-    # Approach floor: where the learned pull K |dP/dz| is below 0.1 m/s, the arm still moves
-    # towards the region at about 0.1 m/s and enters it (P rises from its region like
-    # (r - d)^3: without the floor the arm creeps towards the boundary forever; Table I's
-    # follow row moves at 0.3 mm/s 6 cm from its region), stopping region_margin inside it.
+    # Approach floor: where the learned pull K |dP/dz| is below the floor, the arm still moves
+    # towards the region at the floor's speed and enters it. The floor is the task's own pull
+    # 0.2 m out (task_variable.task_approach_speed), at most approach_speed = 0.1 m/s and at
+    # least 0.01 m/s: a demonstration n times slower approaches n times slower (K / 4: 3.98x
+    # the time from 0.25 m, pure loop), and Table I's rows (pull far above 0.1 m/s there) keep
+    # 0.1 m/s. Without a floor (P rises from its region like (r - d)^3) the arm creeps towards
+    # the boundary forever (Table I's follow row moves at 0.3 mm/s 6 cm from its region); with
+    # it, it stops region_margin inside the region.
     # 0.1 m/s: faster than a hand reaching in at 0.06 m/s, so avoid keeps its distance; in the
     # pure closed loop follow enters its region 2.0 s after the event (0.05 m/s: 3.1 s).
     # Set approach_speed to 0 for K |dP/dz| alone.
@@ -353,7 +381,12 @@ class AdaptiveController:
         self._adaptation_floats = tuple(self._adaptation.tolist())
         self._box = tuple(zip(gains.theta_lower, gains.theta_upper, strict=True))
         self._threshold2 = gains.damping.threshold ** 2
+        self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._max_damping2 = gains.damping.max_damping ** 2
+        # Joint limits (joint_limits): the barrier needs Kp > 0 (its reference is g / Kp).
+        self._limits = gains.joint_limits if gains.kp > 0.0 else None
+        self._reach = (None if self._limits is None
+                       else ReachRound(gains.reach_round, self._limits, self._l1, self._l2))
         self.reset(theta_hat0)
 
     @property
@@ -373,6 +406,14 @@ class AdaptiveController:
             raise ValueError(f'theta_hat0 must be {PARAMETER_COUNT} finite values, got {theta}')
         self._theta_hat = np.clip(theta, self._lower, self._upper)
         self._theta = tuple(self._theta_hat.tolist())
+        if self._reach is not None:
+            self._reach.reset()
+        self._hand_velocity = (0.0, 0.0, 0.0, 0.0)
+
+    @property
+    def reaching_round(self) -> bool:
+        """Whether the reach-round blend is heading to (or at) the joint-space motion."""
+        return self._reach is not None and self._reach.engaged
 
     def drive(self, shape: TaskShape | None, k: float = 0.0) -> TaskDrive | None:
         """The TaskDrive (eq. 12') of the task `shape` with gain k (m^2/s; 0 = not given), or
@@ -411,6 +452,82 @@ class AdaptiveController:
         drive = self.drive(shape, k)
         return 0.0 if drive is None else drive.task_gain
 
+    def _smooth_hand_velocity(self, xdot_d, dt: float):
+        """The hand's velocity through a critically damped second-order filter (HAND_RATE),
+        advanced by dt: (v1, v2, dv1/dt, dv2/dt). The estimate steps at each /target; the
+        avoid tasks' retreat (task_variable.retreat_term) acts on this one, whose rate is
+        continuous, so the torque does not step with the messages."""
+        v1, v2, a1, a2 = self._hand_velocity
+        omega = HAND_RATE
+        j1 = omega * omega * (xdot_d[0] - v1) - 2.0 * omega * a1
+        j2 = omega * omega * (xdot_d[1] - v2) - 2.0 * omega * a2
+        a1, a2 = a1 + dt * j1, a2 + dt * j2
+        v1, v2 = v1 + dt * a1, v2 + dt * a2
+        if not all(map(math.isfinite, (v1, v2, a1, a2))):
+            v1 = v2 = a1 = a2 = 0.0
+        self._hand_velocity = (v1, v2, a1, a2)
+        return self._hand_velocity
+
+    def _limited_reference(self, state, hand, drive, pinv, pinv_rate, feed, task, dt: float):
+        """qdot_r, qddot_r with the joint limits (joint_limits): the barrier, the gated
+        feed-forward and the reach-round blend; one code for step and step_lean.
+
+        state (q1, q2, dq1, dq2, x1, x2); hand x_d (2,) m; drive: the TaskDrive or None;
+        pinv J+ and pinv_rate dJ+/dt as (11, 12, 21, 22); feed: the feed-forward f xdot_d and
+        its rate (4,), task: the task velocity -a delta_eps + a v_rest and its rate (4,), m/s
+        and m/s^2; dt (s) advances the reach-round state. Returns (qr1, qr2, ar1, ar2, c, g1,
+        g2, near): c = 1 - sigma weights the task's force; g the barrier's gradient (N m);
+        near its proximity.
+        """
+        p11, p12, p21, p22 = pinv
+        r11, r12, r21, r22 = pinv_rate
+        ff1, ff2, zf1, zf2 = feed
+        vt1, vt2, zt1, zt2 = task
+        speed = math.hypot(ff1, ff2)
+        if speed > self._feed_speed:
+            # The hand's velocity fed forward at most FEED_FORWARD_RATIO v_max (the smooth
+            # cap of task_variable, C2): the arm is not asked to keep up with a hand faster
+            # than it may move (a toss at 3 m/s saturated the drives for 0.4 s).
+            capped, slope = speed_cap(speed, self._feed_speed)
+            ratio = capped / speed
+            n1, n2 = ff1 / speed, ff2 / speed
+            along = (n1 * zf1 + n2 * zf2) * (slope - ratio)
+            ff1, ff2, zf1, zf2 = (ratio * ff1, ratio * ff2, ratio * zf1 + n1 * along,
+                                  ratio * zf2 + n2 * along)
+        f1, f2 = p11 * ff1 + p12 * ff2, p21 * ff1 + p22 * ff2
+        fa1 = r11 * ff1 + r12 * ff2 + (p11 * zf1 + p12 * zf2)
+        fa2 = r21 * ff1 + r22 * ff2 + (p21 * zf1 + p22 * zf2)
+        t1, t2 = p11 * vt1 + p12 * vt2, p21 * vt1 + p22 * vt2
+        ta1 = r11 * vt1 + r12 * vt2 + (p11 * zt1 + p12 * zt2)
+        ta2 = r21 * vt1 + r22 * vt2 + (p21 * zt1 + p22 * zt2)
+        limits = self._limits
+        if limits is None:
+            return f1 + t1, f2 + t2, fa1 + ta1, fa2 + ta2, 1.0, 0.0, 0.0, 0.0
+        q1, q2, w1, w2, x1, x2 = state
+        g1, g2, gd1, gd2, near = barrier(q1, q2, w1, w2, limits)
+        if near > 0.0:
+            f1, f2, fa1, fa2 = gate_feed_forward(q1, q2, w1, w2, f1, f2, fa1, fa2, limits)
+        region = (None if drive is None or drive.open_outward
+                  else (drive.shape.d1, drive.shape.d2))
+        sigma, sigma_rate, u1, u2, ud1, ud2 = self._reach.update(
+            q1, q2, w1, w2, x1, x2, hand, region, near, dt)
+        c = 1.0 - sigma
+        qr1, qr2 = f1 + t1, f2 + t2
+        ar1 = c * (fa1 + ta1) + sigma_rate * (u1 - qr1) + sigma * ud1
+        ar2 = c * (fa2 + ta2) + sigma_rate * (u2 - qr2) + sigma * ud2
+        qr1, qr2 = c * qr1 + sigma * u1, c * qr2 + sigma * u2
+        if g1 != 0.0 or g2 != 0.0 or gd1 != 0.0 or gd2 != 0.0:
+            # The barrier's task-space velocity -J+^T g / Kp, through J+ like the task's.
+            inv_kp = 1.0 / self._gains.kp
+            y1, y2 = (p11 * g1 + p21 * g2) * inv_kp, (p12 * g1 + p22 * g2) * inv_kp
+            yd1 = (r11 * g1 + r21 * g2 + p11 * gd1 + p21 * gd2) * inv_kp
+            yd2 = (r12 * g1 + r22 * g2 + p12 * gd1 + p22 * gd2) * inv_kp
+            qr1 -= p11 * y1 + p12 * y2
+            qr2 -= p21 * y1 + p22 * y2
+            ar1 -= r11 * y1 + r12 * y2 + (p11 * yd1 + p12 * yd2)
+            ar2 -= r21 * y1 + r22 * y2 + (p21 * yd1 + p22 * yd2)
+        return qr1, qr2, ar1, ar2, c, g1, g2, near
+
     def step(self, q, dq, x_d, xdot_d, xddot_d, a: float, da: float,
              shape: TaskShape | None, dt: float, theta_true=None,
              friction=None, monitor: bool = True, k: float = 0.0,
@@ -440,6 +557,9 @@ class AdaptiveController:
             return self._fault(theta_hat, k, 'non-finite joint state, target or da/dt')
         q, dq, x_d, xdot_d, xddot_d = measurements
         gains = self._gains
+        hand = self._smooth_hand_velocity(tuple(xdot_d.tolist()), dt)
+        if shaped is not None and shaped.open_outward:  # as step_lean
+            xdot_d, xddot_d = np.array(hand[:2]), np.array(hand[2:])
         try:
             with np.errstate(all='ignore'):
                 reference = joint_velocity_reference(
@@ -447,27 +567,54 @@ class AdaptiveController:
                     gains.damping, rest)
         except ValueError as error:
             return self._fault(theta_hat, k, str(error))
+        task_velocity, task_rate = reference.task_velocity, reference.task_rate
+        if shaped is not None and shaped.open_outward:
+            xv1, xv2 = (reference.jacobian @ dq).tolist()
+            (dx1, dx2), (hv1, hv2, ha1, ha2) = reference.dx.tolist(), hand
+            e1, e2, de1, de2 = retreat_term(dx1, dx2, xv1 - hv1, xv2 - hv2, hv1, hv2, ha1,
+                                            ha2, shaped)
+            task_velocity = task_velocity + a * np.array([e1, e2])
+            task_rate = task_rate + da * np.array([e1, e2]) + a * np.array([de1, de2])
         with np.errstate(all='ignore'):
-            s = dq - reference.qdot_r
-            y_d = regressor(q, dq, reference.qdot_r, reference.qddot_r, self._gravity)
+            floats = [float(v) for v in (*q, *dq, *reference.position)]
+            qr1, qr2, ar1, ar2, scale, g1, g2, near = self._limited_reference(
+                floats, tuple(x_d.tolist()), shaped, tuple(reference.pinv.ravel().tolist()),
+                tuple(reference.pinv_rate.ravel().tolist()),
+                (*reference.feed_forward.tolist(), *reference.feed_forward_rate.tolist()),
+                (*task_velocity.tolist(), *task_rate.tolist()), dt)
+            qdot_r, qddot_r = np.array([qr1, qr2]), np.array([ar1, ar2])
+            barrier_gradient = np.array([g1, g2])
+            s = dq - qdot_r
+            y_d = regressor(q, dq, qdot_r, qddot_r, self._gravity)
             tau_requested = adaptive_torque(s, reference.jacobian,
-                                            reference.weighted_task_variable, y_d, theta_hat,
-                                            self._ks, gains.kp)
-            theta_next = np.clip(
-                theta_hat + dt * parameter_update_rate(y_d, s, self._adaptation),
-                self._lower, self._upper)
-        if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(theta_next))
-                and np.all(np.isfinite(reference.qddot_r))):
+                                            scale * reference.weighted_task_variable, y_d,
+                                            theta_hat, self._ks, gains.kp) - barrier_gradient
+        if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(qddot_r))):
             return self._fault(theta_hat, k, 'non-finite torque or parameter update')
         tau, limited = limit_torque(tau_requested, gains.effort_limit)
+        # eq. 19, paused at a limit and while clamped (as step_lean).
+        pace = 0.0 if limited else dt * (1.0 - near)
+        with np.errstate(all='ignore'):
+            theta_next = np.clip(
+                theta_hat + pace * parameter_update_rate(y_d, s, self._adaptation),
+                self._lower, self._upper)
+        if not np.all(np.isfinite(theta_next)):
+            return self._fault(theta_hat, k, 'non-finite torque or parameter update')
         self._theta = tuple(theta_next.tolist())
+        reference = dataclasses.replace(reference, qdot_r=qdot_r, qddot_r=qddot_r)
         q_value = v_value = v_rate = None
         if monitor:
             q_value = 0.0 if shaped is None else task_potential(reference.distance, shaped)
             v_value = lyapunov(s, q, a, q_value, gains.kp, theta_hat, self._adaptation,
                                theta_true, self._gravity)
+            # With the barrier (joint_limits): B in V, and the task's and the barrier's
+            # task-space velocity together in eq. 22's Kp |.|^2 term.
+            effective = scale * reference.weighted_task_variable
+            if self._limits is not None:
+                v_value += barrier_energy(floats[0], floats[1], self._limits)
+                effective = effective + reference.pinv.T @ barrier_gradient / gains.kp
             v_rate = predicted_lyapunov_rate(
-                s, reference.weighted_task_variable, da, q_value, self._ks, gains.kp,
+                s, effective, da, q_value, self._ks, gains.kp,
                 (0.0, 0.0) if friction is None else friction)
         return ControlOutput(
             tau=tau, tau_requested=tau_requested, s=s, distance=reference.distance,
@@ -492,6 +639,7 @@ class AdaptiveController:
         q1, q2 = q
         w1, w2 = dq
         l1, l2 = self._l1, self._l2
+        hand = self._smooth_hand_velocity(xdot_d, dt)
         # Kinematics: x, J, dJ/dt (hri_core.dynamics.forward_kinematics, jacobian, ...).
         s1, c1 = math.sin(q1), math.cos(q1)
         s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
@@ -537,6 +685,11 @@ class AdaptiveController:
         xd1, xd2 = x_d
         vd1, vd2 = xdot_d
         ad1, ad2 = xddot_d
+        if drive is not None and drive.open_outward:
+            # An avoid task reads the hand's velocity through the filter (its rate is
+            # continuous): the estimate steps at each /target, and the arm, kept outside d1
+            # by the retreat, sits where the rest term's rate reads it.
+            vd1, vd2, ad1, ad2 = hand
         x1, x2 = l1 * c1 + l2 * c12, l1 * s1 + l2 * s12
         dx1, dx2 = x1 - xd1, x2 - xd2
         distance = math.hypot(dx1, dx2)
@@ -559,15 +712,15 @@ class AdaptiveController:
                 r1, r2, cr1, cr2, gw1, gw2, b11, b12, b22 = rest_term(
                     dx1, dx2, x1 - rx1, x2 - rx2, drive)
                 along = gw1 * u1 + gw2 * u2
+                e1, e2, de1, de2 = retreat_term(dx1, dx2, u1, u2, vd1, vd2, ad1, ad2, drive)
+                r1, r2 = r1 + e1, r2 + e2
                 o1, o2 = a * r1, a * r2
-                p1 = da * r1 + a * (cr1 * along + (b11 * xv1 + b12 * xv2))
-                p2 = da * r2 + a * (cr2 * along + (b12 * xv1 + b22 * xv2))
-        v1, v2 = feed * vd1 - m1 + o1, feed * vd2 - m2 + o2
-        z1 = feed * ad1 + feed_rate * vd1 - n1 + p1
-        z2 = feed * ad2 + feed_rate * vd2 - n2 + p2
-        qr1, qr2 = p11 * v1 + p12 * v2, p21 * v1 + p22 * v2
-        ar1 = r11 * v1 + r12 * v2 + (p11 * z1 + p12 * z2)
-        ar2 = r21 * v1 + r22 * v2 + (p21 * z1 + p22 * z2)
+                p1 = da * r1 + a * (cr1 * along + (b11 * xv1 + b12 * xv2) + de1)
+                p2 = da * r2 + a * (cr2 * along + (b12 * xv1 + b22 * xv2) + de2)
+        qr1, qr2, ar1, ar2, scale, gb1, gb2, near = self._limited_reference(
+            (q1, q2, w1, w2, x1, x2), x_d, drive, (p11, p12, p21, p22), (r11, r12, r21, r22),
+            (feed * vd1, feed * vd2, feed * ad1 + feed_rate * vd1, feed * ad2 + feed_rate * vd2),
+            (o1 - m1, o2 - m2, p1 - n1, p2 - n2), dt)
         # Regressor Y_d (eq. 18; hri_core.dynamics.regressor), torque (eq. 16), update (eq. 19).
         sn1, sn2 = w1 - qr1, w2 - qr2
         cq2, sq2 = math.cos(q2), math.sin(q2)
@@ -579,24 +732,28 @@ class AdaptiveController:
         th1, th2, th3, th4, th5, th6, th7 = theta
         ks1, ks2 = self._ks_floats
         kp = self._gains.kp
-        tau1 = (-ks1 * sn1 - kp * (j11 * m1 + j21 * m2)
+        kc = kp * scale
+        tau1 = (-ks1 * sn1 - kc * (j11 * m1 + j21 * m2) - gb1
                 + (ar1 * th1 + y12 * th2 + ar2 * th3 + qr1 * th4 + gc1 * th6 + gc12 * th7))
-        tau2 = (-ks2 * sn2 - kp * (j12 * m1 + j22 * m2)
+        tau2 = (-ks2 * sn2 - kc * (j12 * m1 + j22 * m2) - gb2
                 + (y22 * th2 + y23 * th3 + qr2 * th5 + gc12 * th7))
+        peak = max(abs(tau1), abs(tau2))
+        limit = self._gains.effort_limit
+        limited = peak > limit
+        # eq. 19, paused where its premise fails: at a limit (the stop's force is outside
+        # the model) and while the torque is clamped (the arm does not get the law's torque).
+        pace = 0.0 if limited else dt * (1.0 - near)
         rates = (ar1 * sn1, y12 * sn1 + y22 * sn2, ar2 * sn1 + y23 * sn2, qr1 * sn1,
                  qr2 * sn2, gc1 * sn1, gc12 * (sn1 + sn2))
         theta_next = []
         for value, rate, gain, (low, high) in zip(theta, rates, self._adaptation_floats,
                                                   self._box, strict=True):
-            value = value - dt * (gain * rate)
+            value = value - pace * (gain * rate)
             theta_next.append(low if value < low else high if value > high else value)
         isfinite = math.isfinite
         if not (isfinite(tau1) and isfinite(tau2) and isfinite(ar1) and isfinite(ar2)
                 and all(map(isfinite, theta_next))):
             return self._lean_fault(theta, k, 'non-finite torque or parameter update')
-        peak = max(abs(tau1), abs(tau2))
-        limit = self._gains.effort_limit
-        limited = peak > limit
         tau = (tau1 * (limit / peak), tau2 * (limit / peak)) if limited else (tau1, tau2)
         self._theta = tuple(theta_next)
         q_value = v_value = v_rate = None
@@ -608,12 +765,17 @@ class AdaptiveController:
             m11, m12 = mi1 + 2.0 * mi2 * cq2, mi3 + mi2 * cq2
             v_value = (0.5 * (sn1 * (m11 * sn1 + m12 * sn2) + sn2 * (m12 * sn1 + mi3 * sn2))
                        + kp * a * q_value)
+            e1, e2 = kc * m1, kc * m2  # Kp (the task's and the barrier's velocity)
+            if self._limits is not None:
+                v_value += barrier_energy(q1, q2, self._limits)
+                e1 += p11 * gb1 + p21 * gb2
+                e2 += p12 * gb1 + p22 * gb2
             if theta_true is not None:
                 v_value += 0.5 * sum((true - hat) ** 2 / gain for true, hat, gain in zip(
                     model, theta, self._adaptation_floats, strict=True) if gain > 0.0)
             f1, f2 = (0.0, 0.0) if friction is None else friction
             v_rate = (-((ks1 + f1) * sn1 * sn1 + (ks2 + f2) * sn2 * sn2)
-                      - kp * (m1 * m1 + m2 * m2) + kp * da * q_value)
+                      - (e1 * e1 + e2 * e2) / kp + kp * da * q_value)
         return LeanOutput(tau, (tau1, tau2), (sn1, sn2), (qr1, qr2), distance, v_value,
                           q_value if with_potential else None, v_rate, theta, k, limited,
                           False, damping=lam2)

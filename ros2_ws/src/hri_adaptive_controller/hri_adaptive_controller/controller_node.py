@@ -54,6 +54,7 @@ Safety (the choices are argued in docs/design-notes.md):
   active (task_variable's module docstring).
 """
 
+import dataclasses
 import math
 import sys
 import time
@@ -64,6 +65,7 @@ from hri_interfaces.msg import ControllerState, TaskState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
@@ -83,6 +85,7 @@ from hri_adaptive_controller.event_weight import (
     EventWeightSchedule,
     WeightState,
 )
+from hri_adaptive_controller.joint_limits import JointLimits
 from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_core import topics
@@ -144,8 +147,9 @@ PARAMETERS = {
     'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
-    'approach_speed': ParameterSpec(float, 'least speed towards the region where the pull '
-                                    'K |dP/dz| is weaker (m/s; 0: none)', low=0.0, high=2.0),
+    'approach_speed': ParameterSpec(float, 'most the approach floor may be (m/s; 0: none); '
+                                    "the floor is the task's own pull 0.2 m from its region",
+                                    low=0.0, high=2.0),
     'region_margin': ParameterSpec(float, 'how far inside the learned region the approach '
                                    'speed fades out (m)', low=0.0, high=0.1),
     'rest_gain': ParameterSpec(float, 'avoid tasks: rate of the return to the rest position '
@@ -174,6 +178,16 @@ PARAMETERS = {
                                         low=0.001, high=5.0, read_only=True),
     'max_target_distance': ParameterSpec(float, 'targets farther than this from the base are '
                                          'dropped (m)', low=0.1, high=100.0),
+    'joint_lower_limits': ParameterSpec(list, 'lower joint limits (rad); checked against '
+                                        "scara_sim's when it runs", size=2, read_only=True),
+    'joint_upper_limits': ParameterSpec(list, 'upper joint limits (rad)', size=2,
+                                        read_only=True),
+    'joint_limit_band': ParameterSpec(float, 'the barrier and the feed-forward gate act this '
+                                      'near a joint limit (rad)', low=0.01, high=1.0),
+    'barrier_torque': ParameterSpec(float, "the barrier's torque at a joint limit (N m; above "
+                                    "the task's largest)", low=0.0, high=100.0),
+    'reach_round': ParameterSpec(bool, 'blend in a joint-space motion where the straight '
+                                 'task-space descent is blocked or the hand out of reach'),
     'target_max_speed': ParameterSpec(float, 'a /target implying a faster hand is held as a '
                                       'glitch (m/s)', low=0.1, high=100.0, read_only=True),
     'target_max_acceleration': ParameterSpec(float, 'a /target off the predicted hand path by '
@@ -188,7 +202,12 @@ PARAMETERS = {
                              low=0.0, high=20.0, read_only=True),
 }
 GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
-                   'region_margin', 'effort_limit', 'max_effort_rate', 'rest_gain', 'rest_gate')
+                   'region_margin', 'effort_limit', 'max_effort_rate', 'rest_gain', 'rest_gate',
+                   'joint_limit_band', 'barrier_torque', 'reach_round')
+SIM_NODE = 'scara_sim'  # whose joint limits the controller's are checked against
+SIM_LIMITS = ('joint_lower_limits', 'joint_upper_limits')
+SIM_CHECK_PERIOD = 1.0  # s between looks for the sim's parameter service
+SIM_CHECK_TRIES = 30  # looks before the check is given up (no sim: a real arm)
 
 
 def gains_from(values: dict) -> ControllerGains:
@@ -199,7 +218,30 @@ def gains_from(values: dict) -> ControllerGains:
         region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
         effort_limit=values['effort_limit'], rest_gain=values['rest_gain'],
         rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
-        damping=DEFAULT_GAINS.damping)
+        damping=DEFAULT_GAINS.damping,
+        joint_limits=JointLimits(tuple(values['joint_lower_limits']),
+                                 tuple(values['joint_upper_limits']),
+                                 values['joint_limit_band'], values['barrier_torque']),
+        reach_round=dataclasses.replace(DEFAULT_GAINS.reach_round,
+                                        enabled=values['reach_round']))
+
+
+def limits_mismatch(ours, theirs) -> str:
+    """'' when the joint limits `ours` and `theirs` ((lower (2,), upper (2,)) rad) agree to
+    1e-9 rad, else a one-line description of the difference."""
+    (low, high), (sim_low, sim_high) = ours, theirs
+    if all(abs(a - b) <= 1e-9 for a, b in zip((*low, *high), (*sim_low, *sim_high),
+                                               strict=True)):
+        return ''
+    return (f'joint limits {list(low)} .. {list(high)} rad differ from {SIM_NODE}\'s '
+            f'{list(sim_low)} .. {list(sim_high)} rad')
+
+
+def narrower_limits(ours, theirs):
+    """The joint range both allow: (lower (2,), upper (2,)) rad."""
+    (low, high), (sim_low, sim_high) = ours, theirs
+    return (tuple(max(a, b) for a, b in zip(low, sim_low, strict=True)),
+            tuple(min(a, b) for a, b in zip(high, sim_high, strict=True)))
 
 
 class Controller(Node):
@@ -292,6 +334,49 @@ class Controller(Node):
             f'effort_limit={values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
         request_realtime(self, values['realtime_priority'])
         self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])
+        # The joint limits are checked against the sim's once its parameter service is up.
+        self._sim_client = AsyncParameterClient(self, SIM_NODE)
+        self._sim_tries = 0
+        self._sim_timer = self.create_timer(SIM_CHECK_PERIOD, self._look_for_sim)
+
+    # -- the sim's joint limits ---------------------------------------------------------------
+    def _look_for_sim(self) -> None:
+        self._sim_tries += 1
+        if self._sim_client.services_are_ready():
+            self._sim_timer.cancel()
+            self._sim_client.get_parameters(list(SIM_LIMITS), callback=self._on_sim_limits)
+        elif self._sim_tries >= SIM_CHECK_TRIES:
+            self._sim_timer.cancel()
+            self.get_logger().info(f'no {SIM_NODE}: joint limits not checked against a sim')
+
+    def _on_sim_limits(self, future) -> None:
+        try:
+            values = [list(v.double_array_value) for v in future.result().values]
+        except Exception as error:  # noqa: BLE001 a failed request must not stop control
+            self.get_logger().warning(f'{SIM_NODE}\'s joint limits unreadable: {error!r}')
+            return
+        if len(values) != 2 or any(len(v) != 2 for v in values):
+            self.get_logger().warning(f'{SIM_NODE}\'s joint limits unreadable: {values}')
+            return
+        ours = (tuple(self._values['joint_lower_limits']),
+                tuple(self._values['joint_upper_limits']))
+        problem = limits_mismatch(ours, tuple(map(tuple, values)))
+        if not problem:
+            self.get_logger().info(f'joint limits agree with {SIM_NODE}\'s')
+            return
+        low, high = narrower_limits(ours, tuple(map(tuple, values)))
+        merged = {**self._values, 'joint_lower_limits': list(low),
+                  'joint_upper_limits': list(high)}
+        try:
+            self._law = AdaptiveController(gains_from(merged), self._law.theta_hat,
+                                           merged['l1'], merged['l2'], merged['gravity'])
+        except ValueError as error:
+            self.get_logger().error(f'{problem}; the range both allow is unusable '
+                                    f'({error}): keeping ours')
+            return
+        self._values = merged
+        self.get_logger().error(f'{problem}: using the range both allow, {list(low)} .. '
+                                f'{list(high)} rad')
 
     # -- inputs ----------------------------------------------------------------------------
     def _warn(self, kind: str, text: str) -> None:

@@ -25,7 +25,11 @@ g(r) = K dP/dr (signed, r = |dx|, e = dx / r), the task velocity is
   arm crosses the region's boundary at about v_a and stops `region_margin` inside it. Not
   applied across a boundary at or beyond the workspace (d2 >= 2 reach) nor to S = -1 tasks
   (their ridge between the regions has no one direction towards the region). v_a = 0 gives
-  Q' = cap(K dP/dr).
+  Q' = cap(K dP/dr). For a follow-type task (not open outward) v_a is the task's own pull
+  K |dP/dr| at APPROACH_REFERENCE outside d2, within [MIN_APPROACH_SPEED, approach_speed]
+  (task_approach_speed): the demonstration's pace sets the approach too, so a task learned
+  from a demonstration four times slower (K / 4) takes four times as long; avoid tasks keep
+  approach_speed (leaving a hand is not slowed by a slow demonstration).
 
 Q'(r) is C2 in r except where the quintic blends meet (C2 too), and its derivative Q'' enters
 qddot_r (eq. 18) exactly, so qdot_r and the torque are continuous in time at region entry.
@@ -75,6 +79,7 @@ from hri_core.dynamics import forward_kinematics, jacobian, jacobian_derivative
 from hri_core.potential import (
     TaskShape,
     default_task_gain,
+    log_potential_slope,
     log_radial_slopes,
     potential_gradient,
     signed_log_potential_slope,
@@ -89,6 +94,21 @@ MAX_TASK_HESSIAN = 1e6
 CAP_BAND = 0.2
 """Soft band of the speed cap above max_task_speed, as a fraction of it: the task speed is
 K |dP/dz| up to max_task_speed and never more than (1 + CAP_BAND) max_task_speed."""
+
+APPROACH_REFERENCE = 0.2
+"""m outside a follow task's region where its pull sets its approach floor
+(task_approach_speed): the distance an approach is measured over, inside the arm's reach."""
+
+MIN_APPROACH_SPEED = 0.01
+"""m/s: the least approach floor, whatever the demonstration's pace: at it, 0.2 m take 20 s
+(the slowest demonstration the learner accepts still reaches its region; below it, the
+arm's friction and a 1 mm hand jitter would set the pace, not the task)."""
+
+RETREAT_REACH = 0.1
+"""m outside an avoid task's d1 where its retreat from an approaching hand starts to act."""
+
+RETREAT_SPEED = 0.05
+"""m/s: the retreat's smooth positive part of the hand's approach speed is quadratic below."""
 
 RADIAL_FADE = 0.01
 """m: the approach term fades out within this distance of dx = 0, where e = dx/|dx| has no
@@ -198,7 +218,9 @@ class JointReference:
     distance |dx| (m); task_velocity: -a delta_eps + a v_rest (2,) m/s, the task part of
     v_r; weighted_task_variable: a delta_eps (2,) m/s (enters the torque law, eq. 16);
     jacobian J (2, 2) m/rad; pinv J+ (2, 2) rad/m; damping lambda^2 (m^2/rad^2);
-    task: the TaskVariable (None when no task is active).
+    task: the TaskVariable (None when no task is active); pinv_rate dJ+/dt (2, 2) rad/(m s);
+    feed_forward f xdot_d (2,) m/s and feed_forward_rate its time derivative (2,) m/s^2;
+    task_rate: the time derivative of task_velocity (2,) m/s^2.
     """
 
     qdot_r: np.ndarray
@@ -212,12 +234,30 @@ class JointReference:
     pinv: np.ndarray
     damping: float
     task: TaskVariable | None
+    pinv_rate: np.ndarray | None = None
+    feed_forward: np.ndarray | None = None
+    feed_forward_rate: np.ndarray | None = None
+    task_rate: np.ndarray | None = None
 
 
 def open_outward(shape: TaskShape, reach: float) -> bool:
     """Whether a task's desired region is open outward (an avoid task): S = -1 (r >= d2 is in
     the region), or S = +1 with d2 >= 2 reach (m), beyond any hand-to-arm distance."""
     return shape.s == -1 or shape.d2 >= 2.0 * reach
+
+
+def task_approach_speed(shape: TaskShape, log_gain: float, approach_speed: float) -> float:
+    """The approach floor v_a (m/s) of a follow-type task: its own pull K |dP/dr| at
+    APPROACH_REFERENCE m outside its region, within [MIN_APPROACH_SPEED, approach_speed].
+
+    The demonstration's pace sets the floor as it sets the pull: a task learned from a
+    demonstration n times slower (K / n) approaches n times slower, down to
+    MIN_APPROACH_SPEED. log_gain: log K (K in m^2/s).
+    """
+    log_slope = float(log_potential_slope(np.array([shape.d2 + APPROACH_REFERENCE]),
+                                          shape)[0])
+    pull = math.exp(min(log_gain + log_slope, _LOG_SPEED_LIMIT))
+    return min(approach_speed, max(MIN_APPROACH_SPEED, pull))
 
 
 def task_drive(shape: TaskShape, k: float, max_task_speed: float, reach: float,
@@ -240,6 +280,8 @@ def task_drive(shape: TaskShape, k: float, max_task_speed: float, reach: float,
     log_gain = math.log(k) if k > 0.0 else default_task_gain(shape, v_max, reach)
     outward = open_outward(shape, reach)
     floor = approach_speed if shape.s == 1 and shape.d2 > shape.d1 else 0.0
+    if floor > 0.0 and not outward:
+        floor = task_approach_speed(shape, log_gain, floor)
     margin = min(region_margin, 0.25 * (shape.d2 - shape.d1)) if floor > 0.0 else 0.0
     return TaskDrive(shape, log_gain, v_max, floor, margin, outward, rest_gain, gate,
                      outer_floor=floor > 0.0 and not outward)
@@ -400,6 +442,45 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     b22 = w * (radial * n2 * n2 + tangential * (1.0 - n2 * n2))
     gw1, gw2 = (dw * dx1 / r, dw * dx2 / r) if r > 0.0 else (0.0, 0.0)
     return w * c1, w * c2, c1, c2, gw1, gw2, b11, b12, b22
+
+
+def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: float,
+                 ad1: float, ad2: float, drive: TaskDrive):
+    """An avoid task's retreat from an approaching hand, v_away = g(r) p(e . xdot_d) e, and
+    its time derivative, in floats: (v1, v2, dv1, dv2) m/s, m/s^2.
+
+    dx = x - x_d (m), e = dx / r; u = xdot - xdot_d (m/s); xdot_d, xddot_d the hand's velocity
+    and acceleration. p(c) is the smooth positive part of the hand's speed towards the arm
+    (C1: c^2 / (2 RETREAT_SPEED) up to RETREAT_SPEED, then c - RETREAT_SPEED / 2; capped
+    smoothly at 2 max_task_speed), g(r) the
+    quintic smoothstep from 1 at r <= d1 to 0 at d1 + RETREAT_REACH. Zero for follow tasks.
+    The arm backs away as fast as the hand comes (on top of the potential's push, which
+    starts only inside d1), so a hand that chases the arm at the arm's own speed no longer
+    gains on it.
+    """
+    shape = drive.shape
+    if not drive.open_outward or shape.s != 1 or shape.d1 <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    r = math.hypot(dx1, dx2)
+    if r == 0.0 or r >= shape.d1 + RETREAT_REACH:
+        return 0.0, 0.0, 0.0, 0.0
+    e1, e2 = dx1 / r, dx2 / r
+    c = e1 * vd1 + e2 * vd2
+    if c <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    band = RETREAT_SPEED
+    p, dp = (c * c / (2.0 * band), c / band) if c < band else (c - 0.5 * band, 1.0)
+    # At most 2 v_max, as the follow tasks' feed-forward (adaptive_law.FEED_FORWARD_RATIO).
+    p, slope = speed_cap(p, 2.0 * drive.max_task_speed)
+    dp *= slope
+    g, dg = _smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
+    dg = -dg / RETREAT_REACH
+    radial = e1 * u1 + e2 * u2  # dr/dt
+    de1, de2 = (u1 - e1 * radial) / r, (u2 - e2 * radial) / r  # de/dt
+    dc = de1 * vd1 + de2 * vd2 + e1 * ad1 + e2 * ad2
+    rate = dg * radial * p + g * dp * dc  # d(g p)/dt
+    gp = g * p
+    return gp * e1, gp * e2, rate * e1 + gp * de1, rate * e2 + gp * de2
 
 
 def _clip_hessian(value: float) -> float:
@@ -696,4 +777,6 @@ def joint_velocity_reference(q, dq, x_d, xdot_d, xddot_d, weight: float, weight_
     return JointReference(
         qdot_r=qdot_r, qddot_r=qddot_r, position=x, dx=dx, distance=distance,
         task_velocity=returning - weighted, weighted_task_variable=weighted, jacobian=jac,
-        pinv=pinv, damping=lam2, task=task)
+        pinv=pinv, damping=lam2, task=task, pinv_rate=pinv_dot, feed_forward=feed * xdot_d,
+        feed_forward_rate=feed * xddot_d + feed_rate * xdot_d,
+        task_rate=returning_dot - weighted_dot)

@@ -1,0 +1,391 @@
+"""Joint limits in the control law: a barrier, a feed-forward gate and the reach-round blend.
+
+The paper's controller knows no joint limits. A SCARA's joint 2 stops at about +-141 deg (the
+arm folded to r = 0.222 m) and joint 1 at about +-132 deg; a hand that crosses over the base
+pulls the arm straight into joint 2's stop, where the reference keeps asking for motion, s
+grows and -Ks s pushes the full effort into the stop. Three pieces, all in plain floats for
+the 1 kHz step (adaptive_law.step_lean and step call the same functions), no ROS import.
+
+Barrier (in V)
+--------------
+Within `band` rad of a limit a joint-space potential B(q) = sum_i B_i(q_i) rises, with
+
+    dB/dq_i = g_i = kb (w(u_i+) - w(u_i-)),  u_i+ = (q_i - (upper_i - band)) / band,
+                                             u_i- = ((lower_i + band) - q_i) / band,
+
+w the quintic smoothstep (0 outside the band, 1 at the limit and beyond), kb =
+`barrier_torque` (N m). It enters the law as a task of its own: the torque gets -g and the
+task-space reference velocity -J+^T g / Kp (adaptive_law), so that with
+
+    V = 1/2 s^T M s + Kp a Q + B + 1/2 dtheta^T L^-1 dtheta
+
+eq. 22 becomes dV/dt = -s^T (Ks + F) s - Kp |a delta_eps + J+^T g / Kp|^2 + Kp (da/dt) Q
+(+ the terms of the hand's motion below). At rest (s = 0) the arm stops where the task's
+force J^T Kp a delta_eps and the barrier's g balance; the torque there, -J^T Kp a delta_eps
+- g, is zero. kb = 3 N m is above the largest task torque J^T Kp (1 + CAP_BAND) v_max (at
+most 1.95 N m on joint 1, 0.9 N m on joint 2 with the default gains), so the balance lies
+inside the band, before the stop.
+
+Feed-forward gate
+-----------------
+The hand's velocity enters qdot_r as J+ xdot_d (eq. 14); a hand moving where the arm cannot
+follow would drive the joint into its stop at the hand's speed. Within the band each joint's
+feed-forward component towards the limit is scaled by 1 - w(u) S(v / FEED_SPEED) (S the
+quintic smoothstep of the component's speed, so the gate is C1 in the velocity), leaving
+motion away from the limit alone. This adds to dV/dt the terms Kp a delta_eps^T J dff +
+g^T ff', bounded by the hand's speed, zero for a still hand (as the dropped feed-forward of
+an avoid task adds -Kp a delta_eps^T xdot_d).
+
+Reach-round
+-----------
+Where the straight task-space descent is blocked (the segment from the arm to its goal passes
+through the hole round the base, a joint sits in its band while the goal is far, or the hand
+is out of reach), a joint-space motion towards an inverse-kinematics solution q* of the
+goal is blended in with a weight sigma (eq. 13's C2 ramp, event_weight):
+
+    qdot_r = (1 - sigma) qdot_r,task + sigma u,   u = dq_f/dt - cap(k (q - q_f)),
+
+q_f following q* through a slew limit and a critically damped second-order filter (q_f,
+d2q_f/dt2 continuous, so u's exact time derivative d2q_f/dt2 - Dcap k (qdot - dq_f/dt) is
+continuous and the torque does not step). The goal is the hand's nearest reachable point
+(follow tasks) or the point of the region's annulus towards the arm (d1 > 0), projected onto
+the reachable
+annulus and into the joint box (q* clamped GOAL_MARGIN band inside the limits: the
+joint-space straight line stays in the convex box, away from every stop). The task's force
+is weighted (1 - sigma) with its Q in V; the joint motion needs no force of its own (V's
+s-term converges s, and qdot = qdot_r then moves q to q_f). While sigma ramps, V
+gains sigma-rate terms like eq. 22's (da/dt) Q, bounded and over a finite time.
+Avoid tasks (open outward) never reach round: they move away from the hand.
+"""
+
+import math
+from dataclasses import dataclass
+
+from hri_adaptive_controller.event_weight import EventWeightSchedule
+from hri_adaptive_controller.task_variable import _smoothstep
+
+GOAL_MARGIN = 0.5
+"""The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
+1/2: its force there is below the task's largest)."""
+
+CLAMP_COST = 1000.0
+"""Weight of the joint-box clamping against the joint distance when choosing an elbow."""
+
+FEED_SPEED = 0.05
+"""rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """The joints' limits as the controller knows them, and how it keeps off them.
+
+    lower, upper (2,) rad: the limits (defaults: scara_sim's joint_lower_limits and
+    joint_upper_limits); band (rad, > 0): the barrier and the gate act within it;
+    barrier_torque kb (N m, >= 0): the barrier's torque at a limit.
+    """
+
+    lower: tuple[float, float] = (-2.30, -2.46)
+    upper: tuple[float, float] = (2.30, 2.46)
+    band: float = 0.1
+    barrier_torque: float = 3.0
+
+    def __post_init__(self):
+        values = (*self.lower, *self.upper)
+        if len(self.lower) != 2 or len(self.upper) != 2 or not all(map(math.isfinite, values)):
+            raise ValueError(f'joint limits must be 2 finite lower and 2 finite upper values, '
+                             f'got {self.lower} and {self.upper}')
+        if any(high - low <= 2.0 * self.band for low, high in zip(self.lower, self.upper,
+                                                                   strict=True)):
+            raise ValueError(f'each joint range {self.lower} .. {self.upper} must be wider than '
+                             f'2 band ({self.band} rad)')
+        if not (math.isfinite(self.band) and self.band > 0.0):
+            raise ValueError(f'band must be finite and > 0 rad, got {self.band}')
+        if not (math.isfinite(self.barrier_torque) and self.barrier_torque >= 0.0):
+            raise ValueError(f'barrier_torque must be finite and >= 0 N m, '
+                             f'got {self.barrier_torque}')
+
+
+@dataclass(frozen=True)
+class ReachRoundSettings:
+    """The reach-round blend (module docstring).
+
+    gain k (1/s) and max_speed (rad/s) of the joint motion u; blend_time (s): a full ramp of
+    sigma; filter_rate omega (1/s) and slew (rad/s) of q_f; outer_margin (m): the goal is kept
+    this far inside the stretched reach; inner_margin (m): and this far outside the folded
+    reach; enabled: False leaves sigma at 0.
+    """
+
+    gain: float = 4.0
+    max_speed: float = 1.0
+    blend_time: float = 0.5
+    filter_rate: float = 8.0
+    slew: float = 1.0
+    outer_margin: float = 0.03
+    inner_margin: float = 0.01
+    enabled: bool = True
+
+    def __post_init__(self):
+        for name in ('gain', 'max_speed', 'blend_time', 'filter_rate', 'slew'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'reach-round {name} must be finite and > 0, got {value}')
+        for name in ('outer_margin', 'inner_margin'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'reach-round {name} must be finite and >= 0 m, got {value}')
+
+
+def barrier(q1: float, q2: float, dq1: float, dq2: float, limits: JointLimits):
+    """The barrier's gradient g (N m), its time derivative (N m/s) and its proximity.
+
+    Returns (g1, g2, gd1, gd2, near): g = dB/dq, gd = (d2B/dq2) qdot (diagonal Hessian),
+    near = max_i w(u_i) in [0, 1] (0 outside every band, 1 at a limit).
+    """
+    band, kb = limits.band, limits.barrier_torque
+    (low1, low2), (high1, high2) = limits.lower, limits.upper
+    if low1 + band <= q1 <= high1 - band and low2 + band <= q2 <= high2 - band:
+        return 0.0, 0.0, 0.0, 0.0, 0.0  # outside every band (the usual case)
+    out = []
+    near = 0.0
+    for q, dq, low, high in ((q1, dq1, limits.lower[0], limits.upper[0]),
+                             (q2, dq2, limits.lower[1], limits.upper[1])):
+        up, dup = _smoothstep((q - (high - band)) / band)
+        down, ddown = _smoothstep(((low + band) - q) / band)
+        near = max(near, up, down)
+        out.append((kb * (up - down), kb * (dup + ddown) / band * dq))
+    (g1, gd1), (g2, gd2) = out
+    return g1, g2, gd1, gd2, near
+
+
+def barrier_energy(q1: float, q2: float, limits: JointLimits) -> float:
+    """B(q) (J): kb band times the integral of the smoothstep over each joint's overlap."""
+    band, kb = limits.band, limits.barrier_torque
+    total = 0.0
+    for q, low, high in ((q1, limits.lower[0], limits.upper[0]),
+                         (q2, limits.lower[1], limits.upper[1])):
+        for u in ((q - (high - band)) / band, ((low + band) - q) / band):
+            if u > 0.0:
+                v = min(u, 1.0)
+                total += kb * band * (2.5 * v ** 4 - 3.0 * v ** 5 + v ** 6 + max(u - 1.0, 0.0))
+    return total
+
+
+def gate_feed_forward(q1: float, q2: float, dq1: float, dq2: float, v1: float, v2: float,
+                      a1: float, a2: float, limits: JointLimits):
+    """The gated feed-forward joint velocity and its time derivative.
+
+    v (2,) rad/s: J+ f xdot_d; a (2,) rad/s^2: its time derivative; q, dq the joint state.
+    Returns (v1', v2', a1', a2').
+    """
+    band = limits.band
+    out = []
+    for q, dq, v, a, low, high in ((q1, dq1, v1, a1, limits.lower[0], limits.upper[0]),
+                                   (q2, dq2, v2, a2, limits.lower[1], limits.upper[1])):
+        up, dup = _smoothstep((q - (high - band)) / band)
+        down, ddown = _smoothstep(((low + band) - q) / band)
+        if up == 0.0 and down == 0.0 and dup == 0.0 and ddown == 0.0:
+            out.append((v, a))
+            continue
+        towards_up, dtu = _smoothstep(v / FEED_SPEED)
+        towards_down, dtd = _smoothstep(-v / FEED_SPEED)
+        factor = 1.0 - up * towards_up - down * towards_down
+        factor_rate = (-(dup / band * dq) * towards_up - up * dtu / FEED_SPEED * a
+                       - (-(ddown / band) * dq) * towards_down + down * dtd / FEED_SPEED * a)
+        out.append((v * factor, a * factor + v * factor_rate))
+    (w1, b1), (w2, b2) = out
+    return w1, w2, b1, b2
+
+
+def workspace_radii(l1: float, l2: float, limits: JointLimits) -> tuple[float, float]:
+    """(folded, stretched) reach (m): the base-to-tip distance at joint 2's nearer limit
+    (or |l1 - l2| when joint 2 may fold fully) and l1 + l2."""
+    fold = min(abs(limits.lower[1]), abs(limits.upper[1]), math.pi)
+    return math.sqrt(max(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(fold), 0.0)), l1 + l2
+
+
+def inverse_kinematics(x1: float, x2: float, near1: float, near2: float, l1: float, l2: float,
+                       limits: JointLimits) -> tuple[float, float]:
+    """Joint angles (rad) that put the tip at (x1, x2) m or nearest to it, clamped GOAL_MARGIN
+    band inside the limits; of the two elbows, the one the box cuts least, then the one nearer
+    to (near1, near2)."""
+    r2 = x1 * x1 + x2 * x2
+    c2 = (r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
+    c2 = min(max(c2, -1.0), 1.0)
+    margin = GOAL_MARGIN * limits.band
+    best = None
+    for elbow in (1.0, -1.0):
+        q2 = elbow * math.acos(c2)
+        q1 = math.atan2(x2, x1) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
+        # In (-pi, pi]: the nearest writing to a box centred on 0.
+        q1 = math.remainder(q1, 2.0 * math.pi)
+        k1 = min(max(q1, limits.lower[0] + margin), limits.upper[0] - margin)
+        k2 = min(max(q2, limits.lower[1] + margin), limits.upper[1] - margin)
+        # A solution the box cuts short misses the point: the one that reaches first.
+        cost = (CLAMP_COST * ((k1 - q1) ** 2 + (k2 - q2) ** 2)
+                + (k1 - near1) ** 2 + (k2 - near2) ** 2)
+        q1, q2 = k1, k2
+        if best is None or cost < best[0]:
+            best = (cost, q1, q2)
+    return best[1], best[2]
+
+
+def _segment_clearance(x1: float, x2: float, y1: float, y2: float) -> float:
+    """Distance (m) from the base (0, 0) to the segment from x to y."""
+    d1, d2 = y1 - x1, y2 - x2
+    length2 = d1 * d1 + d2 * d2
+    t = 0.0 if length2 == 0.0 else min(max(-(x1 * d1 + x2 * d2) / length2, 0.0), 1.0)
+    return math.hypot(x1 + t * d1, x2 + t * d2)
+
+
+class ReachRound:
+    """The state of the reach-round blend: sigma's ramp, the filtered joint goal q_f.
+
+    `update` runs once per control step with its dt; `reset` forgets the state (the joint goal
+    restarts from the arm's joints at the next update).
+    """
+
+    BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
+    CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
+    STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
+    STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
+    NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
+    FAR_GOAL = 0.06  # m from the goal: far
+
+    def __init__(self, settings: ReachRoundSettings, limits: JointLimits, l1: float,
+                 l2: float):
+        self.settings, self.limits, self._l1, self._l2 = settings, limits, l1, l2
+        self._inner, self._outer = workspace_radii(l1, l2, limits)
+        self.reset()
+
+    def reset(self) -> None:
+        self._time = 0.0
+        self._schedule = EventWeightSchedule(self.settings.blend_time)
+        self._engaged = False
+        self._switched = -math.inf  # time of the last switch
+        self._resting = True  # sigma is 0 with no ramp to evaluate
+        self._full = False  # sigma is 1 with no ramp to evaluate
+        self._filtered = None  # (q_in1, q_in2, qf1, qf2, dqf1, dqf2)
+
+    @property
+    def engaged(self) -> bool:
+        """Whether the blend is heading to (or at) the joint-space motion."""
+        return self._engaged
+
+    def goal(self, x1: float, x2: float, h1: float, h2: float, d1: float, d2: float):
+        """The task-space goal (m): the hand h (d1 = 0) or the point of the region's annulus
+        towards the arm x, projected onto the reachable annulus."""
+        g1, g2 = h1, h2
+        if d1 > 0.0:
+            e1, e2 = x1 - h1, x2 - h2
+            norm = math.hypot(e1, e2)
+            if norm > 0.0:
+                middle = 0.5 * (d1 + min(d2, d1 + 0.2))
+                g1, g2 = h1 + middle * e1 / norm, h2 + middle * e2 / norm
+        radius = math.hypot(g1, g2)
+        low = self._inner + self.settings.inner_margin
+        high = self._outer - self.settings.outer_margin
+        if radius > high:
+            g1, g2 = g1 * high / radius, g2 * high / radius
+        elif radius < low:
+            if radius > 1e-9:
+                g1, g2 = g1 * low / radius, g2 * low / radius
+            else:  # the hand over the base: the point of the inner circle towards the arm
+                norm = math.hypot(x1, x2) or 1.0
+                g1, g2 = x1 * low / norm, x2 * low / norm
+        return g1, g2, radius
+
+    def update(self, q1: float, q2: float, dq1: float, dq2: float, x1: float, x2: float,
+               hand, region, near: float, dt: float):
+        """Advance by dt (s) and return (sigma, dsigma/dt, u1, u2, du1/dt, du2/dt).
+
+        hand (2,) m: the target x_d; region (d1, d2) m of a follow task, or None (no task, or
+        an avoid task: sigma fades to 0); near: the barrier's proximity (barrier()).
+        """
+        settings = self.settings
+        self._time += dt
+        now = self._time
+        target = None  # the joint goal, when worked out for the decision below
+        if not settings.enabled or region is None:
+            wanted = False
+            goal = None
+        else:
+            g1, g2, hand_radius = self.goal(x1, x2, hand[0], hand[1], *region)
+            clearance = _segment_clearance(x1, x2, g1, g2)
+            distance = math.hypot(g1 - x1, g2 - x2)
+            # The whole region out of reach: beyond the stretched arm or inside the hole.
+            outside = (hand_radius - region[1] > self._outer - settings.outer_margin
+                       or hand_radius + region[1] < self._inner + settings.inner_margin)
+            if self._engaged:
+                # Stay on the joint-space motion until the arm is at the goal or the straight
+                # descent would get there: the path clear of the hole, no joint near a limit,
+                # the goal on the arm's elbow and within STRAIGHT_TURN of its joint 1, the arm
+                # off the stretched singularity (leaving earlier hands the arm back to the
+                # descent that was blocked).
+                t1, t2 = inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self.limits)
+                target = (t1, t2)
+                straight = (clearance >= self._inner + self.CLEAR_CLEARANCE
+                            and near < 0.5 * self.NEAR_BARRIER and t2 * q2 > 0.0
+                            and abs(t1 - q1) < self.STRAIGHT_TURN
+                            and abs(q2) > self.STRETCHED)
+                wanted = (outside or clearance < self._inner + self.BLOCKED_CLEARANCE
+                          or (distance > 0.5 * self.FAR_GOAL and not straight))
+            else:
+                wanted = (clearance < self._inner + self.BLOCKED_CLEARANCE
+                          or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL)
+                          or outside)
+            goal = (g1, g2)
+        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
+            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
+        if wanted != self._engaged:
+            self._engaged, self._switched = wanted, now
+            self._schedule.request('round' if wanted else None, now)
+            self._resting = self._full = False
+        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
+            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        if self._engaged and self._full:  # sigma at 1 and staying there
+            sigma, sigma_rate = 1.0, 0.0
+        else:
+            weight = self._schedule.evaluate(now)
+            sigma, sigma_rate = weight.weight, weight.rate
+            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
+        if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
+            self._filtered = None
+            self._resting = True
+            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        state = self._filtered
+        if state is None:
+            state = (q1, q2, q1, q2, 0.0, 0.0)
+        q_in1, q_in2, f1, f2, df1, df2 = state
+        if goal is not None:
+            t1, t2 = target if target is not None else inverse_kinematics(
+                goal[0], goal[1], q1, q2, self._l1, self._l2, self.limits)
+            step = settings.slew * dt
+            q_in1 += min(max(t1 - q_in1, -step), step)
+            q_in2 += min(max(t2 - q_in2, -step), step)
+        omega = settings.filter_rate
+        # Critically damped second-order filter (semi-implicit Euler); its acceleration is
+        # continuous (q_in is), so the feed-forward of dq_f steps nothing.
+        acc1 = omega * omega * (q_in1 - f1) - 2.0 * omega * df1
+        acc2 = omega * omega * (q_in2 - f2) - 2.0 * omega * df2
+        df1 += dt * acc1
+        df2 += dt * acc2
+        f1 += dt * df1
+        f2 += dt * df2
+        self._filtered = (q_in1, q_in2, f1, f2, df1, df2)
+        # u = -cap(k e) with a smooth cap on the norm (C1), and its exact time derivative.
+        k = settings.gain
+        e1, e2 = q1 - f1, q2 - f2
+        de1, de2 = dq1 - df1, dq2 - df2
+        norm = math.hypot(e1, e2)
+        speed_max = settings.max_speed
+        raw = k * norm
+        if raw <= 1e-12:
+            return (sigma, sigma_rate, df1 - k * e1, df2 - k * e2, acc1 - k * de1,
+                    acc2 - k * de2)
+        capped = speed_max * math.tanh(raw / speed_max)
+        slope = 1.0 / math.cosh(raw / speed_max) ** 2 * k  # d capped / d norm
+        scale = capped / norm  # u = -scale e
+        along = (e1 * de1 + e2 * de2) / norm  # d norm / dt
+        dscale = (slope - scale) / norm * along
+        return (sigma, sigma_rate, df1 - scale * e1, df2 - scale * e2,
+                acc1 - (scale * de1 + dscale * e1), acc2 - (scale * de2 + dscale * e2))

@@ -49,11 +49,6 @@ ALL_TAKES = sorted(path.stem for path in TAKES.glob('*.csv'))
 # 1.6 m/s (PickPlaceCloseHuman) and one with marker swaps (HumanRobotHandover).
 DEFAULT_TAKES = {'follow': ('CollaborativeHammering_1', 'TossTheCan_0'),
                  'avoid': ('PickPlaceCloseHuman_2', 'HumanRobotHandover_0')}
-# Known miss, as in the pure loop (test_recorded_takes.py): placed this way, the hand of
-# RobotHumanHandover_1 comes at 0.7 m/s straight onto the arm's start (its rest position) and
-# chases it at the arm's top speed into the stretched reach: 16 % of the samples closer than
-# d1 - 3 cm on the live loop (main's controller). Strict: it fails the suite once fixed.
-KNOWN_MISSES = {('RobotHumanHandover_1', 'avoid')}
 SETTLE = 2.0  # s: the arm comes from its start pose and the task fades in (ramp 0.3 s)
 DURATION = 17.0  # s of each take judged, from its first frame
 CONTROLLER = load_defaults('hri_adaptive_controller', 'controller')
@@ -165,9 +160,6 @@ def take_cases():
             marks = [pytest.mark.exclusive]
             if take not in DEFAULT_TAKES[task]:
                 marks.append(pytest.mark.slow)
-            if (take, task) in KNOWN_MISSES:
-                marks.append(pytest.mark.xfail(strict=True, reason='the hand chases the arm '
-                                               'at its top speed'))
             cases.append(pytest.param(take, task, marks=marks, id=f'{task}-{take}'))
     return cases
 

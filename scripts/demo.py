@@ -6,7 +6,9 @@ Stages (each prints what it does; a failing stage is named and the exit code is 
   3. run the three behaviours closed-loop with a scripted hand, each recorded to a bag;
   4. run follow -> avoid -> follow_safe, the events detected by the event_detector from a hand
      that reaches in, rests and withdraws (no timer sends one), recorded;
-  5. write OUT/report.md, OUT/figures/*.png and OUT/metrics.json.
+  5. a recorded person (a Vicon take, data/human-motion) as the hand, from follow, the tasks
+     switched by the event_detector;
+  6. write OUT/report.md, OUT/figures/*.png and OUT/metrics.json.
 Run through scripts/demo.sh, which sets the project up and sources its environment first.
 Every process is started on this run's own ROS_DOMAIN_ID, discovery on loopback, and ended by
 PID when its stage ends or fails.
@@ -29,7 +31,13 @@ matplotlib.use('Agg')  # before pyplot is imported: figures go to files, no disp
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hri_adaptive_controller.run_metrics import run_metrics  # noqa: E402
+from hri_adaptive_controller.run_metrics import (  # noqa: E402
+    TakeCriteria,
+    largest_effort_step,
+    longest_high_effort_hold,
+    run_metrics,
+    take_metrics,
+)
 from hri_bringup.processes import (  # noqa: E402
     LIVE_LOOP,
     NodeProcess,
@@ -40,6 +48,7 @@ from hri_bringup.processes import (  # noqa: E402
 )
 from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
+from hri_core.recorded_motion import ReachAnnulus  # noqa: E402
 from hri_core.separation import ProtectiveSeparation, separation_verdict  # noqa: E402
 from hri_core.task_file import load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
@@ -120,6 +129,13 @@ SEQUENCE_SETTLE = 4.0  # s after the hand stops
 RUN_TOPICS = ['/hri/controller_state', '/hri/task_state', '/target', '/ee_position',
               '/effort_controller/commands']
 SEQUENCE_TOPICS = [*RUN_TOPICS, '/hri/events', '/hri/separation']
+# Stage 5: a person's right hand recorded with a Vicon tracker, replayed by hand_sim at its
+# recorded pace and placed by its auto_place, from the learned follow, the tasks switched by
+# the event_detector's default rules. The first RECORDED_SETTLE s after each switch are left
+# out of the figures (the task fades in).
+RECORDED_TAKE = REPO_ROOT / 'data' / 'human-motion' / 'TossTheCan_0.csv'
+RECORDED_SECONDS = 24.0  # s (--quick: 18 s)
+RECORDED_SETTLE = 2.0  # s
 
 
 def hand_profile(hand: dict) -> HandProfile:
@@ -347,7 +363,7 @@ class Demo:
                 raise StageError(f'{name}: the learner learned it, the same fit in-process '
                                  f'did not: {error}') from None
 
-    # -- stages 3 and 4 ----------------------------------------------------------------
+    # -- stages 3, 4 and 5 -------------------------------------------------------------
     def closed_loop(self, run: str, initial_task: str, hand: dict, seconds: float,
                     detector: bool = False) -> Path:
         """Run the live loop (with the event_detector: `detector`) for `seconds` s, recorded
@@ -401,7 +417,132 @@ class Demo:
         bag = self.closed_loop('sequence', 'follow', SEQUENCE_HAND, seconds, detector=True)
         self.sequence_report(bag)
 
-    # -- stage 5 -----------------------------------------------------------------------
+    def run_recorded_person(self) -> None:
+        seconds = 18.0 if self.quick else RECORDED_SECONDS
+        hand = {'profile': 'recording', 'recording': str(RECORDED_TAKE), 'auto_place': True,
+                'at_end': 'loop'}
+        print(f'  a recorded person ({RECORDED_TAKE.stem}, Vicon, 100 Hz) as the hand for '
+              f'{seconds:.0f} s, from follow; the event_detector switches the tasks')
+        bag = self.closed_loop('recorded_person', 'follow', hand, seconds, detector=True)
+        self.recorded_person_report(bag)
+
+    # -- stage 6 -----------------------------------------------------------------------
+    def recorded_person_report(self, bag: Path) -> None:
+        """Figures of the recorded person's run per task the controller ran
+        (run_metrics.take_metrics), the detected events, and its figure: hand and arm paths,
+        distance, effort."""
+        topics = ['/target', '/ee_position', '/effort_controller/commands',
+                  '/hri/controller_state', '/hri/events']
+        contents = read_bag(bag, topics=topics).topics
+        for topic in topics[:-1]:
+            if topic not in contents or not contents[topic].messages:
+                raise StageError(f'no {topic} in {bag}')
+
+        def stamped(topic):
+            messages = contents[topic].messages
+            return (np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+                              for m in messages]),
+                    np.array([(m.point.x, m.point.y) for m in messages]))
+
+        hand_t, hand_xy = stamped('/target')
+        arm_t, arm_xy = stamped('/ee_position')
+        command_t = contents['/effort_controller/commands'].times()
+        commands = np.array([list(m.data) for m in contents['/effort_controller/commands']
+                             .messages])
+        states = contents['/hri/controller_state'].messages
+        state_t = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in states])
+        state_task = np.array([m.task for m in states])
+        # The task the controller ran at each arm sample, and when it began running it.
+        at_state = np.clip(np.searchsorted(state_t, arm_t, side='right') - 1, 0, len(states) - 1)
+        arm_task = state_task[at_state]
+        changes = np.flatnonzero(arm_task[1:] != arm_task[:-1]) + 1
+        switches = arm_t[changes]
+        segment = np.zeros(arm_t.size, dtype=int)  # which run of one task each sample is in
+        segment[changes] = 1
+        began = arm_t[np.concatenate(([0], changes))][np.cumsum(segment)]
+        events = [(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec, m.name, m.task)
+                  for m in (contents['/hri/events'].messages if '/hri/events' in contents
+                            else [])]
+        # The hand as the controller had it at each arm sample: the newest /target, none
+        # where that is more than 50 ms old (a frame the cameras lost).
+        newest = np.searchsorted(hand_t, arm_t, side='right') - 1
+        hand_at_arm = hand_xy[np.maximum(newest, 0)].copy()
+        hand_at_arm[(newest < 0) | (arm_t - hand_t[np.maximum(newest, 0)] > 0.05)] = np.nan
+        controller = load_defaults('hri_adaptive_controller', 'controller')
+        reach = ReachAnnulus(*load_defaults('scara_sim', 'hand_sim')['reach'])
+        t0 = hand_t[0]
+        summary = {'take': RECORDED_TAKE.stem,
+                   'target_glitches': int(max(m.target_glitches for m in states)),
+                   'events': [{'t': round(t - t0, 2), 'event': name, 'task': task}
+                              for t, name, task in events]}
+        for t, name, task in events:
+            print(f'    event {name!r} -> {task or "none"} at {t - t0:.2f} s')
+        settled = arm_t >= np.maximum(began, hand_t[0]) + RECORDED_SETTLE
+        for task in ('follow', 'avoid', 'follow_safe'):
+            inside = (arm_task == task) & settled
+            if np.count_nonzero(inside) < 100:
+                continue
+            record = load_task_file(self.tasks / f'{task}.yaml')
+            criteria = TakeCriteria(d1=record.d1, effort_limit=controller['effort_limit'],
+                                    task_speed=controller['max_task_speed'], reach=reach)
+            # the commands as the effort: take_metrics wants one per arm sample
+            nearest = np.clip(np.searchsorted(command_t, arm_t[inside]), 0, len(command_t) - 1)
+            metrics = take_metrics(arm_t[inside], hand_at_arm[inside], arm_xy[inside],
+                                   commands[nearest], criteria)
+            window = np.zeros(command_t.size, dtype=bool)
+            window[nearest] = True
+            summary[task] = {
+                **asdict(metrics), 'd1': record.d1, 'seconds': float(np.sum(inside) * 1e-3),
+                'largest_effort_step': largest_effort_step(commands[window]),
+                'longest_high_effort_hold': longest_high_effort_hold(
+                    command_t[window], commands[window], 0.25 * controller['effort_limit'])}
+            m = summary[task]
+            print(f'    {task}: median distance {m["follow_median_distance"]:.3f} m, closer '
+                  f'than d1 - 3 cm {100 * m["close_fraction"]:.1f} % (of the samples with '
+                  f'the hand in reach and slower than {criteria.task_speed} m/s); longest '
+                  f'hold above 25 % of the effort limit {m["longest_high_effort_hold"]:.2f} s;'
+                  f' largest command step {m["largest_effort_step"]:.3f} N m')
+        print(f'    /target jumps held: {summary["target_glitches"]}')
+        self.metrics['recorded_person'] = summary
+        figure = plt.figure(figsize=(11, 6))
+        plane = figure.add_subplot(1, 2, 2)
+        distance_axis = figure.add_subplot(2, 2, 1)
+        effort_axis = figure.add_subplot(2, 2, 3, sharex=distance_axis)
+        colours = {'follow': 'tab:blue', 'avoid': 'tab:purple', 'follow_safe': 'tab:green'}
+        plane.plot(hand_xy[:, 0], hand_xy[:, 1], '.', color='tab:orange', markersize=1.5,
+                   label='hand (recorded)')
+        for task, colour in colours.items():
+            path = np.where((arm_task == task)[:, None], arm_xy, np.nan)
+            if np.any(arm_task == task):
+                plane.plot(path[:, 0], path[:, 1], color=colour, label=f'arm, {task}')
+        for radius in (reach.inner, reach.outer):
+            plane.add_patch(plt.Circle((0.0, 0.0), radius, fill=False, linestyle=':',
+                                       color='grey'))
+        plane.plot(0.0, 0.0, 'k+')
+        plane.set_aspect('equal', adjustable='datalim')
+        plane.set_xlabel('x (m)')
+        plane.set_ylabel('y (m)')
+        plane.set_title(f'{RECORDED_TAKE.stem}: paths (dotted: the reach)')
+        plane.legend(loc='best', fontsize=8)
+        distance = np.linalg.norm(hand_at_arm - arm_xy, axis=1)
+        distance_axis.plot(arm_t - t0, distance, color='k', linewidth=0.8)
+        for t in switches:
+            distance_axis.axvline(t - t0, color='grey', linestyle='--')
+        avoid_d1 = load_task_file(self.tasks / 'avoid.yaml').d1
+        distance_axis.axhline(avoid_d1, color='tab:purple', linestyle=':', label='avoid d1')
+        distance_axis.set_ylabel('|hand - arm| (m)')
+        distance_axis.set_title('distance to the hand (dashed: a detected switch)')
+        distance_axis.legend(loc='upper right', fontsize=8)
+        effort_axis.plot(command_t - t0, commands[:, 0], label='tau1', linewidth=0.8)
+        effort_axis.plot(command_t - t0, commands[:, 1], label='tau2', linewidth=0.8)
+        effort_axis.set_xlim(0.0, float(arm_t[-1] - t0))   # from the first hand sample
+        effort_axis.set_xlabel('t (s)')
+        effort_axis.set_ylabel('torque (N m)')
+        effort_axis.legend(loc='upper right', fontsize=8)
+        figure.tight_layout()
+        figure.savefig(self.figures / 'recorded_person.png', dpi=110)
+        plt.close(figure)
+
     def controller_series(self, bag: Path) -> dict:
         contents = read_bag(bag, topics=['/hri/controller_state', '/hri/task_state'])
         states = contents.topics.get('/hri/controller_state')
@@ -723,6 +864,32 @@ class Demo:
                       f'distance {seq["final"]["steady_distance"]:.3f} m.', '',
                       '![sequence](figures/sequence.png)']
         lines += self.separation_verdicts()
+        if 'recorded_person' in self.metrics:
+            person = self.metrics['recorded_person']
+            rows = [f"| {task} | {person[task]['seconds']:.1f} | "
+                    f"{person[task]['follow_median_distance']:.3f} | "
+                    f"{100 * person[task]['close_fraction']:.1f} % | "
+                    f"{person[task]['longest_high_effort_hold']:.2f} | "
+                    f"{person[task]['largest_effort_step']:.3f} |"
+                    for task in ('follow', 'avoid', 'follow_safe') if task in person]
+            detected = ', '.join(f"{e['event']} -> {e['task'] or 'none'} at {e['t']:.1f} s"
+                                 for e in person['events']) or 'none'
+            lines += ['', '## A recorded person as the hand', '',
+                      f"The right hand of a person tossing a can ({person['take']}, recorded "
+                      'with a Vicon tracker at 100 Hz, data/human-motion), replayed on /target '
+                      'at its recorded pace and placed so that most of its path lies within '
+                      'the arm\'s reach; the learned follow at first, the tasks switched by the '
+                      f'event_detector. Detected events: {detected}. /target jumps held as '
+                      f"glitches: {person['target_glitches']}.",
+                      '', '| task | time run (s) | median distance (m) | closer than d1 - 3 cm '
+                      '| longest hold above 25 % of the effort limit (s) | largest command step '
+                      '(N m) |', '|---|---|---|---|---|---|', *rows, '',
+                      'Distances over the samples where the hand was within reach and slower '
+                      'than the arm\'s task speed (max_task_speed), from '
+                      f'{RECORDED_SETTLE:.0f} s after each task began; the median distance '
+                      'is the figure of merit for follow, the share closer than d1 - 3 cm for '
+                      'avoid.', '',
+                      '![recorded person](figures/recorded_person.png)']
         steps = {name: m['max_effort_step'] for name, m in self.metrics['behaviours'].items()}
         if 'sequence' in self.metrics:
             steps['sequence'] = self.metrics['sequence']['max_effort_step']
@@ -761,11 +928,12 @@ def main() -> int:
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     demo = Demo(out, args.quick, domain)
     stages = [
-        ('1/5 record demonstrations', demo.record_demonstrations),
-        ('2/5 learn tasks from the bags', demo.learn),
-        ('3/5 run the behaviours closed-loop', demo.run_behaviours),
-        ('4/5 sequential task with events', demo.run_sequence),
-        ('5/5 write the report', demo.write_report),
+        ('1/6 record demonstrations', demo.record_demonstrations),
+        ('2/6 learn tasks from the bags', demo.learn),
+        ('3/6 run the behaviours closed-loop', demo.run_behaviours),
+        ('4/6 sequential task with events', demo.run_sequence),
+        ('5/6 a recorded person, tasks switched by the event_detector', demo.run_recorded_person),
+        ('6/6 write the report', demo.write_report),
     ]
     # SIGTERM ends the run like Ctrl-C: processes stopped, non-zero exit.
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))

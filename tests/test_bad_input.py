@@ -67,13 +67,18 @@ def point(probe, xy, stamp=None) -> PointStamped:
 
 
 class StandInArm:
-    """The test's arm at Q_ARM: joint states at 200 Hz, the hand at 50 Hz, from a thread."""
+    """The test's arm at Q_ARM: joint states at 200 Hz, the hand at 50 Hz, from a thread.
 
-    def __init__(self, probe):
+    hand_at(k): where hand sample k is (None: none is sent, a lost frame); by default the
+    hand stays HAND_OFFSET from the end-effector. `sent`: the index of the newest sample."""
+
+    def __init__(self, probe, hand_at=None):
         self.probe = probe
         self.joints = probe.publisher('/joint_states', JointState, 10)
         self.targets = probe.publisher('/target', PointStamped, 10)
         self.hand = forward_kinematics(np.array(Q_ARM), 0.35, 0.30) + HAND_OFFSET
+        self.hand_at = hand_at or (lambda k: self.hand)
+        self.sent = -1
         self.publishing_joints = threading.Event()
         self.publishing_joints.set()
         self._stop = threading.Event()
@@ -86,7 +91,10 @@ class StandInArm:
             if self.publishing_joints.is_set():
                 self.joints.publish(joint_state(self.probe, ['joint1', 'joint2'], Q_ARM))
             if tick % 4 == 0:
-                self.targets.publish(point(self.probe, self.hand))
+                where = self.hand_at(tick // 4)
+                if where is not None:
+                    self.targets.publish(point(self.probe, where))
+                self.sent = tick // 4
             tick += 1
             time.sleep(0.005)
 

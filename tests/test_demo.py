@@ -14,7 +14,7 @@ from tests.common import REPO_ROOT, next_domain_id
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
 
 FIGURES = ('fit_follow', 'fit_avoid', 'fit_follow_safe', 'behaviour_follow',
-           'behaviour_avoid', 'behaviour_follow_safe', 'sequence')
+           'behaviour_avoid', 'behaviour_follow_safe', 'sequence', 'recorded_person')
 
 
 def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_path):
@@ -57,6 +57,11 @@ def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_pat
     assert 0.0 <= sequence['weight_min'] and sequence['weight_max'] <= 1.0
     assert sequence['tasks_seen'] == ['avoid', 'follow', 'follow_safe']
     assert sequence['final']['in_region_at_end']
+    person = metrics['recorded_person']
+    for task in ('follow', 'avoid'):
+        assert person[task]['considered'] > 0, person
+        assert person[task]['longest_high_effort_hold'] >= 0.0
+        assert 0.0 < person[task]['largest_effort_step'] <= 1.0 + 1e-9, person
     assert not processes_on_domain(env['ROS_DOMAIN_ID']), 'the demo left processes running'
 
 

@@ -50,6 +50,7 @@ from hri_adaptive_controller.event_weight import (
     WeightState,
 )
 from hri_adaptive_controller.signal_hold import HandHold
+from hri_core.validation import positive
 
 HAND = 'hand'  # the presence schedule's one "task"
 STAMP_TOLERANCE = 1e-9  # s: stamps built by adding periods are not exact
@@ -79,11 +80,10 @@ class TargetFilterSettings:
     fade_time: float = 1.0
 
     def __post_init__(self):
-        for name in ('max_speed', 'max_acceleration', 'tolerance', 'confirm_time',
-                     'blend_speed', 'filter_time', 'timeout', 'fade_time'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'{name} must be finite and > 0, got {value}')
+        for name, unit in (('max_speed', 'm/s'), ('max_acceleration', 'm/s^2'),
+                           ('tolerance', 'm'), ('confirm_time', 's'), ('blend_speed', 'm/s'),
+                           ('filter_time', 's'), ('timeout', 's'), ('fade_time', 's')):
+            positive(getattr(self, name), name, unit)
         if not (math.isfinite(self.max_extrapolation) and self.max_extrapolation >= 0.0):
             raise ValueError(f'max_extrapolation must be finite and >= 0 s, got '
                              f'{self.max_extrapolation}')
@@ -212,7 +212,14 @@ class FilteredHand:
     offer(stamp, position) -> accepted; evaluate(t) -> (x_d, xdot_d) or None before the first
     accepted sample; presence(t) -> WeightState of the hand's presence (weight in [0, 1],
     rate 1/s). Times must not go backwards between presence calls (the controller's joint
-    stamps). glitches, reanchors: the filter's counters. dimension: 2 ([x, y]) or 3.
+    stamps). glitches, reanchors: the filter's counters. dimension: 2 ([x, y]) or 3. A control
+    loop (controller_node, closed_loop) uses it as:
+
+        hand = FilteredHand(TargetFilterSettings(filter_time=..., max_extrapolation=...))
+        hand.offer(stamp, (x, y))          # each hand sample; False: held as a glitch
+        x_d, xdot_d = hand.evaluate(t)     # each cycle (None before the first sample)
+        present = hand.presence(t)         # each cycle: a *= present.weight, and
+                                           # da/dt = da_task/dt * w + a_task * present.rate
     """
 
     def __init__(self, settings: TargetFilterSettings = TargetFilterSettings(),

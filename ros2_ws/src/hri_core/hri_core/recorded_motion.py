@@ -158,15 +158,17 @@ class ReachAnnulus:
                              f'0 < half_angle <= pi, got {self}')
 
 
-def _cleaned_horizontal(positions: np.ndarray, max_step: float) -> np.ndarray:
-    """Seen frames' x, y (M, 2) without isolated jumps: a frame farther than max_step (m)
-    from the median of its neighbours (a marker swap) is dropped."""
+def _cleaned_horizontal(positions: np.ndarray, max_step: float, width: int = 31) -> np.ndarray:
+    """Seen frames' x, y (M, 2) without jumps: a frame farther than max_step (m) from the
+    median of the `width` seen frames round it (a marker swap shorter than half of them) is
+    dropped."""
     xy = positions[np.all(np.isfinite(positions), axis=1), :2]
-    if len(xy) < 5:
+    if len(xy) < width:
         return xy
-    padded = np.pad(xy, ((2, 2), (0, 0)), mode='edge')
-    windows = np.stack([padded[i:i + len(xy)] for i in range(5)])
-    median = np.median(windows, axis=0)
+    half = width // 2
+    padded = np.pad(xy, ((half, half), (0, 0)), mode='edge')
+    windows = np.lib.stride_tricks.sliding_window_view(padded, width, axis=0)  # (M, 2, w)
+    median = np.median(windows, axis=2)
     return xy[np.linalg.norm(xy - median, axis=1) <= max_step]
 
 
@@ -183,7 +185,7 @@ def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
     translation's z is 0 (heights stay as recorded). Raises ValueError if no frame is seen.
     """
     positions = np.asarray(positions, dtype=float).reshape(-1, 3)
-    xy = _cleaned_horizontal(positions, max_step=0.15)
+    xy = _cleaned_horizontal(positions, max_step=0.3)
     if len(xy) == 0:
         raise ValueError('the path has no seen frame to place')
     xy = xy[np.linspace(0, len(xy) - 1, min(len(xy), max_points)).astype(int)]

@@ -192,3 +192,13 @@ def test_replay_stops_or_holds_the_last_seen_frame(tmp_path):
     assert hold.due(0.5) == (1, 0.5)                           # ... then the last seen one
     with pytest.raises(ValueError, match='at_end must be one of loop, stop, hold'):
         Replay(three_frames(tmp_path), 'rewind')
+
+
+def test_placement_ignores_a_long_marker_swap():
+    angle = np.linspace(-1.0, 1.0, 400)
+    arc = np.column_stack([0.45 * np.cos(angle) + 3.0, 0.45 * np.sin(angle) - 1.0,
+                           np.zeros(400)])
+    swapped = arc.copy()
+    swapped[200:212] += (4.0, 3.0, 0.0)                      # 12 frames metres away
+    placement = choose_placement(swapped, SCARA_REACH)
+    assert reach_fraction(placement.apply(arc), SCARA_REACH) == 1.0

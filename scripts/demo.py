@@ -134,8 +134,13 @@ SEQUENCE_TOPICS = [*RUN_TOPICS, '/hri/events', '/hri/separation']
 # the event_detector's default rules. The first RECORDED_SETTLE s after each switch are left
 # out of the figures (the task fades in).
 RECORDED_TAKE = REPO_ROOT / 'data' / 'human-motion' / 'TossTheCan_0.csv'
-RECORDED_SECONDS = 24.0  # s (--quick: 18 s)
+RECORDED_SECONDS = 20.0  # s, within the take's 21 s: no loop's wrap (--quick: 15 s)
 RECORDED_SETTLE = 2.0  # s
+
+
+def _or_dash(value: float, spec: str) -> str:
+    """`value` formatted with `spec`, or an em dash where it is not a number (no samples)."""
+    return format(value, spec) if np.isfinite(value) else '—'
 
 
 def hand_profile(hand: dict) -> HandProfile:
@@ -418,7 +423,7 @@ class Demo:
         self.sequence_report(bag)
 
     def run_recorded_person(self) -> None:
-        seconds = 18.0 if self.quick else RECORDED_SECONDS
+        seconds = 15.0 if self.quick else RECORDED_SECONDS
         hand = {'profile': 'recording', 'recording': str(RECORDED_TAKE), 'auto_place': True,
                 'at_end': 'loop'}
         print(f'  a recorded person ({RECORDED_TAKE.stem}, Vicon, 100 Hz) as the hand for '
@@ -497,7 +502,8 @@ class Demo:
                 'longest_high_effort_hold': longest_high_effort_hold(
                     command_t[window], commands[window], 0.25 * controller['effort_limit'])}
             m = summary[task]
-            print(f'    {task}: median distance {m["follow_median_distance"]:.3f} m, closer '
+            median = _or_dash(m['follow_median_distance'], '.3f')
+            print(f'    {task}: median distance {median} m, closer '
                   f'than d1 - 3 cm {100 * m["close_fraction"]:.1f} % (of the samples with '
                   f'the hand in reach and slower than {criteria.task_speed} m/s); longest '
                   f'hold above 25 % of the effort limit {m["longest_high_effort_hold"]:.2f} s;'
@@ -867,7 +873,7 @@ class Demo:
         if 'recorded_person' in self.metrics:
             person = self.metrics['recorded_person']
             rows = [f"| {task} | {person[task]['seconds']:.1f} | "
-                    f"{person[task]['follow_median_distance']:.3f} | "
+                    f"{_or_dash(person[task]['follow_median_distance'], '.3f')} | "
                     f"{100 * person[task]['close_fraction']:.1f} % | "
                     f"{person[task]['longest_high_effort_hold']:.2f} | "
                     f"{person[task]['largest_effort_step']:.3f} |"

@@ -58,8 +58,10 @@ def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_pat
     assert sequence['tasks_seen'] == ['avoid', 'follow', 'follow_safe']
     assert sequence['final']['in_region_at_end']
     person = metrics['recorded_person']
-    for task in ('follow', 'avoid'):
-        assert person[task]['considered'] > 0, person
+    assert person['events'], person  # the event_detector switched the recorded person's run
+    ran = [task for task in ('follow', 'avoid', 'follow_safe') if task in person]
+    assert any(person[task]['considered'] > 0 for task in ran), person
+    for task in ran:
         assert person[task]['longest_high_effort_hold'] >= 0.0
         assert 0.0 < person[task]['largest_effort_step'] <= 1.0 + 1e-9, person
     assert not processes_on_domain(env['ROS_DOMAIN_ID']), 'the demo left processes running'

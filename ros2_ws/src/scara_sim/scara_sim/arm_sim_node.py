@@ -18,6 +18,7 @@ scara_sim's (sim_node_common.SteppedSimNode):
 Inputs (reliable, depth 10):
 * /effort_controller/commands (std_msgs/Float64MultiArray, one torque per joint, N m):
   clipped at the effort limits and applied; none for `command_timeout` s: zero torque;
+  before the first command the joints are held still (brakes), except in teach mode;
 * /human/wrench (geometry_msgs/WrenchStamped, frame `base_frame` or empty): force (N) and
   torque (N m) held at the tool point, base-frame axes, applied as J6^T w; ignored after
   `wrench_timeout` s without a new one.
@@ -94,6 +95,10 @@ class ArmSim(SteppedSimNode):
         except ValueError as error:
             raise StartupError(f'bad parameters: {error}') from None
         self.joint_names = sim.arm.joint_names
+        # Braked until the first command, as a real arm's brakes hold it until its controller
+        # runs: a Panda without torque falls onto its stops within a second. Not in teach
+        # mode, where the arm is moved by hand with no controller.
+        self.initial_mode = 'idle' if values['teach_mode'] else 'brake'
         self.add_post_set_parameters_callback(self.apply_timing_parameters)
         self._description_pub = self.create_publisher(
             topics.ROBOT_DESCRIPTION.type, topics.ROBOT_DESCRIPTION.name,

@@ -50,7 +50,9 @@ import numpy as np
 
 from hri_core.robot_model import PinocchioModel
 
-COMMAND_MODES = ('idle', 'effort')
+# 'brake': the joints held still, as a robot's brakes hold it until a controller first commands
+# it (arm_sim before its first command); 'idle': zero drive torque; 'effort': the command.
+COMMAND_MODES = ('idle', 'effort', 'brake')
 
 
 def true_arm(model: PinocchioModel, perturbation: float, seed: int,
@@ -168,6 +170,11 @@ class ArmSimulator:
         (rad), dq (rad/s) and the applied drive torque (N m) as tuples of floats. Raises
         ValueError if the state becomes non-finite (commands are checked where they arrive).
         """
+        if mode == 'brake':
+            self.dq = np.zeros(self.arm.dof)
+            self.applied_effort = np.zeros(self.arm.dof)
+            return tuple(self.q.tolist()), tuple(self.dq.tolist()), tuple(
+                self.applied_effort.tolist())
         tau = self.actuator_torque(mode, command)
         if self.teach_mode:
             tau = self.guided_torque(tau)

@@ -109,6 +109,9 @@ class SteppedSimNode(Node):
     joint_names: tuple[str, ...] = ()
     command_topics: dict = {}
     stepping_thread_name = 'sim_steps'
+    # The drive's mode until the first command: 'idle' (zero torque) or 'brake' (the joints
+    # held, as a robot's brakes hold it until its controller first commands it).
+    initial_mode = 'idle'
 
     def read_stepping_settings(self, values: dict) -> None:
         """The settings every simulator node declares, from its declared `values`."""
@@ -146,7 +149,7 @@ class SteppedSimNode(Node):
         self._no_wrench = (0.0,) * len(self.wrench_values(WrenchStamped()))
         # (mode, command, receive time) and (wrench, receive time): each replaced whole by
         # the executor's callbacks and read by the stepping thread.
-        self._drive = ('idle', np.zeros(joints), time.monotonic())
+        self._drive = (self.initial_mode, np.zeros(joints), time.monotonic())
         self._timed_out = False
         self._hand_force = (self._no_wrench, -math.inf)
         self.failure = None  # the one-line reason the stepping stopped, if it did
@@ -259,6 +262,8 @@ class SteppedSimNode(Node):
         if t - force_time > self._wrench_timeout:
             force = self._no_wrench
         mode, command, command_time = self._drive
+        if mode == 'brake':  # no command yet: held as the subclass's initial_mode says
+            return mode, None, force
         if t - command_time > self._command_timeout:
             if not self._timed_out:
                 self.get_logger().info(

@@ -247,3 +247,12 @@ def test_teach_mode_keeps_the_efforts_within_the_limits(panda):
     assert np.any(np.abs(sim.applied_effort) == arm.limits.effort)
     with pytest.raises(ValueError, match='teach_damping must be finite and >= 0'):
         teach_simulator(arm, damping=-1.0)
+
+
+def test_brake_holds_the_arm_still_against_gravity_and_a_push(panda):
+    sim = simulator(true_arm(panda, 0.1, SEED), dq=np.full(7, 0.3))
+    start = sim.q.copy()
+    for _ in range(200):
+        q, dq, effort = sim.step('brake', None, (5.0, 0.0, -5.0))
+    np.testing.assert_array_equal(np.array(q), start)
+    assert not any(dq) and not any(effort)

@@ -134,7 +134,7 @@ SEQUENCE_TOPICS = [*RUN_TOPICS, '/hri/events', '/hri/separation']
 # the event_detector's default rules. The first RECORDED_SETTLE s after each switch are left
 # out of the figures (the task fades in).
 RECORDED_TAKE = REPO_ROOT / 'data' / 'human-motion' / 'TossTheCan_0.csv'
-RECORDED_SECONDS = 20.0  # s, within the take's 21 s: no loop's wrap (--quick: 15 s)
+RECORDED_SECONDS = 20.0  # s, within the take's 21 s: no loop's wrap (--quick: 10 s)
 RECORDED_SETTLE = 2.0  # s
 
 
@@ -423,7 +423,7 @@ class Demo:
         self.sequence_report(bag)
 
     def run_recorded_person(self) -> None:
-        seconds = 15.0 if self.quick else RECORDED_SECONDS
+        seconds = 10.0 if self.quick else RECORDED_SECONDS
         hand = {'profile': 'recording', 'recording': str(RECORDED_TAKE), 'auto_place': True,
                 'at_end': 'loop'}
         print(f'  a recorded person ({RECORDED_TAKE.stem}, Vicon, 100 Hz) as the hand for '

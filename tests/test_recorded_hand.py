@@ -50,7 +50,7 @@ ALL_TAKES = sorted(path.stem for path in TAKES.glob('*.csv'))
 DEFAULT_TAKES = {'follow': ('CollaborativeHammering_1', 'TossTheCan_0'),
                  'avoid': ('PickPlaceCloseHuman_2', 'HumanRobotHandover_0')}
 SETTLE = 2.0  # s: the arm comes from its start pose and the task fades in (ramp 0.3 s)
-DURATION = 17.0  # s of each take judged, from its first frame
+DURATION = 12.0  # s of each take judged, from its first frame (its hard parts: 2-11 s)
 CONTROLLER = load_defaults('hri_adaptive_controller', 'controller')
 SIM = load_defaults('scara_sim', 'scara_sim')
 HAND_SIM = load_defaults('scara_sim', 'hand_sim')

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hri_bringup.processes import LIVE_LOOP, wait_for
-from tests.test_task_behaviour import ARM, RAMP, Streams, stamp
+from hri_bringup.processes import wait_for
+from tests.test_task_behaviour import ARM, RAMP, Streams, stamp, start_loop_then_hand
 
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # the 1 kHz loop
 
@@ -33,12 +33,7 @@ def time_from_a_quarter_metre(live_loop, probe, tasks_dir) -> tuple[float, float
                           'ramp_time': RAMP},
         'hand_sim': {'profile': 'hold', 'start': (ARM + [0.0, -START]).tolist()},
     }
-    loop = live_loop(overrides, nodes=[name for name in LIVE_LOOP if name != 'hand_sim'],
-                     ready_timeout=30.0)
-    assert wait_for(lambda: streams.states, 20.0), loop['controller'].log()
-    loop.update(live_loop(overrides, nodes=['hand_sim']))
-    assert wait_for(lambda: streams.states and streams.states[-1].status == 'ok', 20.0), \
-        loop['controller'].log()
+    loop = start_loop_then_hand(live_loop, streams, overrides)
     d2 = LEARNED_FOLLOW['d2']
     assert wait_for(lambda: streams.states[-1].distance <= d2 - 0.005, 30.0), \
         (streams.states[-1].distance, loop['controller'].log())

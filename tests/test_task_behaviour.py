@@ -210,6 +210,21 @@ def time_to_region(streams, since: float) -> tuple[float, float]:
     return float(stamps[inside[0]] - stamps[first]), float(distance[0])
 
 
+def start_loop_then_hand(live_loop, streams, overrides: dict) -> dict:
+    """The live loop with `overrides`, hand_sim started last: the probe (`streams`) hears the
+    controller before the hand appears, so the arm moves once the hand is there and the
+    distance it starts from is read off the first ControllerStates (a probe that matched
+    late on a loaded machine once saw the first at 0.23 m). Returns the loop's processes,
+    once the controller reports ok."""
+    loop = live_loop(overrides, nodes=[name for name in LIVE_LOOP if name != 'hand_sim'],
+                     ready_timeout=30.0)
+    assert wait_for(lambda: streams.states, 20.0), loop['controller'].log()
+    loop.update(live_loop(overrides, nodes=['hand_sim']))
+    assert wait_for(lambda: streams.states and streams.states[-1].status == 'ok', 20.0), \
+        loop['controller'].log()
+    return loop
+
+
 def follow_from_a_quarter_metre(live_loop, streams, tasks_dir, task, mode='effort'):
     """Start the loop with `task` fading in and the hand still 0.25 m from the arm; return
     (loop, (time from the arm's first move to the region, distance then)) once it is
@@ -219,15 +234,7 @@ def follow_from_a_quarter_metre(live_loop, streams, tasks_dir, task, mode='effor
         'controller': {'mode': mode},
         'hand_sim': {'profile': 'hold', 'start': (ARM + [0.0, -0.25]).tolist()},
     }
-    loop = live_loop(overrides, nodes=[name for name in LIVE_LOOP if name != 'hand_sim'],
-                     ready_timeout=30.0)
-    # The probe hears the controller before the hand appears: the arm moves once the hand is
-    # there, and the distance it starts from is read off the first ControllerStates (a probe
-    # that matched late on a loaded machine once saw the first at 0.23 m).
-    assert wait_for(lambda: streams.states, 20.0), loop['controller'].log()
-    loop.update(live_loop(overrides, nodes=['hand_sim']))
-    assert wait_for(lambda: streams.states and streams.states[-1].status == 'ok', 20.0), \
-        loop['controller'].log()
+    loop = start_loop_then_hand(live_loop, streams, overrides)
     start = stamp(streams.states[0])
     assert wait_for(lambda: streams.states[-1].distance <= D2_FOLLOW - 0.005, 10.0), \
         loop['controller'].log()

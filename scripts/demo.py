@@ -494,11 +494,19 @@ class Demo:
             nearest = np.clip(np.searchsorted(command_t, arm_t[inside]), 0, len(command_t) - 1)
             metrics = take_metrics(arm_t[inside], hand_at_arm[inside], arm_xy[inside],
                                    commands[nearest], criteria)
+            # Every command sent while the task ran, not only those nearest an arm sample:
+            # steps between consecutive commands of each stretch of the task.
+            edges = np.diff(np.concatenate(([0], inside.astype(np.int8), [0])))
+            stretches = [np.arange(np.searchsorted(command_t, arm_t[start]),
+                                   np.searchsorted(command_t, arm_t[end - 1], side='right'))
+                         for start, end in zip(np.flatnonzero(edges == 1),
+                                               np.flatnonzero(edges == -1), strict=True)]
             window = np.zeros(command_t.size, dtype=bool)
-            window[nearest] = True
+            window[np.concatenate(stretches)] = True
             summary[task] = {
                 **asdict(metrics), 'd1': record.d1, 'seconds': float(np.sum(inside) * 1e-3),
-                'largest_effort_step': largest_effort_step(commands[window]),
+                'largest_effort_step': max(largest_effort_step(commands[stretch])
+                                           for stretch in stretches),
                 'longest_high_effort_hold': longest_high_effort_hold(
                     command_t[window], commands[window], 0.25 * controller['effort_limit'])}
             m = summary[task]

@@ -7,7 +7,9 @@ on that state with the latest /target (the hand: the centre x_d of the desired r
 `effort_limit` with its direction kept, on /effort_controller/commands (the interface of
 ros2_control's JointGroupEffortController): one wake-up per cycle, the command computed from
 the newest state; its change since the last command is limited to `max_effort_rate` times
-the time between their joint states, at most one period (effort_rate; after the clamp).
+the time between their joint states, at most one period (effort_rate; after the clamp), and
+it stays within `applied_effort_cycles` periods' worth of the effort the joint state reports
+applied (a simulator's), so a late burst of commands cannot step the drive by more.
 With `mode: velocity` it publishes the joint-velocity reference qdot_r of eq. 14 on
 /velocity_controller/commands instead. theta_hat advances by the time between the joint
 states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
@@ -102,6 +104,7 @@ from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_core import topics
 from hri_core.cdr import (
+    EFFORT,
     POSITION,
     VELOCITY,
     LayoutReader,
@@ -192,6 +195,13 @@ PARAMETERS = {
     'max_effort_rate': ParameterSpec(float, 'largest torque change per joint, per second of '
                                      'the joint states\' clock (N m/s; 1000: 1 N m per 1 ms '
                                      'cycle)', low=1.0, high=1e6),
+    'applied_effort_cycles': ParameterSpec(int, 'each command also stays within '
+                                           'max_effort_rate times this many control periods '
+                                           'of the effort the joint state reports applied (a '
+                                           "simulator's drive torque), whichever command of a "
+                                           'late burst the drive takes; 0: off, for drives '
+                                           'whose JointState.effort is a measured torque',
+                                           low=0, high=100),
     'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
                                          low=0.002, high=10.0),
     'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: the task fades '
@@ -234,9 +244,9 @@ PARAMETERS = {
                              low=0.0, high=20.0, read_only=True),
 }
 GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
-                   'region_margin', 'effort_limit', 'max_effort_rate', 'rest_gain', 'rest_gate',
-                   'joint_limit_band', 'barrier_torque', 'reach_round', 'arm_ks',
-                   'arm_adaptation_gain')
+                   'region_margin', 'effort_limit', 'max_effort_rate', 'applied_effort_cycles',
+                   'rest_gain', 'rest_gate', 'joint_limit_band', 'barrier_torque', 'reach_round',
+                   'arm_ks', 'arm_adaptation_gain')
 SIM_NODE = 'scara_sim'  # whose joint limits the controller's are checked against
 SIM_LIMITS = ('joint_lower_limits', 'joint_upper_limits')
 SIM_CHECK_PERIOD = 1.0  # s between looks for the sim's parameter service
@@ -361,6 +371,8 @@ class Controller(Node):
         # a(E, t) of the task in force; its payload: (shape or None, k).
         self._weights = TaskWeightHold(values['task_fade_time'], MAX_WEIGHT_EXTRAPOLATION)
         self._limiter = EffortRateLimiter(values['max_effort_rate'], self._dof)
+        self._applied = None  # the effort (N m) the latest joint state reports, if it has one
+        self._set_applied_band(values)
         # The link to the event_manager as a second weight on a (1 while TaskStates come):
         # None until the first TaskState, which is used at once, as before.
         self._link: EventWeightSchedule | None = None
@@ -386,7 +398,9 @@ class Controller(Node):
         # The 1 kHz messages as raw CDR (hri_core.cdr): joint states read at fixed offsets
         # while their layout holds, commands written from a template.
         self._joint_reader = LayoutReader(lambda data: joint_state_layout(
-            data, self._joint_names, (POSITION, VELOCITY), one_value_per_name=True))
+            data, self._joint_names, (POSITION, VELOCITY, EFFORT), one_value_per_name=True)
+            or joint_state_layout(data, self._joint_names, (POSITION, VELOCITY),
+                                  one_value_per_name=True))
         self._command_template = float64_array_template(self._dof)
         # The SCARA reads the hand's x, y (its plane); the n-joint law x, y, z.
         self._target_reader = LayoutReader(point_stamped_layout if self._arm is None
@@ -524,7 +538,8 @@ class Controller(Node):
             return
         sec, nanosec = read_stamp(data)
         n = self._dof
-        self._accept_joint_state(values[0:n], values[n:], sec + 1e-9 * nanosec)
+        self._accept_joint_state(values[0:n], values[n:2 * n], sec + 1e-9 * nanosec,
+                                 values[2 * n:] or None)
 
     def _on_joint_state(self, msg: JointState) -> None:
         """A joint state whose layout is not the fast path's: checked field by field."""
@@ -545,12 +560,16 @@ class Controller(Node):
                            f'{", ".join(self._joint_names)}')
                 return
             self._joint_index = (list(names), index)
+        effort = (tuple(msg.effort[i] for i in index) if len(msg.effort) == len(names)
+                  else None)
         self._accept_joint_state(tuple(position[i] for i in index),
                                  tuple(velocity[i] for i in index),
-                                 msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+                                 msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, effort)
 
-    def _accept_joint_state(self, q: tuple, dq: tuple, stamp: float) -> None:
-        """Start a cycle on joint positions q (rad), velocities dq (rad/s), stamp (s)."""
+    def _accept_joint_state(self, q: tuple, dq: tuple, stamp: float,
+                            effort: tuple | None = None) -> None:
+        """Start a cycle on joint positions q (rad), velocities dq (rad/s), stamp (s) and
+        the effort the drive applies (N m; None: the message has none)."""
         if not math.isfinite(sum(q) + sum(dq)):
             self._warn('joint_state_non_finite',
                        'joint state dropped: non-finite position or velocity')
@@ -570,6 +589,8 @@ class Controller(Node):
         # stand still), bounded to 10 periods after a gap.
         dt = stamp - previous if stamp > previous else now - self._joint_time
         self._q, self._dq = q, dq
+        # A non-finite effort is not a torque to stay near: as if none were reported.
+        self._applied = effort if effort is not None and math.isfinite(sum(effort)) else None
         self._joint_stamp, self._joint_time = stamp, now
         if not self._zero_timer.is_canceled():
             self._zero_timer.cancel()
@@ -675,10 +696,18 @@ class Controller(Node):
         if self._arm is not None:
             self._arm = law
         self._limiter.max_rate = values['max_effort_rate']
+        self._set_applied_band(values)
         if self._separation_cap is not None:
             self._separation_cap.max_task_speed = values['max_task_speed']
         self.get_logger().info(f'gains changed: {changed}')
         return SetParametersResult(successful=True)
+
+    def _set_applied_band(self, values: dict) -> None:
+        """The applied-effort band (N m, 0: off) and the effort box it is centred in."""
+        self._applied_band = (values['max_effort_rate'] * values['applied_effort_cycles']
+                              / values['rate_hz'])
+        self._effort_box = ((values['effort_limit'],) * self._dof if self._arm is None
+                            else tuple(self._arm.effort_limits.tolist()))
 
     # -- control cycles ----------------------------------------------------------------------
     def _watchdog(self) -> None:
@@ -718,9 +747,14 @@ class Controller(Node):
         elif self._velocity_mode:
             command = output.qdot_r
         else:
-            # At most one period's worth per command (see effort_rate).
-            command, self._rate_limited = self._limiter.limit(output.tau,
-                                                              min(dt, self._period))
+            # At most one period's worth per command, and near what the drive applies (see
+            # effort_rate).
+            applied = self._applied if self._applied_band > 0.0 else None
+            if applied is not None:
+                applied = tuple(min(max(v, -limit), limit)
+                                for v, limit in zip(applied, self._effort_box, strict=True))
+            command, self._rate_limited = self._limiter.limit(
+                output.tau, min(dt, self._period), applied, self._applied_band)
         self._command_pub.publish(self._command_template.encode(command))
         # One read of the clock for input_age and the ControllerState's stamp: the stamp minus
         # input_age is then exactly the stamp of the joint state the cycle ran on, and the

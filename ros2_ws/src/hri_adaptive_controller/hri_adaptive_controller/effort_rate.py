@@ -9,7 +9,15 @@ dt (s) the time since the last command. The controller node passes the joint sta
 difference but at most one control period: after cycles it skipped (a loaded machine), the
 drive may still apply its command one step after the previous one (measured on the topics:
 commands from states 2 ms apart applied at consecutive 1 ms steps), so each command moves by
-at most one cycle's worth. Applied after the clamp to
+at most one cycle's worth.
+
+That bounds each command against the one before, not what the drive applies: on a loaded
+machine the simulator took commands in late bursts and applied only the newest, stepping its
+torque by the sum of the commands it skipped (2.95 N m between consecutive joint states,
+measured, with every command within 1 N m of the one before). Where the joint states report
+the torque the drive applies (a simulator's JointState.effort), each command also stays within
+applied_band of it: a burst computed while the drive held one torque lies within that band of
+it, whichever command of the burst the drive takes. Applied after the clamp to
 effort_limit: tau_prev and tau_law both lie in the box |tau_i| <= effort_limit, so tau does too.
 It bounds what reaches the drives whatever the reason the law's torque jumps (a control cycle
 the loaded machine ran late, an input that arrived late); the law itself is continuous
@@ -40,18 +48,32 @@ class EffortRateLimiter:
         self.previous = tuple(0.0 for _ in range(self._joints)) if tau is None else tuple(
             float(v) for v in tau)
 
-    def limit(self, tau: Sequence[float], dt: float) -> tuple[tuple[float, ...], bool]:
-        """(torque to command, whether the limit acted) for the law's torque `tau` (n,) N m,
-        dt s after the previous command (dt >= 0; finite values, checked by the caller)."""
+    def limit(self, tau: Sequence[float], dt: float, applied: Sequence[float] | None = None,
+              applied_band: float = math.inf) -> tuple[tuple[float, ...], bool]:
+        """(torque to command, whether a limit acted) for the law's torque `tau` (n,) N m,
+        dt s after the previous command (dt >= 0; finite values, checked by the caller).
+
+        applied (n,) N m: the torque the drive reports it applies now (None: not known),
+        clamped by the caller to the effort limits (so the command stays within them); each
+        joint's command then also stays within applied_band (N m) of it, which wins where the
+        two limits disagree: what the drive steps by is what counts.
+        """
         step = self.max_rate * max(dt, 0.0)
         limited = False
         out = []
-        for wanted, before in zip(tau, self.previous, strict=True):
+        for i, (wanted, before) in enumerate(zip(tau, self.previous, strict=True)):
             change = wanted - before
             if change > step:
                 change, limited = step, True
             elif change < -step:
                 change, limited = -step, True
-            out.append(before + change)
+            value = before + change
+            if applied is not None:
+                low, high = applied[i] - applied_band, applied[i] + applied_band
+                if value > high:
+                    value, limited = high, True
+                elif value < low:
+                    value, limited = low, True
+            out.append(value)
         self.previous = tuple(out)
         return self.previous, limited

@@ -47,7 +47,7 @@ the event_manager ran at SCHED_FIFO 50 too, where the loop's threads could not p
 node too); both at 0 and -1 measure the config defaults.
 
 `--robot panda` runs the same loop with the 7-joint Panda: arm_sim robot:=panda in place of
-scara_sim and the controller robot:=panda (arm_law), with a 3-D hand (hand_sim dimensions 3:
+scara_sim and the controller robot:=panda (arm_law), with a 3-D hand (hand_sim dimension 3:
 back and forth between (0.40, 0.10, 0.45) and (0.40, -0.10, 0.30) m, period 10 s); the
 event_manager and the controller start first, then the sim, then the hand (as
 tests/test_panda_loop.py starts them). The figures are the same, the sim's named arm_sim.
@@ -101,7 +101,7 @@ from hri_core.topics import COMMAND_QOS, MONITOR_QOS  # noqa: E402
 HAND = {'profile': 'circle', 'start': [0.45, 0.1], 'radius': 0.05, 'period': 8.0}
 # The Panda's hand: 0.25 m back and forth, 0.15 m down in z, peak 0.079 m/s (its tool starts
 # at (0.31, 0, 0.49) m).
-PANDA_HAND = {'profile': 'back_and_forth', 'dimensions': 3, 'start': [0.40, 0.10, 0.45],
+PANDA_HAND = {'profile': 'back_and_forth', 'dimension': 3, 'start': [0.40, 0.10, 0.45],
               'end': [0.40, -0.10, 0.30], 'period': 10.0}
 SIMS = {'scara': 'scara_sim', 'panda': 'arm_sim'}  # the sim node of each --robot
 JOINT_STATE_PROBE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)

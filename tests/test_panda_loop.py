@@ -3,7 +3,7 @@ rows, the controller robot:=panda (arm_law) and a probe hand on /target. follow:
 hand 0.3 m from the tool; the tool enters the region within 5 s and stays there under gravity
 while theta_hat adapts from the URDF's values (the sim's arm is perturbed). avoid: a hand
 coming down along z onto the tool at 0.5 m/s; 2 s after it stops the tool is >= d1 - 2 cm
-away. follow a moving hand: hand_sim (dimensions 3) moves the hand back and forth along a
+away. follow a moving hand: hand_sim (dimension 3) moves the hand back and forth along a
 0.25 m line that drops 0.15 m in z (peak 0.079 m/s); after it has settled the tool stays
 within d2 of it (in the follow region). All: every command within the Panda's per-joint
 effort limits and at most 1 N m from the one before; no joint within 5 deg of a limit."""
@@ -174,7 +174,7 @@ def test_the_panda_backs_away_from_a_hand_reaching_in_along_z(nodes, probe):
 
 # The moving hand: back and forth between two points 0.25 m apart, 0.15 m lower at the far
 # end, period 10 s: pi 0.25 / 10 = 0.079 m/s at its fastest, 0.05 m/s on average.
-MOVING_HAND = {'profile': 'back_and_forth', 'dimensions': 3, 'start': [0.40, 0.10, 0.45],
+MOVING_HAND = {'profile': 'back_and_forth', 'dimension': 3, 'start': [0.40, 0.10, 0.45],
                'end': [0.40, -0.10, 0.30], 'period': 10.0, 'rate_hz': 100.0}
 MOVING_RUN = 12.0  # s after the first joint state
 SETTLE_TIME = 4.0  # s after the first joint state before the distance is held to the bar

@@ -3,11 +3,11 @@
 Publishes geometry_msgs/PointStamped (frame `base_frame`, m) on /target at `rate_hz`, the
 position of `profiles.hand_position` for the profile named by `profile` (hold, approach,
 retreat, back_and_forth, circle, waypoints) and its parameters `start`, `end`, `speed`,
-`period`, `radius`, `start_delay`, `waypoints`. `dimensions` 2 (the default, the planar
+`period`, `radius`, `start_delay`, `waypoints`. `dimension` 2 (the default, the planar
 SCARA's) takes the points as [x, y] and publishes z = 0; 3 takes them as [x, y, z] (waypoints
 flat in threes) for an arm that reaches in space (`robot:=panda`). The profile's clock starts
 when the node does; changing any profile parameter at run time (validated) restarts it (to
-switch `dimensions`, set it with `start`, `end` and `waypoints` in one call).
+switch `dimension`, set it and the points the profile uses in one call).
 
 `profile: recording` replays a Vicon Nexus CSV export (`recording`, hri_core.recorded_motion)
 at its recorded pace: the segment `segment`, moved into the base frame by p_base =
@@ -58,12 +58,9 @@ PARAMETERS = {
                              read_only=True),
     'profile': ParameterSpec(str, 'hand motion: ' + ', '.join(SOURCES),
                              choices=SOURCES),
-    'dimensions': ParameterSpec(int, 'points of the scripted profiles: 2 [x, y] (z = 0 '
-                                'published), 3 [x, y, z]', min(HAND_DIMENSIONS),
-                                max(HAND_DIMENSIONS)),
-    'start': ParameterSpec(list, 'start point [x, y] ([x, y, z] with dimensions 3) (m); '
+    'start': ParameterSpec(list, 'start point [x, y] ([x, y, z] with dimension 3) (m); '
                            'centre of the circle'),
-    'end': ParameterSpec(list, 'end point [x, y] ([x, y, z] with dimensions 3) (m)'),
+    'end': ParameterSpec(list, 'end point [x, y] ([x, y, z] with dimension 3) (m)'),
     'speed': ParameterSpec(float, 'peak speed of approach, retreat and waypoints moves (m/s)',
                            0.001, 5.0),
     'period': ParameterSpec(float, 'cycle time of back_and_forth and circle (s)', 0.1, 3600.0),
@@ -71,7 +68,10 @@ PARAMETERS = {
     'start_delay': ParameterSpec(float, 'time the hand waits before moving (s)', 0.0, 3600.0),
     'waypoints': ParameterSpec(list,
                                'waypoints profile: flat [x0, y0, x1, y1, ...] (m); with '
-                               'dimensions 3 [x0, y0, z0, x1, y1, z1, ...]'),
+                               'dimension 3 [x0, y0, z0, x1, y1, z1, ...]'),
+    'dimension': ParameterSpec(int, 'points of the scripted profiles: 2 [x, y] (z = 0 '
+                               'published) or 3 [x, y, z]', min(HAND_DIMENSIONS),
+                               max(HAND_DIMENSIONS)),
     'segment_speeds': ParameterSpec(list, 'waypoints profile: peak speed of each move (m/s); '
                                     'unset: speed', optional=True),
     'pauses': ParameterSpec(list, 'waypoints profile: time at the end of each move (s); '
@@ -95,8 +95,8 @@ PARAMETERS = {
 }
 RECORDING_PARAMETERS = ('recording', 'segment', 'translation', 'yaw', 'auto_place', 'reach',
                         'time_scale', 'at_end')
-PROFILE_PARAMETERS = ('profile', 'dimensions', 'start', 'end', 'speed', 'period', 'radius',
-                      'start_delay', 'waypoints', 'segment_speeds', 'pauses',
+PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
+                      'waypoints', 'dimension', 'segment_speeds', 'pauses',
                       *RECORDING_PARAMETERS)
 
 
@@ -146,7 +146,7 @@ class HandSim(Node):
             speed=value('speed'), period=value('period'), radius=value('radius'),
             start_delay=value('start_delay'), waypoints=tuple(value('waypoints')),
             segment_speeds=tuple(value('segment_speeds') or ()),
-            pauses=tuple(value('pauses') or ()), dimensions=value('dimensions'))
+            pauses=tuple(value('pauses') or ()), dimension=value('dimension'))
 
     @staticmethod
     def _replay_from(value) -> Replay:
@@ -181,11 +181,11 @@ class HandSim(Node):
                    'back_and_forth': f'{list(p.start)} <-> {list(p.end)}, period {p.period} s',
                    'circle': f'centre {list(p.start)}, radius {p.radius} m, '
                              f'period {p.period} s',
-                   'waypoints': f'{len(p.waypoints) // p.dimensions} points at '
+                   'waypoints': f'{len(p.waypoints) // p.dimension} points at '
                                 f'{list(p.segment_speeds) or p.speed} m/s'
                                 + (f', pauses {list(p.pauses)} s' if p.pauses else '')}
         return (f'{p.name} ({details[p.name]}, start delay {p.start_delay} s, '
-                f'{p.dimensions}-D)')
+                f'{p.dimension}-D)')
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
         try:

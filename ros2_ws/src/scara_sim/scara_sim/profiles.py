@@ -7,8 +7,8 @@ damper, `hand_force`) whose set-point follows a minimum-jerk path (`minimum_jerk
 from where the end-effector starts to the demonstration's goal (`demonstration_goal`), plus
 physiological tremor (`Tremor`: band-limited, seeded noise).
 
-The hand profiles are planar by default (`dimensions` 2: points [x, y] m, the SCARA's plane)
-or in space (`dimensions` 3: points [x, y, z] m, every profile's path in 3-D). The
+The hand profiles are planar by default (`dimension` 2: points [x, y] m, the SCARA's plane)
+or in space (`dimension` 3: points [x, y, z] m, every profile's path in 3-D). The
 demonstration (its goal, path, force and tremor) is of the arm's dimension: [x, y] for the
 planar SCARA (the numbers of the planar demonstration are those it always had), [x, y, z] for
 any other arm, whose tool the hand then pushes with a 3-D force along a straight path in
@@ -27,6 +27,10 @@ from hri_core.validation import planar_vector, point_vector, positive, spatial_v
 
 HAND_PROFILES = ('hold', 'approach', 'retreat', 'back_and_forth', 'circle', 'waypoints')
 HAND_DIMENSIONS = (2, 3)
+# The points each profile moves through (the others it does not use).
+PROFILE_POINTS = {'hold': ('start',), 'approach': ('start', 'end'),
+                  'retreat': ('start', 'end'), 'back_and_forth': ('start', 'end'),
+                  'circle': ('start',), 'waypoints': ()}
 DEMONSTRATION_MODES = ('follow', 'avoid')
 
 # Peak speed of a minimum-jerk move over its mean speed: max of 30 s^2 (1 - s)^2 at s = 1/2.
@@ -88,8 +92,9 @@ def minimum_jerk_segment(start, end, t, duration: float) -> tuple[np.ndarray, np
 class HandProfile:
     """A scripted hand motion (see `hand_position`).
 
-    name: one of HAND_PROFILES. dimensions: 2 (points [x, y] m, the plane of the planar arm)
-    or 3 (points [x, y, z] m). start, end: points of that dimension. speed: peak speed of the
+    name: one of HAND_PROFILES. dimension: 2 (points [x, y] m, the plane of the planar arm)
+    or 3 (points [x, y, z] m). start, end: points of that dimension where the profile uses
+    them (PROFILE_POINTS; an unused one may be [x, y] or [x, y, z]). speed: peak speed of the
     minimum-jerk moves of approach, retreat and waypoints (m/s). period: cycle time of
     back_and_forth and circle (s). radius: of the circle (m), centred on `start`, horizontal
     (at the height of `start` in 3-D). start_delay: time (s) the hand waits at its initial
@@ -109,28 +114,31 @@ class HandProfile:
     waypoints: tuple[float, ...] = field(default=())
     segment_speeds: tuple[float, ...] = field(default=())
     pauses: tuple[float, ...] = field(default=())
-    dimensions: int = 2
+    dimension: int = 2
 
     def __post_init__(self):
         if self.name not in HAND_PROFILES:
             raise ValueError(f'unknown hand profile {self.name!r}; expected one of '
                              f'{", ".join(HAND_PROFILES)}')
-        if self.dimensions not in HAND_DIMENSIONS:
-            raise ValueError(f'dimensions must be 2 ([x, y]) or 3 ([x, y, z]), got '
-                             f'{self.dimensions}')
-        point = planar_vector if self.dimensions == 2 else spatial_vector
+        if self.dimension not in HAND_DIMENSIONS:
+            raise ValueError(f'dimension must be 2 ([x, y]) or 3 ([x, y, z]), got '
+                             f'{self.dimension}')
+        point = planar_vector if self.dimension == 2 else spatial_vector
         for name in ('start', 'end'):
+            if name not in PROFILE_POINTS[self.name]:  # unused: any finite point
+                point_vector(getattr(self, name), name, 'm')
+                continue
             try:
                 point(getattr(self, name), name, 'm')
             except ValueError as error:
-                raise ValueError(f'{error} (dimensions is {self.dimensions})') from None
+                raise ValueError(f'{error} (dimension is {self.dimension})') from None
         positive(self.speed, 'speed', 'm/s')
         positive(self.period, 'period', 's')
         positive(self.radius, 'radius', 'm')
         if not (math.isfinite(self.start_delay) and self.start_delay >= 0.0):
             raise ValueError(f'start_delay must be finite and >= 0 s, got {self.start_delay}')
         if self.name == 'waypoints':
-            d = self.dimensions
+            d = self.dimension
             points = np.asarray(self.waypoints, dtype=float)
             if points.ndim != 1 or points.size < 2 * d or points.size % d:
                 shape = '[x0, y0, x1, y1, ...]' if d == 2 else '[x0, y0, z0, x1, y1, z1, ...]'
@@ -150,8 +158,8 @@ class HandProfile:
                 raise ValueError('pauses must be finite and >= 0 s')
 
     def points(self) -> np.ndarray:
-        """The waypoints as (k, dimensions) m."""
-        return np.asarray(self.waypoints, dtype=float).reshape(-1, self.dimensions)
+        """The waypoints as (k, dimension) m."""
+        return np.asarray(self.waypoints, dtype=float).reshape(-1, self.dimension)
 
 
 def _waypoint_position(points: np.ndarray, t: float, speeds, pauses) -> np.ndarray:
@@ -182,7 +190,7 @@ def waypoint_schedule(profile: HandProfile) -> list[tuple[float, float]]:
 
 
 def hand_position(profile: HandProfile, t: float) -> np.ndarray:
-    """Hand position (dimensions,) in m at time t (s) since the profile started.
+    """Hand position (dimension,) in m at time t (s) since the profile started.
 
     hold: stays at `start`. approach: minimum-jerk move start -> end at peak speed `speed`,
     then stays at `end`. retreat: the same move backwards, end -> start. back_and_forth:
@@ -206,7 +214,7 @@ def hand_position(profile: HandProfile, t: float) -> np.ndarray:
         return start + (end - start) * 0.5 * (1.0 - math.cos(2.0 * math.pi * tau / profile.period))
     if profile.name == 'circle':
         angle = 2.0 * math.pi * tau / profile.period
-        offset = np.zeros(profile.dimensions)
+        offset = np.zeros(profile.dimension)
         offset[:2] = math.cos(angle), math.sin(angle)
         return start + profile.radius * offset
     points = profile.points()

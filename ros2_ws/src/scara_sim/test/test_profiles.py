@@ -139,13 +139,13 @@ SPACE_START, SPACE_END = (0.45, 0.05, 0.40), (0.30, 0.30, 0.20)
 ])
 def test_3d_profiles_pass_through_their_defining_points_z_included(name, t, expected):
     profile = HandProfile(name=name, start=SPACE_START, end=SPACE_END, period=8.0,
-                          radius=0.08, speed=0.15, dimensions=3)
+                          radius=0.08, speed=0.15, dimension=3)
     np.testing.assert_allclose(hand_position(profile, t), expected, atol=1e-12)
 
 
 def test_3d_moves_keep_the_peak_speed_along_the_path_in_space():
     profile = HandProfile(name='approach', start=SPACE_START, end=SPACE_END, speed=0.1,
-                          dimensions=3)
+                          dimension=3)
     t = np.arange(0.0, 8.0, 1e-3)
     path = np.array([hand_position(profile, ti) for ti in t])
     speed = np.linalg.norm(np.diff(path, axis=0), axis=-1) / 1e-3
@@ -158,7 +158,7 @@ def test_3d_moves_keep_the_peak_speed_along_the_path_in_space():
 
 def test_3d_circle_is_horizontal_at_the_height_of_its_centre():
     profile = HandProfile(name='circle', start=(0.3, 0.2, 0.5), end=SPACE_END, radius=0.05,
-                          period=3.0, dimensions=3)
+                          period=3.0, dimension=3)
     points = np.array([hand_position(profile, t) for t in np.linspace(0, 7, 99)])
     np.testing.assert_allclose(points[:, 2], 0.5)
     np.testing.assert_allclose(np.linalg.norm(points[:, :2] - [0.3, 0.2], axis=-1), 0.05)
@@ -166,8 +166,8 @@ def test_3d_circle_is_horizontal_at_the_height_of_its_centre():
 
 def test_3d_waypoints_are_read_in_threes_and_visited_in_space():
     points = (0.4, 0.0, 0.3, 0.4, 0.2, 0.5, 0.2, 0.2, 0.5)
-    profile = HandProfile(name='waypoints', waypoints=points, speed=0.2, dimensions=3,
-                          start=SPACE_START, end=SPACE_END)
+    # start and end, unused by waypoints, may stay planar (the YAML's defaults).
+    profile = HandProfile(name='waypoints', waypoints=points, speed=0.2, dimension=3)
     first = minimum_jerk_duration(float(np.hypot(0.2, 0.2)), 0.2)
     second = minimum_jerk_duration(0.2, 0.2)
     np.testing.assert_allclose(waypoint_schedule(profile),
@@ -180,7 +180,7 @@ def test_3d_waypoints_are_read_in_threes_and_visited_in_space():
 
 
 def test_planar_profiles_stay_planar_by_default():
-    assert HandProfile().dimensions == 2
+    assert HandProfile().dimension == 2
     for name in ('hold', 'approach', 'back_and_forth', 'circle'):
         assert hand_position(HandProfile(name=name), 1.0).shape == (2,)
     waypoints = HandProfile(name='waypoints', waypoints=(0.4, 0.0, 0.3, 0.4, 0.2, 0.5))
@@ -188,15 +188,18 @@ def test_planar_profiles_stay_planar_by_default():
 
 
 @pytest.mark.parametrize(('kwargs', 'message'), [
-    ({'dimensions': 4}, r'dimensions must be 2 \(\[x, y\]\) or 3'),
-    ({'dimensions': 3}, r'start must be 3 finite values \[x, y, z\] in m, got .* '
-                        r'\(dimensions is 3\)'),
-    ({'start': (0.4, 0.1, 0.3)}, r'start must be 2 finite values .*\(dimensions is 2\)'),
-    ({'dimensions': 3, 'start': SPACE_START, 'end': (0.3, 0.3)}, 'end must be 3 finite'),
-    ({'dimensions': 3, 'start': SPACE_START, 'end': SPACE_END, 'name': 'waypoints',
+    ({'dimension': 4}, r'dimension must be 2 \(\[x, y\]\) or 3'),
+    ({'dimension': 3}, r'start must be 3 finite values \[x, y, z\] in m, got .* '
+                        r'\(dimension is 3\)'),
+    ({'start': (0.4, 0.1, 0.3)}, r'start must be 2 finite values .*\(dimension is 2\)'),
+    ({'dimension': 3, 'start': SPACE_START, 'end': (0.3, 0.3), 'name': 'approach'},
+     'end must be 3 finite'),
+    ({'dimension': 3, 'name': 'waypoints', 'waypoints': SPACE_START + SPACE_END,
+      'end': (0.3, float('nan'))}, 'end must be 2 or 3 finite values'),
+    ({'dimension': 3, 'start': SPACE_START, 'end': SPACE_END, 'name': 'waypoints',
       'waypoints': (0.1, 0.2, 0.3, 0.4)},
      r'flat list \[x0, y0, z0, x1, y1, z1, ...\] of at least two points, got 4'),
-    ({'dimensions': 3, 'start': SPACE_START, 'end': SPACE_END, 'name': 'waypoints',
+    ({'dimension': 3, 'start': SPACE_START, 'end': SPACE_END, 'name': 'waypoints',
       'waypoints': SPACE_START + SPACE_END + (0.1,)}, 'got 7 values'),
 ])
 def test_3d_profile_rejects_points_of_the_wrong_dimension(kwargs, message):

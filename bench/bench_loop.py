@@ -46,6 +46,12 @@ the event_manager ran at SCHED_FIFO 50 too, where the loop's threads could not p
 (`--realtime-priority`) and idle CPUs kept polling (`--cpu-wakeup-latency`, held by the echo
 node too); both at 0 and -1 measure the config defaults.
 
+`--robot panda` runs the same loop with the 7-joint Panda: arm_sim robot:=panda in place of
+scara_sim and the controller robot:=panda (arm_law), with a 3-D hand (hand_sim dimension 3:
+back and forth between (0.40, 0.10, 0.45) and (0.40, -0.10, 0.30) m, period 10 s); the
+event_manager and the controller start first, then the sim, then the hand (as
+tests/test_panda_loop.py starts them). The figures are the same, the sim's named arm_sim.
+
 Every process started is ended (SIGINT, then SIGKILL by PID) in a `finally`.
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_loop.py`.
 `--json` prints the figures as one JSON object only.
@@ -76,12 +82,28 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from hri_bringup.processes import RosProbe, start_live_loop, wait_for  # noqa: E402
+from hri_bringup.processes import (  # noqa: E402
+    LIVE_LOOP_EXECUTABLES,
+    READY_LINES,
+    RosProbe,
+    live_loop_parameters,
+    not_logged,
+    start_live_loop,
+    start_node,
+    stop_all,
+    wait_for,
+    wait_until_logged,
+)
 from hri_core.cdr import read_stamp  # noqa: E402
 from hri_core.realtime import request_sched_fifo  # noqa: E402
 from hri_core.topics import COMMAND_QOS, MONITOR_QOS  # noqa: E402
 
 HAND = {'profile': 'circle', 'start': [0.45, 0.1], 'radius': 0.05, 'period': 8.0}
+# The Panda's hand: 0.25 m back and forth, 0.15 m down in z, peak 0.079 m/s (its tool starts
+# at (0.31, 0, 0.49) m).
+PANDA_HAND = {'profile': 'back_and_forth', 'dimension': 3, 'start': [0.40, 0.10, 0.45],
+              'end': [0.40, -0.10, 0.30], 'period': 10.0}
+SIMS = {'scara': 'scara_sim', 'panda': 'arm_sim'}  # the sim node of each --robot
 JOINT_STATE_PROBE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 CONTROL_RATE_HZ = 1000.0  # the controller's default rate_hz
 DEADLINE_S = 1.5e-3  # a command later than this after its joint state misses its deadline
@@ -112,8 +134,40 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument('--probe-priority', type=int, default=50,
                         help='SCHED_FIFO priority of this probe and of the echo node (0: off), '
                         'so that a starved probe does not measure itself')
+    parser.add_argument('--robot', choices=tuple(SIMS), default='scara',
+                        help='the arm of the loop: scara (scara_sim, the planar law) or panda '
+                        '(arm_sim and the controller robot:=panda, a 3-D hand)')
     parser.add_argument('--json', action='store_true', help='print JSON only')
     return parser.parse_args(argv)
+
+
+def start_panda_loop(domain_id: int, realtime: dict, log_dir: Path,
+                     timeout: float) -> dict:
+    """The Panda's loop: event_manager (follow) and controller robot:=panda, then, once both
+    are up, arm_sim robot:=panda, then hand_sim in 3-D (PANDA_HAND); `realtime` (the
+    scheduling parameters) for the controller and the sim. {name: process}; on any error
+    nothing is left running."""
+    parameters = live_loop_parameters({'hand_sim': PANDA_HAND,
+                                       'controller': {'robot': 'panda', **realtime}})
+    started = {}
+    try:
+        for name in ('event_manager', 'controller'):
+            package, executable = LIVE_LOOP_EXECUTABLES[name]
+            started[name] = start_node(package, executable, domain_id,
+                                       params=parameters[name], log_dir=log_dir)
+        expected = {process: READY_LINES[name] for name, process in started.items()}
+        if not wait_until_logged(expected, timeout):
+            late = [name for name, p in started.items() if p in not_logged(expected)]
+            raise SystemExit(f'bench_loop: {", ".join(late)} did not start within '
+                             f'{timeout:g} s; logs in {log_dir}')
+        started['arm_sim'] = start_node('scara_sim', 'arm_sim', domain_id,
+                                        params={'robot': 'panda', **realtime}, log_dir=log_dir)
+        started['hand_sim'] = start_node('scara_sim', 'hand_sim', domain_id,
+                                         params=parameters['hand_sim'], log_dir=log_dir)
+    except BaseException:
+        stop_all(started.values())
+        raise
+    return started
 
 
 class RawMessages:
@@ -328,11 +382,14 @@ def run(args: argparse.Namespace) -> dict:
         def status() -> str | None:
             return states.messages(-1)[0].status if len(states) else None
 
-        overrides = {'hand_sim': HAND}
-        for name in ('scara_sim', 'controller'):
-            overrides[name] = {'realtime_priority': args.realtime_priority,
-                               'cpu_wakeup_latency': args.cpu_wakeup_latency}
-        started = start_live_loop(args.domain_id, overrides, log_dir=log_dir)
+        realtime = {'realtime_priority': args.realtime_priority,
+                    'cpu_wakeup_latency': args.cpu_wakeup_latency}
+        if args.robot == 'panda':
+            started = start_panda_loop(args.domain_id, realtime, log_dir,
+                                       args.startup_timeout)
+        else:
+            overrides = {'hand_sim': HAND, 'scara_sim': realtime, 'controller': realtime}
+            started = start_live_loop(args.domain_id, overrides, log_dir=log_dir)
         if not wait_for(lambda: status() == 'ok', args.startup_timeout):
             last = status() or 'no ControllerState at all'
             raise SystemExit(f"bench_loop: the controller's status is not 'ok' after "
@@ -375,7 +432,8 @@ def run(args: argparse.Namespace) -> dict:
     realtime = float(stamps.max() - stamps.min()) / receive_span if receive_span else None
     result = {
         'duration_s': round(wall, 3),
-        'hand': HAND,
+        'robot': args.robot,
+        'hand': PANDA_HAND if args.robot == 'panda' else HAND,
         'joint_states': {
             'messages': int(stamps.size),
             'achieved_rate_hz': round(stamps.size / probed_wall, 1),
@@ -411,8 +469,8 @@ def run(args: argparse.Namespace) -> dict:
         result['latency_p99_ratio'] = round(loop_p99 / echo['round_trip']['p99_ms'], 3)
     if echo is not None and echo.get('cpu_percent'):
         result['cpu_vs_echo'] = {name: round(cpu[name] / echo['cpu_percent'], 2)
-                                 for name in ('controller', 'scara_sim') if name in cpu}
-    match = SUMMARY.search(started['scara_sim'].log())
+                                 for name in ('controller', SIMS[args.robot]) if name in cpu}
+    match = SUMMARY.search(started[SIMS[args.robot]].log())
     if match:
         steps, ticks, seconds, late, dropped = match.groups()
         result['sim_summary'] = {'steps': int(steps), 'ticks': int(ticks),

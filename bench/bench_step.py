@@ -10,6 +10,13 @@ ControllerState), monitor=True on every 10th call as at 100 Hz ControllerState. 
 timed alone with time.perf_counter_ns; reported per task: median, p99 and max in µs for both,
 and the reference's median over the lean step's.
 
+`--robot panda` times, beside the SCARA's, the Panda's step (arm_law.ArmController.step with
+the controller's default gains, `--calls` per task) as the controller calls it: q uniform
+within home +- 0.6 rad (inside the joint limits), dq normal (0.5 rad/s), the hand from on the
+tool to 0.3 m away in 3-D with a velocity normal (0.1 m/s), a uniform in [0, 1]; on every
+10th call also V without its task term (ArmController.lyapunov), as the controller does for
+its 100 Hz ControllerState.
+
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_step.py`.
 `--json` prints the figures as one JSON object only.
 """
@@ -37,6 +44,8 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument('--calls', type=int, default=20000,
                         help='lean steps timed per task (the reference: a tenth)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the random states')
+    parser.add_argument('--robot', choices=('scara', 'panda'), default='scara',
+                        help="panda: the Panda's n-joint step too (beside the SCARA's)")
     parser.add_argument('--json', action='store_true', help='print JSON only')
     return parser.parse_args(argv)
 
@@ -96,13 +105,56 @@ def time_task(shape: TaskShape, k: float, states: list, params: ScaraParameters)
     return result
 
 
+def panda_states(count: int, rng: np.random.Generator, model) -> list:
+    """`count` (q, dq, HandState, a) of the Panda (see the module docstring)."""
+    from hri_adaptive_controller.arm_law import HandState
+
+    low = np.maximum(model.home - 0.6, model.limits.lower + 0.1)
+    high = np.minimum(model.home + 0.6, model.limits.upper - 0.1)
+    states = []
+    for _ in range(count):
+        q = rng.uniform(low, high)
+        offset = rng.uniform(0.0, 0.3) * rng.normal(size=3) / math.sqrt(3.0)
+        hand = HandState(model.tool_position(q) - offset, rng.normal(0.0, 0.1, 3), np.zeros(3))
+        states.append((q, rng.normal(0.0, 0.5, model.dof), hand, float(rng.uniform(0.0, 1.0))))
+    return states
+
+
+def time_panda_task(shape: TaskShape, k: float, states: list, model) -> dict:
+    """The Panda's step for one task, timed per call (spread_us), with its V every 10th."""
+    from hri_adaptive_controller.arm_law import ActiveTask, ArmController
+    from hri_adaptive_controller.controller_node import arm_gains_from
+    from hri_core.node_common import load_defaults
+
+    values = {'arm_ks': None, 'arm_adaptation_gain': None,
+              **load_defaults('hri_adaptive_controller', 'controller')}
+    arm = ArmController(model, arm_gains_from(values, model))
+    step_ns = []
+    clock = time.perf_counter_ns
+    for i, (q, dq, hand, weight) in enumerate(states):
+        start = clock()
+        output = arm.step(q, dq, hand, ActiveTask(shape, weight, 0.0, k), 1e-3)
+        if i % STATE_PERIOD == 0 and not output.fault:
+            arm.lyapunov(output, q, None)
+        step_ns.append(clock() - start)
+    return {'step': spread_us(step_ns)}
+
+
 def run(args: argparse.Namespace) -> dict:
     params = ScaraParameters()
     rng = np.random.default_rng(args.seed)
     states = random_states(args.calls, rng, params)
     tasks = {name: time_task(shape, k, states, params)
              for name, (shape, k) in installed_tasks().items()}
-    return {'calls': args.calls, 'tasks': tasks}
+    result = {'calls': args.calls, 'tasks': tasks}
+    if args.robot == 'panda':
+        from hri_core.robot_model import robot_model
+
+        model = robot_model('panda')
+        arm_states = panda_states(args.calls, np.random.default_rng(args.seed), model)
+        result['panda'] = {name: time_panda_task(shape, k, arm_states, model)
+                           for name, (shape, k) in installed_tasks().items()}
+    return result
 
 
 def main(argv=None) -> int:
@@ -119,6 +171,10 @@ def main(argv=None) -> int:
         print(f"{name}: step_lean median {lean['median_us']} / p99 {lean['p99_us']} / max "
               f"{lean['max_us']} us; reference step median {ref['median_us']} us "
               f"({r['reference_over_lean']} x)")
+    for name, r in result.get('panda', {}).items():
+        step = r['step']
+        print(f"{name}: panda step median {step['median_us']} / p99 {step['p99_us']} / max "
+              f"{step['max_us']} us")
     return 0
 
 

@@ -16,6 +16,12 @@
 # and writes their figures with the machine's description into bench/results.json and a
 # table on stdout. `scripts/bench.sh --quick` shortens every piece (a smoke run); `--load N`
 # adds the loop_load piece.
+# `--robot panda` runs the robot's pieces only, the Panda beside the SCARA in one run: step
+# (step_lean and the Panda's ArmController.step), loop (the SCARA's, as above) and loop_panda
+# (arm_sim robot:=panda + event_manager + controller robot:=panda + hand_sim in 3-D), and
+# prints both robots' figures against the Panda's bars (/joint_states >= 995 Hz, step median
+# <= 100 us, state -> command p99 <= 1.5 x the echo's, controller and sim <= 40 % of a core);
+# learning, recorder and sim are skipped. Without --robot (or --robot scara): as before.
 # Each piece ends the processes it started; a piece that fails is reported and the others
 # still run; the exit code is non-zero if any piece failed (the recorder's also if it lost a
 # message). ROS domains: BENCH_DOMAIN_BASE (default 90) .. +3.
@@ -23,9 +29,10 @@ set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
-usage() { echo "usage: scripts/bench.sh [--quick] [--load N]"; }
+usage() { echo "usage: scripts/bench.sh [--quick] [--load N] [--robot scara|panda]"; }
 quick=0
 load=0
+robot=scara
 while [ $# -gt 0 ]; do
   case "$1" in
     --quick) quick=1 ;;
@@ -33,6 +40,11 @@ while [ $# -gt 0 ]; do
       load=${2:-}
       shift
       [[ "$load" =~ ^[1-9][0-9]*$ ]] || { echo "--load needs a positive integer" >&2; exit 2; }
+      ;;
+    --robot)
+      robot=${2:-}
+      shift
+      [[ "$robot" =~ ^(scara|panda)$ ]] || { echo "--robot needs scara or panda" >&2; exit 2; }
       ;;
     -h | --help) usage; exit 0 ;;
     *) usage >&2; exit 2 ;;
@@ -79,24 +91,46 @@ run_piece() {
   fi
 }
 
-run_piece step 600 python bench/bench_step.py --json --calls "$step_calls"
-run_piece learning 1800 python bench/bench_learning.py --json "${learning_args[@]}"
+# skip_piece NAME REASON: a piece not run in this mode.
+skip_piece() {
+  printf '{"skipped": "%s"}\n' "$2" > "$work/$1.json"
+  echo 0 > "$work/$1.code"
+  cut -d' ' -f1-3 /proc/loadavg > "$work/$1.load"
+}
+
+run_piece step 600 python bench/bench_step.py --json --calls "$step_calls" --robot "$robot"
+if [ "$robot" = panda ]; then
+  skip_piece learning '--robot panda: the robot pieces only'
+else
+  run_piece learning 1800 python bench/bench_learning.py --json "${learning_args[@]}"
+fi
 run_piece loop $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
   --duration "$loop_seconds" --domain-id "$domain"
+if [ "$robot" = panda ]; then
+  run_piece loop_panda $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
+    --duration "$loop_seconds" --domain-id $((domain + 4)) --robot panda
+else
+  skip_piece loop_panda 'no --robot panda given'
+fi
 if [ "$load" -gt 0 ]; then
   run_piece loop_load $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
     --duration "$loop_seconds" --domain-id $((domain + 3)) --load "$load"
 else
-  echo '{"skipped": "no --load N given"}' > "$work/loop_load.json"
-  echo 0 > "$work/loop_load.code"
-  cut -d' ' -f1-3 /proc/loadavg > "$work/loop_load.load"
+  skip_piece loop_load 'no --load N given'
 fi
-run_piece recorder $((recorder_seconds + 180)) python bench/bench_recorder.py --json \
-  --seconds "$recorder_seconds" --domain-id $((domain + 1))
-run_piece sim $((sim_seconds + 120)) python bench/bench_sim.py --json \
-  --duration "$sim_seconds" --domain-id $((domain + 2))
+if [ "$robot" = panda ]; then
+  skip_piece recorder '--robot panda: the robot pieces only'
+  skip_piece sim '--robot panda: the robot pieces only'
+else
+  run_piece recorder $((recorder_seconds + 180)) python bench/bench_recorder.py --json \
+    --seconds "$recorder_seconds" --domain-id $((domain + 1))
+  run_piece sim $((sim_seconds + 120)) python bench/bench_sim.py --json \
+    --duration "$sim_seconds" --domain-id $((domain + 2))
+fi
 
-python - "$work" "$root/bench/results.json" "$quick" <<'PY'
+results_file=$root/bench/results.json
+[ "$robot" = panda ] && results_file=$root/bench/results-panda.json
+python - "$work" "$results_file" "$quick" <<'PY'
 """Collect the pieces' JSON with the machine's description; print one table."""
 import datetime
 import json
@@ -107,7 +141,10 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 work, output, quick = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3] == '1'
-PIECES = ('step', 'learning', 'loop', 'loop_load', 'recorder', 'sim')
+PIECES = ('step', 'learning', 'loop', 'loop_panda', 'loop_load', 'recorder', 'sim')
+# The Panda's speed bars (the issue's): /joint_states rate, step median, loop p99 / echo p99,
+# CPU of the controller and of the sim.
+BARS = {'rate_hz': 995.0, 'step_median_us': 100.0, 'p99_ratio': 1.5, 'cpu_percent': 40.0}
 
 
 def package_version(name):
@@ -195,6 +232,10 @@ for name in PIECES:
                 f"{lean['p99_us']} / max {lean['max_us']} us ({piece['calls']:,} calls)")
             row(name, f'{task}: reference step', f"median {ref['median_us']} us "
                 f"({r['reference_over_lean']} x the lean step's)")
+        for task, r in piece.get('panda', {}).items():
+            step = r['step']
+            row(name, f'{task}: panda step', f"median {step['median_us']} / p99 "
+                f"{step['p99_us']} / max {step['max_us']} us ({piece['calls']:,} calls)")
     elif name == 'learning':
         row(name, 'rounds', f"{piece['repeats']} (times min / median)")
         for task, by_method in piece['fixtures'].items():
@@ -220,7 +261,7 @@ for name in PIECES:
                 f"(read + energy + identification + fit; fit {r['fit_s']} s, "
                 f"{r['iterations']} it, {r['method']}); bag {r['bag_mb']} MB written in "
                 f"{r['write_s']} s; d2 {r['d2']} m")
-    elif name in ('loop', 'loop_load'):
+    elif name in ('loop', 'loop_panda', 'loop_load'):
         j, c = piece['joint_states'], piece['controller']
         row(name, 'busy processes', str(piece['load_processes']))
         row(name, 'nodes run with', f"realtime_priority {piece.get('realtime_priority')}, "
@@ -275,6 +316,40 @@ for name in PIECES:
             s = piece['sim_summary']
             row(name, 'sim timing (whole run)', f"{s['late_ticks']} late ticks, "
                 f"{s['dropped_steps']} dropped steps in {s['ticks']} ticks")
+
+
+
+def robot_figures(loop, step, robot):
+    """The bar figures of one robot's loop piece and step piece (None where missing)."""
+    if not loop or 'error' in loop or 'skipped' in loop:
+        return None
+    sim = 'arm_sim' if robot == 'panda' else 'scara_sim'
+    if robot == 'panda':
+        steps = [r['step']['median_us'] for r in step.get('panda', {}).values()]
+    else:
+        steps = [r['lean']['median_us'] for r in step.get('tasks', {}).values()]
+    return {'rate_hz': loop['joint_states']['achieved_rate_hz'],
+            'step_median_us': max(steps) if steps else None,
+            'p99_ratio': loop.get('latency_p99_ratio'),
+            'controller_cpu': loop['cpu_percent'].get('controller'),
+            'sim_cpu': loop['cpu_percent'].get(sim)}
+
+
+panda = robot_figures(results['loop_panda'], results['step'], 'panda')
+if panda is not None:
+    scara = robot_figures(results['loop'], results['step'], 'scara') or {}
+    results['panda_vs_scara'] = {'panda': panda, 'scara': scara, 'bars': BARS}
+    output.write_text(json.dumps(results, indent=2) + '\n')
+    checks = (('/joint_states rate (Hz)', 'rate_hz', 'rate_hz', '>='),
+              ('step median, slowest task (us)', 'step_median_us', 'step_median_us', '<='),
+              ('state -> command p99 / echo p99', 'p99_ratio', 'p99_ratio', '<='),
+              ('controller CPU (% of a core)', 'controller_cpu', 'cpu_percent', '<='),
+              ('sim CPU (% of a core)', 'sim_cpu', 'cpu_percent', '<='))
+    for label, key, bar_key, sense in checks:
+        value, bar = panda[key], BARS[bar_key]
+        met = value is not None and (value >= bar if sense == '>=' else value <= bar)
+        row('panda vs scara', label, f"panda {fmt(value)} (bar {sense} {bar:g}: "
+            f"{'met' if met else 'MISSED'}); scara {fmt(scara.get(key))}")
 
 width = max(len(item) for _, item, _ in rows)
 previous = None

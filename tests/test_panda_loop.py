@@ -3,8 +3,10 @@ rows, the controller robot:=panda (arm_law) and a probe hand on /target. follow:
 hand 0.3 m from the tool; the tool enters the region within 5 s and stays there under gravity
 while theta_hat adapts from the URDF's values (the sim's arm is perturbed). avoid: a hand
 coming down along z onto the tool at 0.5 m/s; 2 s after it stops the tool is >= d1 - 2 cm
-away. Both: every command within the Panda's per-joint effort limits and at most 1 N m from
-the one before; no joint within 5 deg of a limit."""
+away. follow a moving hand: hand_sim (dimension 3) moves the hand back and forth along a
+0.25 m line that drops 0.15 m in z (peak 0.079 m/s); after it has settled the tool stays
+within d2 of it (in the follow region). All: every command within the Panda's per-joint
+effort limits and at most 1 N m from the one before; no joint within 5 deg of a limit."""
 
 import math
 import threading
@@ -22,6 +24,7 @@ from hri_bringup.processes import paper_tasks_dir, wait_for
 from hri_core import topics
 from hri_core.robot_model import robot_model
 from hri_core.task_file import load_task_file
+from tests.fault_tools import effort_change_per_step
 
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # a 1 kHz loop, timed
 
@@ -66,12 +69,14 @@ def publish_hand(probe, position, started: dict, stop: threading.Event) -> threa
 
 
 def run_panda_loop(nodes, probe, task: str, hand, duration: float):
-    """The loop with `task` faded in and the hand `hand` (see publish_hand) for `duration` s
-    after the first joint state: (joint states, commands, controller states, controller,
-    sim). The event_manager and the controller start first, so the arm is controlled from
-    its first step (a Panda without torque sags)."""
+    """The loop with `task` faded in and the hand `hand` for `duration` s after the first
+    joint state: (joint states, commands, controller states, controller). `hand`: a point or
+    a function of time for the probe to publish (see publish_hand), or a dict of hand_sim
+    parameters (hand_sim starts once the arm publishes). The event_manager and the controller
+    start first, so the arm is controlled from its first step (a Panda without torque sags)."""
     stop, started = threading.Event(), {}
-    publish_hand(probe, hand, started, stop)
+    if not isinstance(hand, dict):
+        publish_hand(probe, hand, started, stop)
     try:
         states = probe.collect('/joint_states', JointState, RELIABLE)
         commands = probe.collect(topics.EFFORT_COMMANDS.name, Float64MultiArray, RELIABLE)
@@ -85,8 +90,13 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float):
         assert manager.wait_for_line('task(s) loaded', START_TIMEOUT), manager.log()
         sim = nodes('scara_sim', 'arm_sim', params={'robot': 'panda'})
         assert wait_for(lambda: len(states) > 0, START_TIMEOUT), sim.log()
+        hand_sim = nodes('scara_sim', 'hand_sim', params=hand) if isinstance(hand, dict) \
+            else None
+        if hand_sim is not None:
+            assert hand_sim.wait_for_line('hand profile', START_TIMEOUT), hand_sim.log()
         start = started['at'] = time.monotonic()
         assert wait_for(lambda: time.monotonic() - start > duration, duration + 1.0)
+        assert hand_sim is None or hand_sim.alive(), hand_sim.log()
         assert 'joint names agree with /robot_description' in controller.log()
     finally:
         stop.set()
@@ -160,3 +170,54 @@ def test_the_panda_backs_away_from_a_hand_reaching_in_along_z(nodes, probe):
     print(f'panda avoid along z: tool {distance[-1]:.3f} m from the hand 2 s after it '
           f'stopped (d1 {d1} m); largest effort step {step:.3f} N m; nearest limit '
           f'{np.degrees(margin):.1f} deg')
+
+
+# The moving hand: back and forth between two points 0.25 m apart, 0.15 m lower at the far
+# end, period 10 s: pi 0.25 / 10 = 0.079 m/s at its fastest, 0.05 m/s on average.
+MOVING_HAND = {'profile': 'back_and_forth', 'dimension': 3, 'start': [0.40, 0.10, 0.45],
+               'end': [0.40, -0.10, 0.30], 'period': 10.0, 'rate_hz': 100.0}
+MOVING_RUN = 12.0  # s after the first joint state
+SETTLE_TIME = 4.0  # s after the first joint state before the distance is held to the bar
+
+
+def hand_at(times, hand_times, hand_points) -> np.ndarray:
+    """The hand (N, 3) at `times`, interpolated linearly in the hand's stamped messages."""
+    order = np.argsort(hand_times)
+    return np.column_stack([np.interp(times, hand_times[order], hand_points[order, axis])
+                            for axis in range(3)])
+
+
+def test_the_panda_follows_a_hand_moving_in_3d(nodes, probe):
+    """follow (Table I) with hand_sim's 3-D back_and_forth: from SETTLE_TIME s on, the tool
+    stays inside the follow region, within d2 = 4.1 cm of the hand, while the hand moves.
+    The bar is the task's own region, not a tuned number. Measured (three runs, load
+    average 1.6-2.1): the tool 14 cm from the hand at the start is within d2 2.0 s after the
+    first joint state, then 2.5-3.2 cm from the hand (median 3.1 cm, farthest 3.23 cm)."""
+    model = robot_model('panda')
+    region = load_task_file(paper_tasks_dir() / 'follow.yaml').d2
+    targets = probe.collect(topics.TARGET.name, PointStamped, topics.TARGET.qos)
+    sample, efforts, _, controller = run_panda_loop(nodes, probe, 'follow', MOVING_HAND,
+                                                    MOVING_RUN)
+    hand_messages = list(targets)
+    hand_times = np.array([stamp_seconds(m) for m in hand_messages])
+    hand_points = np.array([(m.point.x, m.point.y, m.point.z) for m in hand_messages])
+    assert np.ptp(hand_points[:, 2]) > 0.1  # the hand did move in z (hand_sim in 3-D)
+    times = np.array([stamp_seconds(msg) for msg in sample])
+    q = np.array([msg.position for msg in sample])
+    tool = np.array([model.tool_position(row) for row in q[::10]])
+    distance = np.linalg.norm(tool - hand_at(times[::10], hand_times, hand_points), axis=1)
+    settled = times[::10] - times[0] >= SETTLE_TIME
+    assert settled.sum() > 100
+    farthest = float(distance[settled].max())
+    step, margin = check_commands_and_limits(model, q, efforts)
+    per_cycle = effort_change_per_step(sample, commands=[tuple(row) for row in efforts])
+    print(f'panda follows a moving 3-D hand: tool to hand after {SETTLE_TIME:g} s median '
+          f'{np.median(distance[settled]):.4f} m, farthest {farthest:.4f} m '
+          f'(d2 {region} m); hand z {hand_points[:, 2].min():.3f}..'
+          f'{hand_points[:, 2].max():.3f} m; largest command step {step:.3f} N m, applied '
+          f'{per_cycle:.3f} N m per cycle; nearest limit {np.degrees(margin):.1f} deg')
+    assert per_cycle <= MAX_STEP + 1e-9
+    worst = float((times[::10] - times[0])[settled][int(np.argmax(distance[settled]))])
+    hand_gap = float(np.diff(np.sort(hand_times)).max())
+    assert farthest <= region, (f'{farthest:.3f} m at {worst:.2f} s; longest /target gap '
+                                f'{hand_gap:.3f} s', controller.log()[-2000:])

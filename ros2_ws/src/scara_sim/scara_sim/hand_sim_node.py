@@ -3,8 +3,11 @@
 Publishes geometry_msgs/PointStamped (frame `base_frame`, m) on /target at `rate_hz`, the
 position of `profiles.hand_position` for the profile named by `profile` (hold, approach,
 retreat, back_and_forth, circle, waypoints) and its parameters `start`, `end`, `speed`,
-`period`, `radius`, `start_delay`, `waypoints`. The profile's clock starts when the node
-does; changing any profile parameter at run time (validated) restarts it.
+`period`, `radius`, `start_delay`, `waypoints`. `dimension` 2 (the default, the planar
+SCARA's) takes the points as [x, y] and publishes z = 0; 3 takes them as [x, y, z] (waypoints
+flat in threes) for an arm that reaches in space (`robot:=panda`). The profile's clock starts
+when the node does; changing any profile parameter at run time (validated) restarts it (to
+switch `dimension`, set it and the points the profile uses in one call).
 
 `profile: recording` replays a Vicon Nexus CSV export (`recording`, hri_core.recorded_motion)
 at its recorded pace: the segment `segment`, moved into the base frame by p_base =
@@ -44,7 +47,7 @@ from hri_core.recorded_motion import (
     choose_placement,
     read_vicon_csv,
 )
-from scara_sim.profiles import HAND_PROFILES, HandProfile, hand_position
+from scara_sim.profiles import HAND_DIMENSIONS, HAND_PROFILES, HandProfile, hand_position
 
 PACKAGE = 'scara_sim'
 NODE_NAME = 'hand_sim'
@@ -55,16 +58,20 @@ PARAMETERS = {
                              read_only=True),
     'profile': ParameterSpec(str, 'hand motion: ' + ', '.join(SOURCES),
                              choices=SOURCES),
-    'start': ParameterSpec(list, 'start point [x, y] (m); centre of the circle',
-                           size=2),
-    'end': ParameterSpec(list, 'end point [x, y] (m)', size=2),
+    'start': ParameterSpec(list, 'start point [x, y] ([x, y, z] with dimension 3) (m); '
+                           'centre of the circle'),
+    'end': ParameterSpec(list, 'end point [x, y] ([x, y, z] with dimension 3) (m)'),
     'speed': ParameterSpec(float, 'peak speed of approach, retreat and waypoints moves (m/s)',
                            0.001, 5.0),
     'period': ParameterSpec(float, 'cycle time of back_and_forth and circle (s)', 0.1, 3600.0),
     'radius': ParameterSpec(float, 'circle radius (m)', 0.001, 2.0),
     'start_delay': ParameterSpec(float, 'time the hand waits before moving (s)', 0.0, 3600.0),
     'waypoints': ParameterSpec(list,
-                               'waypoints profile: flat [x0, y0, x1, y1, ...] (m)'),
+                               'waypoints profile: flat [x0, y0, x1, y1, ...] (m); with '
+                               'dimension 3 [x0, y0, z0, x1, y1, z1, ...]'),
+    'dimension': ParameterSpec(int, 'points of the scripted profiles: 2 [x, y] (z = 0 '
+                               'published) or 3 [x, y, z]', min(HAND_DIMENSIONS),
+                               max(HAND_DIMENSIONS)),
     'segment_speeds': ParameterSpec(list, 'waypoints profile: peak speed of each move (m/s); '
                                     'unset: speed', optional=True),
     'pauses': ParameterSpec(list, 'waypoints profile: time at the end of each move (s); '
@@ -89,7 +96,8 @@ PARAMETERS = {
 RECORDING_PARAMETERS = ('recording', 'segment', 'translation', 'yaw', 'auto_place', 'reach',
                         'time_scale', 'at_end')
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
-                      'waypoints', 'segment_speeds', 'pauses', *RECORDING_PARAMETERS)
+                      'waypoints', 'dimension', 'segment_speeds', 'pauses',
+                      *RECORDING_PARAMETERS)
 
 
 class HandSim(Node):
@@ -138,7 +146,7 @@ class HandSim(Node):
             speed=value('speed'), period=value('period'), radius=value('radius'),
             start_delay=value('start_delay'), waypoints=tuple(value('waypoints')),
             segment_speeds=tuple(value('segment_speeds') or ()),
-            pauses=tuple(value('pauses') or ()))
+            pauses=tuple(value('pauses') or ()), dimension=value('dimension'))
 
     @staticmethod
     def _replay_from(value) -> Replay:
@@ -173,10 +181,11 @@ class HandSim(Node):
                    'back_and_forth': f'{list(p.start)} <-> {list(p.end)}, period {p.period} s',
                    'circle': f'centre {list(p.start)}, radius {p.radius} m, '
                              f'period {p.period} s',
-                   'waypoints': f'{len(p.waypoints) // 2} points at '
+                   'waypoints': f'{len(p.waypoints) // p.dimension} points at '
                                 f'{list(p.segment_speeds) or p.speed} m/s'
                                 + (f', pauses {list(p.pauses)} s' if p.pauses else '')}
-        return f'{p.name} ({details[p.name]}, start delay {p.start_delay} s)'
+        return (f'{p.name} ({details[p.name]}, start delay {p.start_delay} s, '
+                f'{p.dimension}-D)')
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
         try:
@@ -195,9 +204,11 @@ class HandSim(Node):
         if isinstance(self._source, Replay):
             self._publish_frame()
             return
-        x, y = hand_position(self._source, time.monotonic() - self._started)
+        position = hand_position(self._source, time.monotonic() - self._started).tolist()
+        if len(position) == 2:
+            position.append(0.0)  # the planar arm's plane
         stamp = self.get_clock().now().seconds_nanoseconds()
-        self._publisher.publish(self._template.encode((float(x), float(y), 0.0), stamp=stamp))
+        self._publisher.publish(self._template.encode(tuple(position), stamp=stamp))
 
     def _publish_frame(self) -> None:
         """The newest recorded frame due, once, stamped when it was recorded; nothing for a

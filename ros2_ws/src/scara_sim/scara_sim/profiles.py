@@ -7,12 +7,13 @@ damper, `hand_force`) whose set-point follows a minimum-jerk path (`minimum_jerk
 from where the end-effector starts to the demonstration's goal (`demonstration_goal`), plus
 physiological tremor (`Tremor`: band-limited, seeded noise).
 
-The hand profiles are planar: positions (..., 2) in m. The demonstration (its goal, path,
-force and tremor) is of the arm's dimension: [x, y] for the planar SCARA (the numbers of the
-planar demonstration are those it always had), [x, y, z] for any other arm, whose tool the
-hand then pushes with a 3-D force along a straight path in space (not only horizontal: the
-goal lies on the line through x_r, at any height). Positions in m in the robot's base frame,
-times in s, forces in N. No ROS import.
+The hand profiles are planar by default (`dimension` 2: points [x, y] m, the SCARA's plane)
+or in space (`dimension` 3: points [x, y, z] m, every profile's path in 3-D). The
+demonstration (its goal, path, force and tremor) is of the arm's dimension: [x, y] for the
+planar SCARA (the numbers of the planar demonstration are those it always had), [x, y, z] for
+any other arm, whose tool the hand then pushes with a 3-D force along a straight path in
+space (not only horizontal: the goal lies on the line through x_r, at any height). Positions
+in m in the robot's base frame, times in s, forces in N. No ROS import.
 """
 
 import math
@@ -22,9 +23,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hri_core.robot_model import RobotModel, ScaraModel
-from hri_core.validation import planar_vector, point_vector, positive
+from hri_core.validation import planar_vector, point_vector, positive, spatial_vector
 
 HAND_PROFILES = ('hold', 'approach', 'retreat', 'back_and_forth', 'circle', 'waypoints')
+HAND_DIMENSIONS = (2, 3)
+# The points each profile moves through (the others it does not use).
+PROFILE_POINTS = {'hold': ('start',), 'approach': ('start', 'end'),
+                  'retreat': ('start', 'end'), 'back_and_forth': ('start', 'end'),
+                  'circle': ('start',), 'waypoints': ()}
 DEMONSTRATION_MODES = ('follow', 'avoid')
 
 # Peak speed of a minimum-jerk move over its mean speed: max of 30 s^2 (1 - s)^2 at s = 1/2.
@@ -86,18 +92,21 @@ def minimum_jerk_segment(start, end, t, duration: float) -> tuple[np.ndarray, np
 class HandProfile:
     """A scripted hand motion (see `hand_position`).
 
-    name: one of HAND_PROFILES. start, end: points [x, y] (m). speed: peak speed of the
+    name: one of HAND_PROFILES. dimension: 2 (points [x, y] m, the plane of the planar arm)
+    or 3 (points [x, y, z] m). start, end: points of that dimension where the profile uses
+    them (PROFILE_POINTS; an unused one may be [x, y] or [x, y, z]). speed: peak speed of the
     minimum-jerk moves of approach, retreat and waypoints (m/s). period: cycle time of
-    back_and_forth and circle (s). radius: of the circle (m), centred on `start`.
-    start_delay: time (s) the hand waits at its initial point. waypoints: flat
-    [x0, y0, x1, y1, ...] (m), at least two points; segment_speeds: peak speed (m/s) of each
-    waypoints move (one per move; empty: `speed` for all); pauses: time (s) the hand stays at
-    each waypoint after the first before it moves on (one per move; empty: none).
+    back_and_forth and circle (s). radius: of the circle (m), centred on `start`, horizontal
+    (at the height of `start` in 3-D). start_delay: time (s) the hand waits at its initial
+    point. waypoints: flat [x0, y0, x1, y1, ...] (or [x0, y0, z0, x1, y1, z1, ...] in 3-D)
+    (m), at least two points; segment_speeds: peak speed (m/s) of each waypoints move (one per
+    move; empty: `speed` for all); pauses: time (s) the hand stays at each waypoint after the
+    first before it moves on (one per move; empty: none).
     """
 
     name: str = 'hold'
-    start: tuple[float, float] = (0.45, 0.05)
-    end: tuple[float, float] = (0.30, 0.30)
+    start: tuple[float, ...] = (0.45, 0.05)
+    end: tuple[float, ...] = (0.30, 0.30)
     speed: float = 0.15
     period: float = 8.0
     radius: float = 0.08
@@ -105,26 +114,39 @@ class HandProfile:
     waypoints: tuple[float, ...] = field(default=())
     segment_speeds: tuple[float, ...] = field(default=())
     pauses: tuple[float, ...] = field(default=())
+    dimension: int = 2
 
     def __post_init__(self):
         if self.name not in HAND_PROFILES:
             raise ValueError(f'unknown hand profile {self.name!r}; expected one of '
                              f'{", ".join(HAND_PROFILES)}')
-        planar_vector(self.start, 'start', 'm')
-        planar_vector(self.end, 'end', 'm')
+        if self.dimension not in HAND_DIMENSIONS:
+            raise ValueError(f'dimension must be 2 ([x, y]) or 3 ([x, y, z]), got '
+                             f'{self.dimension}')
+        point = planar_vector if self.dimension == 2 else spatial_vector
+        for name in ('start', 'end'):
+            if name not in PROFILE_POINTS[self.name]:  # unused: any finite point
+                point_vector(getattr(self, name), name, 'm')
+                continue
+            try:
+                point(getattr(self, name), name, 'm')
+            except ValueError as error:
+                raise ValueError(f'{error} (dimension is {self.dimension})') from None
         positive(self.speed, 'speed', 'm/s')
         positive(self.period, 'period', 's')
         positive(self.radius, 'radius', 'm')
         if not (math.isfinite(self.start_delay) and self.start_delay >= 0.0):
             raise ValueError(f'start_delay must be finite and >= 0 s, got {self.start_delay}')
         if self.name == 'waypoints':
+            d = self.dimension
             points = np.asarray(self.waypoints, dtype=float)
-            if points.ndim != 1 or points.size < 4 or points.size % 2:
-                raise ValueError('waypoints must be a flat list [x0, y0, x1, y1, ...] of at '
-                                 f'least two points, got {len(self.waypoints)} values')
+            if points.ndim != 1 or points.size < 2 * d or points.size % d:
+                shape = '[x0, y0, x1, y1, ...]' if d == 2 else '[x0, y0, z0, x1, y1, z1, ...]'
+                raise ValueError(f'waypoints must be a flat list {shape} of at least two '
+                                 f'points, got {len(self.waypoints)} values')
             if not np.all(np.isfinite(points)):
                 raise ValueError('waypoints must be finite')
-            moves = points.size // 2 - 1
+            moves = points.size // d - 1
             for name, values in (('segment_speeds', self.segment_speeds),
                                  ('pauses', self.pauses)):
                 if values and len(values) != moves:
@@ -135,9 +157,13 @@ class HandProfile:
             if not all(math.isfinite(v) and v >= 0.0 for v in self.pauses):
                 raise ValueError('pauses must be finite and >= 0 s')
 
+    def points(self) -> np.ndarray:
+        """The waypoints as (k, dimension) m."""
+        return np.asarray(self.waypoints, dtype=float).reshape(-1, self.dimension)
+
 
 def _waypoint_position(points: np.ndarray, t: float, speeds, pauses) -> np.ndarray:
-    """Position along minimum-jerk moves between successive points (k, 2): move i at peak
+    """Position along minimum-jerk moves between successive points (k, d): move i at peak
     speed speeds[i], then a pause of pauses[i] s at its end."""
     for a, b, speed, pause in zip(points[:-1], points[1:], speeds, pauses, strict=True):
         duration = minimum_jerk_duration(float(np.linalg.norm(b - a)), speed)
@@ -151,7 +177,7 @@ def _waypoint_position(points: np.ndarray, t: float, speeds, pauses) -> np.ndarr
 
 def waypoint_schedule(profile: HandProfile) -> list[tuple[float, float]]:
     """(start, end) times (s since the profile started) of each waypoints move."""
-    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, 2)
+    points = profile.points()
     moves = len(points) - 1
     speeds = profile.segment_speeds or (profile.speed,) * moves
     pauses = profile.pauses or (0.0,) * moves
@@ -164,14 +190,15 @@ def waypoint_schedule(profile: HandProfile) -> list[tuple[float, float]]:
 
 
 def hand_position(profile: HandProfile, t: float) -> np.ndarray:
-    """Hand position (2,) in m at time t (s) since the profile started.
+    """Hand position (dimension,) in m at time t (s) since the profile started.
 
     hold: stays at `start`. approach: minimum-jerk move start -> end at peak speed `speed`,
     then stays at `end`. retreat: the same move backwards, end -> start. back_and_forth:
     start -> end -> start ... as start + (end - start) (1 - cos(2 pi t / period)) / 2.
-    circle: centre `start`, `radius`, counter-clockwise, one turn per `period`, beginning at
-    start + [radius, 0]. waypoints: minimum-jerk moves through the points, then stays at the
-    last. Before `start_delay` the hand stays where the profile begins.
+    circle: centre `start`, `radius`, counter-clockwise seen from above (+z), one turn per
+    `period`, beginning at start + [radius, 0(, 0)]; in 3-D at the height of `start`.
+    waypoints: minimum-jerk moves through the points, then stays at the last. Before
+    `start_delay` the hand stays where the profile begins.
     """
     if not math.isfinite(t):
         raise ValueError(f't must be finite, got {t}')
@@ -187,8 +214,10 @@ def hand_position(profile: HandProfile, t: float) -> np.ndarray:
         return start + (end - start) * 0.5 * (1.0 - math.cos(2.0 * math.pi * tau / profile.period))
     if profile.name == 'circle':
         angle = 2.0 * math.pi * tau / profile.period
-        return start + profile.radius * np.array([math.cos(angle), math.sin(angle)])
-    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, 2)
+        offset = np.zeros(profile.dimension)
+        offset[:2] = math.cos(angle), math.sin(angle)
+        return start + profile.radius * offset
+    points = profile.points()
     moves = len(points) - 1
     return _waypoint_position(points, tau, profile.segment_speeds or (profile.speed,) * moves,
                               profile.pauses or (0.0,) * moves)

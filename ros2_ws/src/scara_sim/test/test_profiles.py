@@ -124,6 +124,89 @@ def test_hand_profile_rejects_bad_parameters(kwargs, message):
         HandProfile(**kwargs)
 
 
+SPACE_START, SPACE_END = (0.45, 0.05, 0.40), (0.30, 0.30, 0.20)
+
+
+@pytest.mark.parametrize(('name', 't', 'expected'), [
+    ('hold', 5.0, SPACE_START),
+    ('approach', 0.0, SPACE_START),
+    ('approach', 100.0, SPACE_END),
+    ('retreat', 100.0, SPACE_START),
+    ('back_and_forth', 4.0, SPACE_END),
+    ('back_and_forth', 8.0, SPACE_START),
+    ('circle', 0.0, [0.53, 0.05, 0.40]),
+    ('circle', 2.0, [0.45, 0.13, 0.40]),
+])
+def test_3d_profiles_pass_through_their_defining_points_z_included(name, t, expected):
+    profile = HandProfile(name=name, start=SPACE_START, end=SPACE_END, period=8.0,
+                          radius=0.08, speed=0.15, dimension=3)
+    np.testing.assert_allclose(hand_position(profile, t), expected, atol=1e-12)
+
+
+def test_3d_moves_keep_the_peak_speed_along_the_path_in_space():
+    profile = HandProfile(name='approach', start=SPACE_START, end=SPACE_END, speed=0.1,
+                          dimension=3)
+    t = np.arange(0.0, 8.0, 1e-3)
+    path = np.array([hand_position(profile, ti) for ti in t])
+    speed = np.linalg.norm(np.diff(path, axis=0), axis=-1) / 1e-3
+    assert speed.max() == pytest.approx(0.1, rel=1e-3)
+    # Straight from start to end: z moves in proportion to x.
+    share = (path[:, 0] - SPACE_START[0]) / (SPACE_END[0] - SPACE_START[0])
+    np.testing.assert_allclose(path[:, 2], SPACE_START[2] + share * (SPACE_END[2]
+                                                                     - SPACE_START[2]))
+
+
+def test_3d_circle_is_horizontal_at_the_height_of_its_centre():
+    profile = HandProfile(name='circle', start=(0.3, 0.2, 0.5), end=SPACE_END, radius=0.05,
+                          period=3.0, dimension=3)
+    points = np.array([hand_position(profile, t) for t in np.linspace(0, 7, 99)])
+    np.testing.assert_allclose(points[:, 2], 0.5)
+    np.testing.assert_allclose(np.linalg.norm(points[:, :2] - [0.3, 0.2], axis=-1), 0.05)
+
+
+def test_3d_waypoints_are_read_in_threes_and_visited_in_space():
+    points = (0.4, 0.0, 0.3, 0.4, 0.2, 0.5, 0.2, 0.2, 0.5)
+    # start and end, unused by waypoints, may stay planar (the YAML's defaults).
+    profile = HandProfile(name='waypoints', waypoints=points, speed=0.2, dimension=3)
+    first = minimum_jerk_duration(float(np.hypot(0.2, 0.2)), 0.2)
+    second = minimum_jerk_duration(0.2, 0.2)
+    np.testing.assert_allclose(waypoint_schedule(profile),
+                               [(0.0, first), (first, first + second)])
+    np.testing.assert_allclose(hand_position(profile, 0.0), [0.4, 0.0, 0.3])
+    np.testing.assert_allclose(hand_position(profile, first), [0.4, 0.2, 0.5])
+    np.testing.assert_allclose(hand_position(profile, first + second + 1.0), [0.2, 0.2, 0.5])
+    halfway = hand_position(profile, 0.5 * first)
+    np.testing.assert_allclose(halfway, [0.4, 0.1, 0.4], atol=1e-12)
+
+
+def test_planar_profiles_stay_planar_by_default():
+    assert HandProfile().dimension == 2
+    for name in ('hold', 'approach', 'back_and_forth', 'circle'):
+        assert hand_position(HandProfile(name=name), 1.0).shape == (2,)
+    waypoints = HandProfile(name='waypoints', waypoints=(0.4, 0.0, 0.3, 0.4, 0.2, 0.5))
+    assert len(waypoint_schedule(waypoints)) == 2  # read in pairs: three points
+
+
+@pytest.mark.parametrize(('kwargs', 'message'), [
+    ({'dimension': 4}, r'dimension must be 2 \(\[x, y\]\) or 3'),
+    ({'dimension': 3}, r'start must be 3 finite values \[x, y, z\] in m, got .* '
+                        r'\(dimension is 3\)'),
+    ({'start': (0.4, 0.1, 0.3)}, r'start must be 2 finite values .*\(dimension is 2\)'),
+    ({'dimension': 3, 'start': SPACE_START, 'end': (0.3, 0.3), 'name': 'approach'},
+     'end must be 3 finite'),
+    ({'dimension': 3, 'name': 'waypoints', 'waypoints': SPACE_START + SPACE_END,
+      'end': (0.3, float('nan'))}, 'end must be 2 or 3 finite values'),
+    ({'dimension': 3, 'start': SPACE_START, 'end': SPACE_END, 'name': 'waypoints',
+      'waypoints': (0.1, 0.2, 0.3, 0.4)},
+     r'flat list \[x0, y0, z0, x1, y1, z1, ...\] of at least two points, got 4'),
+    ({'dimension': 3, 'start': SPACE_START, 'end': SPACE_END, 'name': 'waypoints',
+      'waypoints': SPACE_START + SPACE_END + (0.1,)}, 'got 7 values'),
+])
+def test_3d_profile_rejects_points_of_the_wrong_dimension(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        HandProfile(**kwargs)
+
+
 def test_follow_goal_stops_short_of_the_reference_on_the_way_to_it():
     start, reference = np.array([0.35, 0.30]), np.array([0.45, 0.05])
     goal = demonstration_goal('follow', start, reference, 0.041, 0.183)

@@ -237,24 +237,18 @@ def _segment_clearance(x1: float, x2: float, y1: float, y2: float) -> float:
     return math.hypot(x1 + t * d1, x2 + t * d2)
 
 
-class ReachRound:
-    """The state of the reach-round blend: sigma's ramp, the filtered joint goal q_f.
+class _JointBlend:
+    """The reach-round blend's state, for any number of joints: sigma's ramp (with a dwell
+    between switches), the slewed and filtered joint goal q_f and the joint motion u
+    (module docstring). ReachRound (the SCARA) and ReachRoundN (n joints) decide when to
+    blend and where to; `_blend` does the rest. `reset` forgets the state (the joint goal
+    restarts from the arm's joints at the next update)."""
 
-    `update` runs once per control step with its dt; `reset` forgets the state (the joint goal
-    restarts from the arm's joints at the next update).
-    """
-
-    BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
-    CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
-    STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
-    STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
     NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
     FAR_GOAL = 0.06  # m from the goal: far
 
-    def __init__(self, settings: ReachRoundSettings, limits: JointLimits, l1: float,
-                 l2: float):
-        self.settings, self.limits, self._l1, self._l2 = settings, limits, l1, l2
-        self._inner, self._outer = workspace_radii(l1, l2, limits)
+    def __init__(self, settings: ReachRoundSettings):
+        self.settings = settings
         self.reset()
 
     def reset(self) -> None:
@@ -264,12 +258,90 @@ class ReachRound:
         self._switched = -math.inf  # time of the last switch
         self._resting = True  # sigma is 0 with no ramp to evaluate
         self._full = False  # sigma is 1 with no ramp to evaluate
-        self._filtered = None  # (q_in1, q_in2, qf1, qf2, dqf1, dqf2)
+        self._filtered = None  # (q_in, q_f, dq_f), tuples of floats
 
     @property
     def engaged(self) -> bool:
         """Whether the blend is heading to (or at) the joint-space motion."""
         return self._engaged
+
+    def _blend(self, wanted: bool, joint_goal, q, dq, dt: float):
+        """Advance by dt (s) towards `wanted` and return (sigma, dsigma/dt, u, du/dt) with u
+        and du/dt tuples of floats, or None while sigma rests at 0. joint_goal: a callable
+        giving the joint goal q* (a tuple, rad), or None to hold q_in where it is; q, dq the
+        joints (tuples of floats)."""
+        settings = self.settings
+        self._time += dt
+        now = self._time
+        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
+            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
+        if wanted != self._engaged:
+            self._engaged, self._switched = wanted, now
+            self._schedule.request('round' if wanted else None, now)
+            self._resting = self._full = False
+        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
+            return None
+        if self._engaged and self._full:  # sigma at 1 and staying there
+            sigma, sigma_rate = 1.0, 0.0
+        else:
+            weight = self._schedule.evaluate(now)
+            sigma, sigma_rate = weight.weight, weight.rate
+            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
+        if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
+            self._filtered = None
+            self._resting = True
+            return None
+        state = self._filtered
+        if state is None:
+            state = (tuple(q), tuple(q), (0.0,) * len(q))
+        q_in, filtered, rate = state
+        if joint_goal is not None:
+            step = settings.slew * dt
+            q_in = tuple(value + min(max(goal - value, -step), step)
+                         for goal, value in zip(joint_goal(), q_in, strict=True))
+        omega = settings.filter_rate
+        # Critically damped second-order filter (semi-implicit Euler); its acceleration is
+        # continuous (q_in is), so the feed-forward of dq_f steps nothing.
+        acc = tuple(omega * omega * (target - f) - 2.0 * omega * df
+                    for target, f, df in zip(q_in, filtered, rate, strict=True))
+        rate = tuple(df + dt * a for df, a in zip(rate, acc, strict=True))
+        filtered = tuple(f + dt * df for f, df in zip(filtered, rate, strict=True))
+        self._filtered = (q_in, filtered, rate)
+        # u = -cap(k e) with a smooth cap on the norm (C1), and its exact time derivative.
+        k = settings.gain
+        e = tuple(value - f for value, f in zip(q, filtered, strict=True))
+        de = tuple(v - df for v, df in zip(dq, rate, strict=True))
+        norm = math.hypot(*e)
+        speed_max = settings.max_speed
+        raw = k * norm
+        if raw <= 1e-12:
+            return (sigma, sigma_rate, tuple(df - k * ei for df, ei in zip(rate, e, strict=True)),
+                    tuple(a - k * dei for a, dei in zip(acc, de, strict=True)))
+        capped = speed_max * math.tanh(raw / speed_max)
+        slope = 1.0 / math.cosh(raw / speed_max) ** 2 * k  # d capped / d norm
+        scale = capped / norm  # u = -scale e
+        along = sum(ei * dei for ei, dei in zip(e, de, strict=True)) / norm  # d norm / dt
+        dscale = (slope - scale) / norm * along
+        return (sigma, sigma_rate,
+                tuple(df - scale * ei for df, ei in zip(rate, e, strict=True)),
+                tuple(a - (scale * dei + dscale * ei) for a, ei, dei in zip(acc, e, de,
+                                                                            strict=True)))
+
+
+class ReachRound(_JointBlend):
+    """The reach-round blend of the SCARA: when and where to (module docstring); `update`
+    runs once per control step with its dt."""
+
+    BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
+    CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
+    STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
+    STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
+
+    def __init__(self, settings: ReachRoundSettings, limits: JointLimits, l1: float,
+                 l2: float):
+        self.limits, self._l1, self._l2 = limits, l1, l2
+        self._inner, self._outer = workspace_radii(l1, l2, limits)
+        super().__init__(settings)
 
     def goal(self, x1: float, x2: float, h1: float, h2: float, d1: float, d2: float):
         """The task-space goal (m): the hand h (d1 = 0) or the point of the region's annulus
@@ -302,8 +374,6 @@ class ReachRound:
         an avoid task: sigma fades to 0); near: the barrier's proximity (barrier()).
         """
         settings = self.settings
-        self._time += dt
-        now = self._time
         target = None  # the joint goal, when worked out for the decision below
         if not settings.enabled or region is None:
             wanted = False
@@ -334,58 +404,17 @@ class ReachRound:
                           or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL)
                           or outside)
             goal = (g1, g2)
-        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
-            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
-        if wanted != self._engaged:
-            self._engaged, self._switched = wanted, now
-            self._schedule.request('round' if wanted else None, now)
-            self._resting = self._full = False
-        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
-            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        if self._engaged and self._full:  # sigma at 1 and staying there
-            sigma, sigma_rate = 1.0, 0.0
+        if goal is None:
+            joint_goal = None
+        elif target is not None:
+            def joint_goal():
+                return target
         else:
-            weight = self._schedule.evaluate(now)
-            sigma, sigma_rate = weight.weight, weight.rate
-            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
-        if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
-            self._filtered = None
-            self._resting = True
+            def joint_goal():
+                return inverse_kinematics(goal[0], goal[1], q1, q2, self._l1, self._l2,
+                                          self.limits)
+        out = self._blend(wanted, joint_goal, (q1, q2), (dq1, dq2), dt)
+        if out is None:
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        state = self._filtered
-        if state is None:
-            state = (q1, q2, q1, q2, 0.0, 0.0)
-        q_in1, q_in2, f1, f2, df1, df2 = state
-        if goal is not None:
-            t1, t2 = target if target is not None else inverse_kinematics(
-                goal[0], goal[1], q1, q2, self._l1, self._l2, self.limits)
-            step = settings.slew * dt
-            q_in1 += min(max(t1 - q_in1, -step), step)
-            q_in2 += min(max(t2 - q_in2, -step), step)
-        omega = settings.filter_rate
-        # Critically damped second-order filter (semi-implicit Euler); its acceleration is
-        # continuous (q_in is), so the feed-forward of dq_f steps nothing.
-        acc1 = omega * omega * (q_in1 - f1) - 2.0 * omega * df1
-        acc2 = omega * omega * (q_in2 - f2) - 2.0 * omega * df2
-        df1 += dt * acc1
-        df2 += dt * acc2
-        f1 += dt * df1
-        f2 += dt * df2
-        self._filtered = (q_in1, q_in2, f1, f2, df1, df2)
-        # u = -cap(k e) with a smooth cap on the norm (C1), and its exact time derivative.
-        k = settings.gain
-        e1, e2 = q1 - f1, q2 - f2
-        de1, de2 = dq1 - df1, dq2 - df2
-        norm = math.hypot(e1, e2)
-        speed_max = settings.max_speed
-        raw = k * norm
-        if raw <= 1e-12:
-            return (sigma, sigma_rate, df1 - k * e1, df2 - k * e2, acc1 - k * de1,
-                    acc2 - k * de2)
-        capped = speed_max * math.tanh(raw / speed_max)
-        slope = 1.0 / math.cosh(raw / speed_max) ** 2 * k  # d capped / d norm
-        scale = capped / norm  # u = -scale e
-        along = (e1 * de1 + e2 * de2) / norm  # d norm / dt
-        dscale = (slope - scale) / norm * along
-        return (sigma, sigma_rate, df1 - scale * e1, df2 - scale * e2,
-                acc1 - (scale * de1 + dscale * e1), acc2 - (scale * de2 + dscale * e2))
+        sigma, sigma_rate, (u1, u2), (ud1, ud2) = out
+        return sigma, sigma_rate, u1, u2, ud1, ud2

@@ -432,6 +432,17 @@ def task_term(dx1: float, dx2: float,
             _clip_hessian(h22))
 
 
+def _rest_gate(r: float, drive: TaskDrive) -> tuple[float, float]:
+    """The rest term's gate w(r) and w'(r) (1/m) at r = |x - x_d| (m)."""
+    w, dw = _smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
+    return w, dw / drive.rest_gate
+
+
+def _rest_speed(rho: float, drive: TaskDrive) -> tuple[float, float]:
+    """|c(y)| = cap(k_rest rho) (m/s) at rho = |x - x_rest| (m) and the cap's slope."""
+    return speed_cap(drive.rest_gain * rho, min(drive.max_task_speed, drive.pull_limit))
+
+
 def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     """The avoid task's return to rest, v_rest = w(r) c(y) and its derivatives, in floats.
 
@@ -442,8 +453,7 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     if not drive.open_outward or drive.rest_gain == 0.0:
         return (0.0,) * 9
     r = math.hypot(dx1, dx2)
-    w, dw = _smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
-    dw /= drive.rest_gate
+    w, dw = _rest_gate(r, drive)
     rho = math.hypot(y1, y2)
     if (w == 0.0 and dw == 0.0) or rho == 0.0:
         if rho == 0.0 and w > 0.0:
@@ -452,8 +462,7 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, k, 0.0, k
         return (0.0,) * 9
     n1, n2 = y1 / rho, y2 / rho
-    speed, slope = speed_cap(drive.rest_gain * rho,
-                             min(drive.max_task_speed, drive.pull_limit))
+    speed, slope = _rest_speed(rho, drive)
     c1, c2 = -speed * n1, -speed * n2
     radial, tangential = -slope * drive.rest_gain, -speed / rho
     b11 = w * (radial * n1 * n1 + tangential * (1.0 - n1 * n1))
@@ -461,6 +470,46 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     b22 = w * (radial * n2 * n2 + tangential * (1.0 - n2 * n2))
     gw1, gw2 = (dw * dx1 / r, dw * dx2 / r) if r > 0.0 else (0.0, 0.0)
     return w * c1, w * c2, c1, c2, gw1, gw2, b11, b12, b22
+
+
+def rest_term_n(dx: np.ndarray, y: np.ndarray, drive: TaskDrive):
+    """rest_term for task vectors of any length m (the n-joint law's 3-D task space):
+    (v_rest (m,) m/s, c(y) (m,) m/s, grad w (m,) 1/m, w Dc (m, m) 1/s), or None where the
+    term and its rate are zero (follow tasks; the arm inside the gate's start)."""
+    if not drive.open_outward or drive.rest_gain == 0.0:
+        return None
+    r = math.sqrt(float(dx @ dx))
+    w, dw = _rest_gate(r, drive)
+    rho = math.sqrt(float(y @ y))
+    if w == 0.0 and dw == 0.0:
+        return None
+    eye = np.eye(dx.size)
+    grad_w = dw * dx / r if r > 0.0 else np.zeros(dx.size)
+    if rho == 0.0:  # c(y) = -k y near y = 0: Dc = -k I, c = 0
+        zero = np.zeros(dx.size)
+        return zero, zero, grad_w, -w * drive.rest_gain * eye
+    n = y / rho
+    speed, slope = _rest_speed(rho, drive)
+    c = -speed * n
+    radial, tangential = -slope * drive.rest_gain, -speed / rho
+    return w * c, c, grad_w, w * ((radial - tangential) * np.outer(n, n) + tangential * eye)
+
+
+def _retreat_speed(r: float, c: float, drive: TaskDrive):
+    """retreat_term's radial profile: (g, g'(r) 1/m, p(c) m/s, p'(c)) at r = |dx| (m) and
+    the hand's approach speed c (m/s), or None where the retreat is zero."""
+    shape = drive.shape
+    if not drive.open_outward or shape.s != 1 or shape.d1 <= 0.0:
+        return None
+    if r == 0.0 or r >= shape.d1 + RETREAT_REACH or c <= 0.0:
+        return None
+    band = RETREAT_SPEED
+    p, dp = (c * c / (2.0 * band), c / band) if c < band else (c - 0.5 * band, 1.0)
+    # At most 2 v_max, as the follow tasks' feed-forward (adaptive_law.FEED_FORWARD_RATIO).
+    p, slope = speed_cap(p, 2.0 * drive.max_task_speed)
+    dp *= slope
+    g, dg = _smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
+    return g, -dg / RETREAT_REACH, p, dp
 
 
 def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: float,
@@ -477,29 +526,36 @@ def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: 
     starts only inside d1), so a hand that chases the arm at the arm's own speed no longer
     gains on it.
     """
-    shape = drive.shape
-    if not drive.open_outward or shape.s != 1 or shape.d1 <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0
     r = math.hypot(dx1, dx2)
-    if r == 0.0 or r >= shape.d1 + RETREAT_REACH:
+    e1, e2 = (dx1 / r, dx2 / r) if r > 0.0 else (0.0, 0.0)
+    profile = _retreat_speed(r, e1 * vd1 + e2 * vd2, drive)
+    if profile is None:
         return 0.0, 0.0, 0.0, 0.0
-    e1, e2 = dx1 / r, dx2 / r
-    c = e1 * vd1 + e2 * vd2
-    if c <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    band = RETREAT_SPEED
-    p, dp = (c * c / (2.0 * band), c / band) if c < band else (c - 0.5 * band, 1.0)
-    # At most 2 v_max, as the follow tasks' feed-forward (adaptive_law.FEED_FORWARD_RATIO).
-    p, slope = speed_cap(p, 2.0 * drive.max_task_speed)
-    dp *= slope
-    g, dg = _smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
-    dg = -dg / RETREAT_REACH
+    g, dg, p, dp = profile
     radial = e1 * u1 + e2 * u2  # dr/dt
     de1, de2 = (u1 - e1 * radial) / r, (u2 - e2 * radial) / r  # de/dt
     dc = de1 * vd1 + de2 * vd2 + e1 * ad1 + e2 * ad2
     rate = dg * radial * p + g * dp * dc  # d(g p)/dt
     gp = g * p
     return gp * e1, gp * e2, rate * e1 + gp * de1, rate * e2 + gp * de2
+
+
+def retreat_term_n(dx: np.ndarray, u: np.ndarray, velocity: np.ndarray,
+                   acceleration: np.ndarray, drive: TaskDrive):
+    """retreat_term for task vectors of any length m: (v_away (m,) m/s, its rate (m,)
+    m/s^2), or None where both are zero. dx = x - x_d, u = xdot - xdot_d, the hand's
+    velocity and acceleration, each (m,)."""
+    r = math.sqrt(float(dx @ dx))
+    e = dx / r if r > 0.0 else dx
+    profile = _retreat_speed(r, float(e @ velocity), drive)
+    if profile is None:
+        return None
+    g, dg, p, dp = profile
+    radial = float(e @ u)  # dr/dt
+    de = (u - e * radial) / r  # de/dt
+    rate = dg * radial * p + g * dp * float(de @ velocity + e @ acceleration)  # d(g p)/dt
+    gp = g * p
+    return gp * e, rate * e + gp * de
 
 
 def _clip_hessian(value: float) -> float:

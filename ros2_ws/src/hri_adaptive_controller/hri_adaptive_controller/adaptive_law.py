@@ -364,6 +364,24 @@ def predicted_lyapunov_rate(s, weighted_task_variable, weight_rate: float,
                  + kp * weight_rate * task_potential_value + kp * (task @ offset))
 
 
+def filter_hand_velocity(state: tuple, xdot_d, dt: float) -> tuple:
+    """The hand's velocity through a critically damped second-order filter (HAND_RATE),
+    advanced by dt (s): state and result (v_1 .. v_m, dv_1/dt .. dv_m/dt) m/s, m/s^2 (floats;
+    m = 2 for the SCARA, 3 for arm_law), xdot_d (m,) m/s. The estimate steps at each /target;
+    the avoid tasks' retreat (task_variable.retreat_term) acts on this one, whose rate is
+    continuous, so the torque does not step with the messages. A non-finite result restarts
+    the filter at zero."""
+    m = len(state) // 2
+    omega = HAND_RATE
+    accelerations = tuple(a + dt * (omega * omega * (target - v) - 2.0 * omega * a)
+                          for target, v, a in zip(xdot_d, state[:m], state[m:], strict=True))
+    velocities = tuple(v + dt * a for v, a in zip(state[:m], accelerations, strict=True))
+    state = velocities + accelerations
+    if not all(map(math.isfinite, state)):
+        return (0.0,) * (2 * m)
+    return state
+
+
 class AdaptiveController(TaskDrives):
     """The adaptive controller of eq. 16-19 with its parameter estimate theta_hat.
 
@@ -426,19 +444,8 @@ class AdaptiveController(TaskDrives):
         return self._reach is not None and self._reach.engaged
 
     def _smooth_hand_velocity(self, xdot_d, dt: float):
-        """The hand's velocity through a critically damped second-order filter (HAND_RATE),
-        advanced by dt: (v1, v2, dv1/dt, dv2/dt). The estimate steps at each /target; the
-        avoid tasks' retreat (task_variable.retreat_term) acts on this one, whose rate is
-        continuous, so the torque does not step with the messages."""
-        v1, v2, a1, a2 = self._hand_velocity
-        omega = HAND_RATE
-        j1 = omega * omega * (xdot_d[0] - v1) - 2.0 * omega * a1
-        j2 = omega * omega * (xdot_d[1] - v2) - 2.0 * omega * a2
-        a1, a2 = a1 + dt * j1, a2 + dt * j2
-        v1, v2 = v1 + dt * a1, v2 + dt * a2
-        if not all(map(math.isfinite, (v1, v2, a1, a2))):
-            v1 = v2 = a1 = a2 = 0.0
-        self._hand_velocity = (v1, v2, a1, a2)
+        """filter_hand_velocity advanced by dt: (v1, v2, dv1/dt, dv2/dt)."""
+        self._hand_velocity = filter_hand_velocity(self._hand_velocity, xdot_d, dt)
         return self._hand_velocity
 
     def _limited_reference(self, state, hand, drive, weight, pinvs, feed, task, dt: float):

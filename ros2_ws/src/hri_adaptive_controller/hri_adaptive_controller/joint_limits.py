@@ -61,6 +61,8 @@ Avoid tasks (open outward) never reach round: they move away from the hand.
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from hri_adaptive_controller.event_weight import EventWeightSchedule
 from hri_adaptive_controller.task_variable import _smoothstep
 
@@ -70,6 +72,15 @@ GOAL_MARGIN = 0.5
 
 CLAMP_COST = 1000.0
 """Weight of the joint-box clamping against the joint distance when choosing an elbow."""
+
+IK_ITERATIONS = 50
+"""Damped least-squares steps of inverse_kinematics_n from each seed."""
+
+IK_DAMPING = 0.05
+"""m: the damping of inverse_kinematics_n's steps."""
+
+IK_TOLERANCE = 1e-3
+"""m: inverse_kinematics_n stops a seed's iterations this near the goal."""
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
@@ -418,3 +429,159 @@ class ReachRound(_JointBlend):
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         sigma, sigma_rate, (u1, u2), (ud1, ud2) = out
         return sigma, sigma_rate, u1, u2, ud1, ud2
+
+
+def inverse_kinematics_n(model, goal, seeds, lower, upper, iterations: int = IK_ITERATIONS):
+    """Joints (n,) rad that put `model`'s tool point at `goal` (3,) m or nearest to it, within
+    the box [lower, upper] (n,) rad: damped least squares from each seed (rows of `seeds`,
+    (k, n)), clamped into the box at every step; of the results, the one that reaches the
+    goal best (CLAMP_COST per m^2 of miss), then the one nearest to the first seed (the
+    arm's joints). model: a RobotModel (tool_position, tool_jacobian)."""
+    best = None
+    first = seeds[0]
+    for seed in seeds:
+        q = np.clip(seed, lower, upper)
+        for _ in range(iterations):
+            miss = goal - model.tool_position(q)
+            if float(miss @ miss) < IK_TOLERANCE ** 2:
+                break
+            jac = model.tool_jacobian(q)
+            step = jac.T @ np.linalg.solve(jac @ jac.T + IK_DAMPING ** 2 * np.eye(3), miss)
+            q = np.clip(q + step, lower, upper)
+        miss = goal - model.tool_position(q)
+        cost = CLAMP_COST * float(miss @ miss) + float((q - first) @ (q - first))
+        if best is None or cost < best[0]:
+            best = (cost, q)
+    return best[1]
+
+
+class ReachRoundN(_JointBlend):
+    """The reach-round blend for an arm of n joints in 3-D (arm_law.ArmController).
+
+    As ReachRound's, with the model's own inverse kinematics (inverse_kinematics_n) and no
+    hole round the base: the blend engages when a joint is in its barrier's band
+    (near > NEAR_BARRIER) while the goal is more than FAR_GOAL away, or the whole region lies
+    beyond the reach; once engaged, it stays until the tool is within FAR_GOAL / 2 of the
+    goal (the straight descent, which stalled, is not trusted again before). The goal is the
+    hand, or the middle of the region's shell towards the arm (d1 > 0), projected into the
+    sphere of the attained reach round the shoulder (less outer_margin). The joint goal q*
+    is solved on engaging from the arm's joints, from its home pose swung to the goal's
+    azimuth about the first joint (a vertical first axis, the Panda's: the far side reached
+    by turning round rather than by leaning back into a limit) and from the arm's joints so
+    swung; then refreshed every IK_PERIOD s from the last q* (IK_REFRESH iterations), so the
+    numerical solve stays off most control cycles.
+
+    model: a RobotModel (tool_position, tool_jacobian, home, shoulder); lower, upper (n,)
+    rad; band (rad): the barrier's; reach (m): the attained reach round the shoulder.
+    """
+
+    IK_PERIOD = 0.02  # s between refreshes of the joint goal while engaged
+    IK_REFRESH = 5  # iterations of each refresh, from the last joint goal
+    CLEAR_BANDS = 0.5  # a joint goal this many bands inside the box hands back to the descent
+
+    def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
+                 reach: float):
+        self._model, self._band = model, band
+        # q* outside the barrier's band (not GOAL_MARGIN band in, as the SCARA's): there the
+        # descent, handed the arm back at the goal, is not blocked again (with half a band,
+        # the Panda reaching behind its base cycled between the two every 2 s).
+        self._box = (np.asarray(lower, dtype=float) + band,
+                     np.asarray(upper, dtype=float) - band)
+        self._shoulder = np.asarray(model.shoulder, dtype=float)
+        self._shoulder_point = tuple(self._shoulder.tolist())
+        self._outer = float(reach)
+        home = np.clip(model.home, *self._box)
+        arm = model.tool_position(home) - self._shoulder
+        self._home, self._home_azimuth = home, math.atan2(arm[1], arm[0])
+        super().__init__(settings)
+
+    def reset(self) -> None:
+        super().reset()
+        self._joint_goal = None  # (time solved, q* (n,))
+
+    def goal(self, x, hand, d1: float, d2: float):
+        """The task-space goal (3,) m (the class docstring) and the hand's distance from the
+        shoulder (m)."""
+        goal = np.array(hand, dtype=float)
+        if d1 > 0.0:
+            away = x - goal
+            norm = math.sqrt(float(away @ away))
+            if norm > 0.0:
+                goal = goal + 0.5 * (d1 + min(d2, d1 + 0.2)) * away / norm
+        radius = float(np.linalg.norm(np.asarray(hand, dtype=float) - self._shoulder))
+        arm = goal - self._shoulder
+        length = math.sqrt(float(arm @ arm))
+        high = self._outer - self.settings.outer_margin
+        if length > high:
+            goal = self._shoulder + arm * (high / length)
+        return goal, radius
+
+    def _solve(self, goal, q, x) -> np.ndarray:
+        """q* for `goal` (3,) m from the seeds of the class docstring; q (n,) the arm's
+        joints, x (3,) m its tool."""
+        arm, tool = goal - self._shoulder, x - self._shoulder
+        azimuth = math.atan2(arm[1], arm[0])
+        swung_home, swung_arm = self._home.copy(), np.array(q, dtype=float)
+        swung_home[0] = math.remainder(self._home[0] + azimuth - self._home_azimuth,
+                                        2.0 * math.pi)
+        swung_arm[0] += math.remainder(azimuth - math.atan2(tool[1], tool[0]), 2.0 * math.pi)
+        return inverse_kinematics_n(self._model, goal, np.array([q, swung_home, swung_arm]),
+                                    *self._box)
+
+    def update(self, q, dq, x, hand, region, near: float, dt: float):
+        """Advance by dt (s) and return (sigma, dsigma/dt, u (n,), du/dt (n,)) or None while
+        sigma rests at 0. q, dq (n,); x, hand (3,) m: the tool and the target; region (d1, d2)
+        m of a follow task, or None (no task, or an avoid task: sigma fades to 0); near: the
+        barrier's proximity (arm_law.barrier_n)."""
+        settings = self.settings
+        joint_goal = None
+        if self._resting and (region is None or not settings.enabled or (
+                near <= self.NEAR_BARRIER and math.dist(hand, self._shoulder_point) - region[1]
+                <= self._outer - settings.outer_margin)):
+            self._time += dt  # resting and nothing to engage it (the usual case): as _blend
+            return None
+        if not settings.enabled or region is None:
+            wanted = False
+        else:
+            goal, hand_radius = self.goal(x, hand, *region)
+            miss = goal - x
+            distance = math.sqrt(float(miss @ miss))
+            outside = hand_radius - region[1] > self._outer - settings.outer_margin
+            if self._engaged:
+                # Stay on the joint-space motion until the tool is at the goal with its joint
+                # goal clear of the limits (CLEAR_BANDS band beyond the barrier's): the
+                # descent handed a pose at the band's edge drifts into it and its push
+                # takes the tool off the goal again.
+                wanted = (outside or distance > 0.5 * self.FAR_GOAL
+                          or not self._clear(self._joint_goal))
+            else:
+                wanted = (near > self.NEAR_BARRIER and distance > self.FAR_GOAL) or outside
+            if wanted:
+                def joint_goal():
+                    return tuple(self._refresh(goal, q, x).tolist())
+            else:
+                self._joint_goal = None
+        out = self._blend(wanted, joint_goal, tuple(q.tolist()), tuple(dq.tolist()), dt)
+        if out is None:
+            return None
+        sigma, sigma_rate, u, du = out
+        return sigma, sigma_rate, np.array(u), np.array(du)
+
+    def _clear(self, joint_goal) -> bool:
+        """Whether the joint goal (time, q*) lies CLEAR_BANDS band inside the box."""
+        if joint_goal is None:
+            return False
+        q, (low, high) = joint_goal[1], self._box
+        margin = self.CLEAR_BANDS * self._band
+        return bool(np.all(q >= low + margin) and np.all(q <= high - margin))
+
+    def _refresh(self, goal, q, x) -> np.ndarray:
+        """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s."""
+        now = self._time
+        if self._joint_goal is None:
+            self._joint_goal = (now, self._solve(goal, q, x))
+        elif now - self._joint_goal[0] >= self.IK_PERIOD:
+            last = self._joint_goal[1]
+            self._joint_goal = (now, inverse_kinematics_n(
+                self._model, goal, last[None, :], *self._box, self.IK_REFRESH))
+        return self._joint_goal[1]

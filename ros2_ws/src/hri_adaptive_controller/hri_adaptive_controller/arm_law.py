@@ -612,15 +612,13 @@ class ArmController(TaskDrives):
         velocity, rate = -weighted, -(da * slope + a * (hessian @ u))
         away = np.zeros(3)
         if drive.open_outward:
+            floats = [v.tolist() for v in (dx, x - rest, u, xdot, hand_velocity,
+                                            hand_acceleration)]
             term, term_rate = np.zeros(3), np.zeros(3)
-            rest_part = rest_term_n(dx, x - rest, drive)
-            if rest_part is not None:
-                # dv_rest/dt = c (grad w . (xdot - xdot_d)) + w Dc xdot
-                v_rest, c, grad_w, w_dc = rest_part
-                term, term_rate = v_rest, c * float(grad_w @ u) + w_dc @ xdot
-            retreat = retreat_term_n(dx, u, hand_velocity, hand_acceleration, drive)
-            if retreat is not None:
-                term, term_rate = term + retreat[0], term_rate + retreat[1]
+            for part in (rest_term_n(*floats[:4], drive),
+                         retreat_term_n(floats[0], floats[2], *floats[4:], drive)):
+                if part is not None:
+                    term, term_rate = term + part[0], term_rate + part[1]
             away = a * term
             velocity, rate = velocity + away, rate + da * term + a * term_rate
         return (velocity, away, weighted), rate

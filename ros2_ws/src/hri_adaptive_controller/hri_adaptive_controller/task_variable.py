@@ -72,6 +72,7 @@ d(lambda^2)/dt, from J and Jdot = hri_core.dynamics.jacobian_derivative.
 
 import dataclasses
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -472,27 +473,29 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     return w * c1, w * c2, c1, c2, gw1, gw2, b11, b12, b22
 
 
-def rest_term_n(dx: np.ndarray, y: np.ndarray, drive: TaskDrive):
-    """rest_term for task vectors of any length m (the n-joint law's 3-D task space):
-    (v_rest (m,) m/s, c(y) (m,) m/s, grad w (m,) 1/m, w Dc (m, m) 1/s), or None where the
-    term and its rate are zero (follow tasks; the arm inside the gate's start)."""
+def rest_term_n(dx, y, u, xdot, drive: TaskDrive):
+    """rest_term for task vectors of any length m (the n-joint law's 3-D task space), in
+    floats: v_rest = w(r) c(y) and dv_rest/dt = c (grad w . u) + w Dc xdot, each a list of m
+    floats (m/s, m/s^2), or None where both are zero (follow tasks; the arm inside the
+    gate's start). dx = x - x_d, y = x - x_rest (m), u = xdot - xdot_d, xdot (m/s): sequences
+    of m floats."""
     if not drive.open_outward or drive.rest_gain == 0.0:
         return None
-    r = math.sqrt(float(dx @ dx))
+    r = math.hypot(*dx)
     w, dw = _rest_gate(r, drive)
-    rho = math.sqrt(float(y @ y))
     if w == 0.0 and dw == 0.0:
         return None
-    eye = np.eye(dx.size)
-    grad_w = dw * dx / r if r > 0.0 else np.zeros(dx.size)
-    if rho == 0.0:  # c(y) = -k y near y = 0: Dc = -k I, c = 0
-        zero = np.zeros(dx.size)
-        return zero, zero, grad_w, -w * drive.rest_gain * eye
-    n = y / rho
+    rho = math.hypot(*y)
+    if rho == 0.0:  # c(y) = -k y near y = 0: c = 0, Dc = -k I
+        return [0.0] * len(dx), [-w * drive.rest_gain * v for v in xdot]
+    n = [value / rho for value in y]
     speed, slope = _rest_speed(rho, drive)
-    c = -speed * n
     radial, tangential = -slope * drive.rest_gain, -speed / rho
-    return w * c, c, grad_w, w * ((radial - tangential) * np.outer(n, n) + tangential * eye)
+    along = (dw / r) * sum(map(operator.mul, dx, u)) if r > 0.0 else 0.0  # grad w . u
+    across = (radial - tangential) * sum(map(operator.mul, n, xdot))
+    return ([-w * speed * value for value in n],
+            [-speed * value * along + w * (across * value + tangential * rate)
+             for value, rate in zip(n, xdot, strict=True)])
 
 
 def _retreat_speed(r: float, c: float, drive: TaskDrive):
@@ -540,22 +543,25 @@ def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: 
     return gp * e1, gp * e2, rate * e1 + gp * de1, rate * e2 + gp * de2
 
 
-def retreat_term_n(dx: np.ndarray, u: np.ndarray, velocity: np.ndarray,
-                   acceleration: np.ndarray, drive: TaskDrive):
-    """retreat_term for task vectors of any length m: (v_away (m,) m/s, its rate (m,)
-    m/s^2), or None where both are zero. dx = x - x_d, u = xdot - xdot_d, the hand's
-    velocity and acceleration, each (m,)."""
-    r = math.sqrt(float(dx @ dx))
-    e = dx / r if r > 0.0 else dx
-    profile = _retreat_speed(r, float(e @ velocity), drive)
+def retreat_term_n(dx, u, velocity, acceleration, drive: TaskDrive):
+    """retreat_term for task vectors of any length m, in floats: v_away and its rate, each a
+    list of m floats (m/s, m/s^2), or None where both are zero. dx = x - x_d (m), u = xdot -
+    xdot_d, the hand's velocity and acceleration: sequences of m floats."""
+    r = math.hypot(*dx)
+    if r == 0.0:
+        return None
+    e = [value / r for value in dx]
+    profile = _retreat_speed(r, sum(map(operator.mul, e, velocity)), drive)
     if profile is None:
         return None
     g, dg, p, dp = profile
-    radial = float(e @ u)  # dr/dt
-    de = (u - e * radial) / r  # de/dt
-    rate = dg * radial * p + g * dp * float(de @ velocity + e @ acceleration)  # d(g p)/dt
+    radial = sum(map(operator.mul, e, u))  # dr/dt
+    de = [(rate - value * radial) / r for rate, value in zip(u, e, strict=True)]  # de/dt
+    dc = sum(map(operator.mul, de, velocity)) + sum(map(operator.mul, e, acceleration))
+    rate = dg * radial * p + g * dp * dc  # d(g p)/dt
     gp = g * p
-    return gp * e, rate * e + gp * de
+    return ([gp * value for value in e],
+            [rate * value + gp * change for value, change in zip(e, de, strict=True)])
 
 
 def _clip_hessian(value: float) -> float:

@@ -5,12 +5,14 @@ law for any serial arm whose model hri_core.robot_model gives (the Panda's 7 joi
 Shapes: q, qdot (n,) rad, rad/s; x, x_d (3,) m; J (3, n) m/rad; theta (p,); tau (n,) N m.
 
     delta_eps = Q'(r) e,  r = |x - x_d|, e = (x - x_d) / r                           (eq. 12')
-    v_r = f xdot_d - a delta_eps - J+^T g_B / Kp                              (eq. 14, task)
-    qdot_r = J+ v_r + N z,   J+ = J^T (J J^T + lambda^2 I)^-1,  N = I - J+ J         (eq. 14)
-    qddot_r = dJ+/dt v_r + J+ dv_r/dt + dN/dt z + N dz/dt,  dN/dt = -(dJ+/dt J + J+ Jdot)
-    dv_r/dt = f xddot_d + df/dt xdot_d - da/dt delta_eps - a H_Q (xdot - xdot_d) - ...  (eq. 18)
+    v_task = f xdot_d - a delta_eps + a (v_rest + v_away)               (eq. 14, task space)
+    qdot_r = (1 - sigma) J+ v_task + sigma a u - J+ J+^T g_B / Kp + N z             (eq. 14)
+    qddot_r = d/dt of qdot_r, exact: dJ+/dt, dN/dt = -(dJ+/dt J + J+ Jdot), dsigma/dt, du/dt
+    dv_task/dt = f xddot_d + df/dt xdot_d - da/dt delta_eps - a H_Q (xdot - xdot_d) + ...
+                                                                                     (eq. 18)
     s = qdot - qdot_r                                                                (eq. 17)
-    tau = -Ks s - J^T Kp a delta_eps - g_B + Y(q, qdot, qdot_r, qddot_r) theta_hat   (eq. 16)
+    tau = -Ks s - (1 - sigma) J^T Kp a delta_eps - g_B + Y(q, qdot, qdot_r, qddot_r) theta_hat
+                                                                                     (eq. 16)
     dtheta_hat/dt = -L Y^T s, projected onto the model's box                         (eq. 19)
 
 Q'(r), Q''(r): task_variable.radial_drive, the SCARA's own radial task term (speed cap
@@ -28,8 +30,9 @@ wherever J+ is the exact inverse (manipulability above the damping threshold), s
 velocity and eq. 20-22 do not see z: with V = 1/2 s^T M s + Kp a Q + B + 1/2 dtheta^T L^-1
 dtheta (B the barrier's energy),
 
-    dV/dt = -s^T (Ks + F) s - Kp |a delta_eps + J+^T g_B / Kp|^2 + Kp (da/dt) Q
+    dV/dt = -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w
             + g_B^T N z_post - (v_B / kb) g_B^T N g_B + (feed-forward gate terms),
+    v_e = (1 - sigma) a delta_eps + J+^T g_B / Kp (w: avoid tasks, below; sigma: reach-round),
 
 the posture term g_B^T N z_post is non-zero only within a barrier band (g_B = 0 elsewhere),
 and the last one is <= 0 (N symmetric, idempotent). Joint-limit barrier: joint_limits'
@@ -39,9 +42,21 @@ is gated, and eq. 19 pauses by 1 - near. Per-joint effort limits: tau is scaled 
 that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is. A non-finite
 result gives zero torque and fault=True, theta_hat unchanged.
 
-Not (yet) for n joints: the SCARA's reach-round blend, an avoid task's return to its rest
-position and its retreat from an approaching hand (avoid tasks here only drop the
-feed-forward and follow the potential's push).
+Avoid tasks (open outward; task_variable's module docstring, the SCARA's terms in 3-D):
+the reference drops the hand's velocity (f = 1 - a), reads it through the SCARA's filter
+(adaptive_law.filter_hand_velocity, HAND_RATE), and adds the return to the rest position
+v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the caller's, by default
+where the tool is) and the retreat from an approaching hand v_away = g(r) p(e . xdot_d) e
+(retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e =
+(1 - sigma) a delta_eps + J+^T g_B / Kp and w = f xdot_f + a (v_rest + v_away) - xdot_d
+(ArmOutput.reference_offset; `lyapunov_rate` is the prediction, as adaptive_law's monitor).
+
+Reach-round (follow tasks): where a joint sits in its barrier band while the goal is far
+(the straight descent stalls: the Panda leaning back to a hand behind its base stopped 14 cm
+short) or the region lies beyond the reach, joint_limits.ReachRoundN blends in the joint
+motion u towards an inverse-kinematics pose with sigma (the SCARA's ramp, slewed goal filter
+and capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
+so is the posture pull of the null space (the barrier's push is not).
 No ROS import.
 """
 
@@ -406,7 +421,7 @@ class ArmController(TaskDrives):
         effective_task_velocity and w its reference_offset (the avoid task's term). friction
         F (n,) N m s/rad (simulation; default none). Not in it: the barrier band's and the
         feed-forward gate's terms, and the reach-round blend's sigma-rate terms (module
-        docstring); eq. 22 is exact where J+ is (damping 0), off the bands and the blend."""
+        docstring); exact where J+ is (damping 0), off the bands and the blend."""
         drive = None if task is None else self.drive(task.shape, task.k)
         potential = (0.0 if drive is None or output.distance is None
                      else task_potential(output.distance, drive))

@@ -462,14 +462,17 @@ class ReachRoundN(_JointBlend):
     hole round the base: the blend engages when a joint is in its barrier's band
     (near > NEAR_BARRIER) while the goal is more than FAR_GOAL away, or the whole region lies
     beyond the reach; once engaged, it stays until the tool is within FAR_GOAL / 2 of the
-    goal (the straight descent, which stalled, is not trusted again before). The goal is the
+    goal and the joint goal lies CLEAR_BANDS band inside its box (the straight descent, which
+    stalled, is not trusted again before). The joint goal is kept a whole band inside the
+    limits (the barrier off there), and so is the arm while it holds it. The goal is the
     hand, or the middle of the region's shell towards the arm (d1 > 0), projected into the
     sphere of the attained reach round the shoulder (less outer_margin). The joint goal q*
     is solved on engaging from the arm's joints, from its home pose swung to the goal's
-    azimuth about the first joint (a vertical first axis, the Panda's: the far side reached
-    by turning round rather than by leaning back into a limit) and from the arm's joints so
-    swung; then refreshed every IK_PERIOD s from the last q* (IK_REFRESH iterations), so the
-    numerical solve stays off most control cycles.
+    azimuth about the first joint (for a vertical first axis, the Panda's: a far side
+    reached by turning round) and from the arm's joints so swung, the nearest that reaches
+    (1.3 ms for the Panda's hand behind its base, 2.6 ms for one out of reach, once); then
+    refreshed every IK_PERIOD s from the last q* (IK_REFRESH iterations), so the numerical
+    solve stays off most control cycles.
 
     model: a RobotModel (tool_position, tool_jacobian, home, shoulder); lower, upper (n,)
     rad; band (rad): the barrier's; reach (m): the attained reach round the shoulder.

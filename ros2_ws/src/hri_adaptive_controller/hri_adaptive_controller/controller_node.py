@@ -302,16 +302,17 @@ def arm_gains_from(values: dict, model: RobotModel) -> ArmGains:
                                         enabled=values['reach_round']))
 
 
-def rest_position_from(values: dict, arm: bool) -> tuple[float, ...] | None:
-    """The fixed rest position of avoid tasks (m): rest_position's 2 values for the SCARA, 3
-    for an n-joint arm (`arm`), or None when unset. ValueError with the reason."""
+def rest_position_from(values: dict, arm: str | None) -> tuple[float, ...] | None:
+    """The fixed rest position of avoid tasks (m): rest_position's 2 values for the SCARA
+    (arm None), 3 for the n-joint arm named `arm`, or None when unset. ValueError with the
+    reason."""
     fixed = values['rest_position']
     if fixed is None:
         return None
-    size, axes = (3, '[x, y, z]') if arm else (2, '[x, y]')
+    size, axes = (2, '[x, y]') if arm is None else (3, '[x, y, z]')
     if len(fixed) != size:
         raise ValueError(f'rest_position must have {size} values {axes} (m) for '
-                         f'{"this arm" if arm else "the SCARA"}, got {len(fixed)}')
+                         f'{"the SCARA" if arm is None else arm}, got {len(fixed)}')
     return tuple(float(v) for v in fixed)
 
 
@@ -361,7 +362,8 @@ class Controller(Node):
                 self._joint_names = model.joint_names
             # An avoid task's rest position: the parameter, or where the arm was when the
             # task (its name and shape) became active; _rest_key is the task it was taken for.
-            self._fixed_rest = rest_position_from(values, self._arm is not None)
+            self._fixed_rest = rest_position_from(
+                values, None if self._arm is None else self._arm.model.name)
         except ValueError as error:
             raise StartupError(f'bad controller parameters: {error}') from None
         self._dof = len(self._joint_names)

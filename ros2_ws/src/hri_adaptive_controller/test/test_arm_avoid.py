@@ -156,15 +156,14 @@ def test_the_monitor_predicts_dv_dt_while_a_hand_pushes_into_an_avoid_task(panda
 
 
 def test_rest_position_takes_2_values_for_the_scara_and_3_for_an_arm():
-    assert rest_position_from({'rest_position': None}, True) is None
-    assert rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, True) == (0.3, 0.1, 0.5)
-    assert rest_position_from({'rest_position': [0.35, 0.3]}, False) == (0.35, 0.3)
-    with pytest.raises(ValueError, match=r'rest_position must have 3 values \[x, y, z\]'):
-        rest_position_from({'rest_position': [0.35, 0.3]}, True)
-    with pytest.raises(ValueError, match=r'rest_position must have 2 values \[x, y\]'):
-        rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, False)
-
-
+    assert rest_position_from({'rest_position': None}, 'panda') is None
+    assert rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, 'panda') == (0.3, 0.1, 0.5)
+    assert rest_position_from({'rest_position': [0.35, 0.3]}, None) == (0.35, 0.3)
+    with pytest.raises(ValueError, match=r'must have 3 values \[x, y, z\] \(m\) for panda, '
+                       'got 2'):
+        rest_position_from({'rest_position': [0.35, 0.3]}, 'panda')
+    with pytest.raises(ValueError, match=r'must have 2 values \[x, y\] \(m\) for the SCARA'):
+        rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, None)
 
 def test_the_n_dimensional_rest_and_retreat_terms_are_the_planar_ones_in_the_plane(panda):
     rng = np.random.default_rng(16)

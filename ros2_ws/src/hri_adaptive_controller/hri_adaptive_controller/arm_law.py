@@ -193,8 +193,8 @@ class ArmOutput(NamedTuple):
     fault_reason; damping lambda^2; near: the barrier's proximity in [0, 1]; barrier_gradient
     g_B (n,) N m; weighted_task_variable a delta_eps (3,) m/s; lyapunov: V (J) or part of it,
     where a caller fills it in (None from step); blend: the reach-round weight sigma in
-    [0, 1]; effective_task_velocity (3,) m/s: (1 - sigma) a delta_eps + J+^T g_B / Kp, the
-    task-space velocity of eq. 22's Kp |.|^2 term; reference_offset w (3,) m/s: what the
+    [0, 1]; barrier_task_velocity J+^T g_B / Kp (3,) m/s (None off the bands), which with
+    (1 - sigma) a delta_eps makes eq. 22's v_e; reference_offset w (3,) m/s: what the
     reference adds to the hand's velocity besides the task term (eq. 22's avoid term).
     """
 
@@ -216,7 +216,7 @@ class ArmOutput(NamedTuple):
     weighted_task_variable: np.ndarray | None = None
     lyapunov: float | None = None
     blend: float = 0.0
-    effective_task_velocity: np.ndarray | None = None
+    barrier_task_velocity: np.ndarray | None = None
     reference_offset: np.ndarray | None = None
 
 
@@ -416,17 +416,22 @@ class ArmController(TaskDrives):
 
     def lyapunov_rate(self, output: ArmOutput, task: ActiveTask | None,
                       friction=None) -> float:
-        """dV/dt of eq. 22 predicted from a step's output (W), as adaptive_law's monitor:
-        -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w, v_e the output's
-        effective_task_velocity and w its reference_offset (the avoid task's term). friction
+        """dV/dt of eq. 22 predicted from a step's output (W; not a fault's), as
+        adaptive_law's monitor:
+        -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w, v_e = (1 - sigma) a
+        delta_eps + J+^T g_B / Kp and w the output's reference_offset (the avoid task's
+        term). friction
         F (n,) N m s/rad (simulation; default none). Not in it: the barrier band's and the
         feed-forward gate's terms, and the reach-round blend's sigma-rate terms (module
         docstring); exact where J+ is (damping 0), off the bands and the blend."""
         drive = None if task is None else self.drive(task.shape, task.k)
         potential = (0.0 if drive is None or output.distance is None
                      else task_potential(output.distance, drive))
+        effective = (1.0 - output.blend) * output.weighted_task_variable
+        if output.barrier_task_velocity is not None:
+            effective = effective + output.barrier_task_velocity
         return predicted_lyapunov_rate(
-            output.s, output.effective_task_velocity,
+            output.s, effective,
             0.0 if task is None else task.weight_rate, potential, self._ks, self._gains.kp,
             np.zeros(self.model.dof) if friction is None else friction,
             output.reference_offset)
@@ -566,7 +571,7 @@ class ArmController(TaskDrives):
                     qddot_r = (scale * qddot_r + sigma_rate * (u - qdot_r) + sigma * u_rate)
                     qdot_r = scale * qdot_r + sigma * u
                     blend = (sigma, sigma_rate)
-                barrier_task = np.zeros(3)
+                barrier_task = None
                 if near != 0.0:
                     # The barrier's task-space velocity J+^T g_B / Kp and its rate.
                     barrier_task = (pinv.T @ g_b) / gains.kp
@@ -606,8 +611,7 @@ class ArmController(TaskDrives):
         return ArmOutput(tau, tau_requested, s, qdot_r, qddot_r, x, distance, k, theta,
                          limited, False, '', lam2, near, g_b, weighted,
                          blend=0.0 if blend is None else blend[0],
-                         effective_task_velocity=scale * weighted + barrier_task,
-                         reference_offset=offset)
+                         barrier_task_velocity=barrier_task, reference_offset=offset)
 
     @staticmethod
     def _task_velocity(drive, weight, motion, hand, rest):

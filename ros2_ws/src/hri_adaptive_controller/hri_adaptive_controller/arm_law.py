@@ -418,12 +418,14 @@ class ArmController(TaskDrives):
                       friction=None) -> float:
         """dV/dt of eq. 22 predicted from a step's output (W; not a fault's), as
         adaptive_law's monitor:
-        -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w, v_e = (1 - sigma) a
-        delta_eps + J+^T g_B / Kp and w the output's reference_offset (the avoid task's
-        term). friction
-        F (n,) N m s/rad (simulation; default none). Not in it: the barrier band's and the
-        feed-forward gate's terms, and the reach-round blend's sigma-rate terms (module
-        docstring); exact where J+ is (damping 0), off the bands and the blend."""
+
+            -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w,
+
+        v_e = (1 - sigma) a delta_eps + J+^T g_B / Kp, w the output's reference_offset (the
+        avoid task's term); friction F (n,) N m s/rad (simulation; default none). Not in it:
+        the barrier band's and the feed-forward gate's terms, and the reach-round blend's
+        sigma-rate terms (module docstring); exact where J+ is (damping 0), off the bands
+        and the blend."""
         drive = None if task is None else self.drive(task.shape, task.k)
         potential = (0.0 if drive is None or output.distance is None
                      else task_potential(output.distance, drive))

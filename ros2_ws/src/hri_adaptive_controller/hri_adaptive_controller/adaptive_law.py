@@ -82,6 +82,8 @@ from hri_core.potential import TaskShape
 PARAMETER_COUNT = 7
 HAND_RATE = 40.0
 """1/s: the hand-velocity filter of an avoid task's retreat (lag 2 / HAND_RATE = 50 ms)."""
+# The hand-velocity filter's omega^2 (1/s^2) and 2 omega (1/s).
+_HAND_STIFFNESS, _HAND_DAMPING = HAND_RATE * HAND_RATE, 2.0 * HAND_RATE
 FEED_FORWARD_RATIO = 2.0
 """The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
 PARAMETER_NAMES = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
@@ -364,6 +366,24 @@ def predicted_lyapunov_rate(s, weighted_task_variable, weight_rate: float,
                  + kp * weight_rate * task_potential_value + kp * (task @ offset))
 
 
+def filter_hand_velocity(state: tuple, xdot_d, dt: float) -> tuple:
+    """The hand's velocity through a critically damped second-order filter (HAND_RATE),
+    advanced by dt (s): state and result (v_1 .. v_m, dv_1/dt .. dv_m/dt) m/s, m/s^2 (floats;
+    m = 2 for the SCARA, 3 for arm_law), xdot_d (m,) m/s. The estimate steps at each /target;
+    the avoid tasks' retreat (task_variable.retreat_term) acts on this one, whose rate is
+    continuous, so the torque does not step with the messages. A non-finite result restarts
+    the filter at zero."""
+    m = len(state) // 2
+    out = list(state)
+    for i in range(m):  # a plain loop: 1.3 us, against 5.8 us for tuples built from zips
+        v, a = state[i], state[m + i]
+        a = a + dt * (_HAND_STIFFNESS * (xdot_d[i] - v) - _HAND_DAMPING * a)
+        out[i], out[m + i] = v + dt * a, a
+    if not all(map(math.isfinite, out)):
+        return (0.0,) * (2 * m)
+    return tuple(out)
+
+
 class AdaptiveController(TaskDrives):
     """The adaptive controller of eq. 16-19 with its parameter estimate theta_hat.
 
@@ -426,19 +446,8 @@ class AdaptiveController(TaskDrives):
         return self._reach is not None and self._reach.engaged
 
     def _smooth_hand_velocity(self, xdot_d, dt: float):
-        """The hand's velocity through a critically damped second-order filter (HAND_RATE),
-        advanced by dt: (v1, v2, dv1/dt, dv2/dt). The estimate steps at each /target; the
-        avoid tasks' retreat (task_variable.retreat_term) acts on this one, whose rate is
-        continuous, so the torque does not step with the messages."""
-        v1, v2, a1, a2 = self._hand_velocity
-        omega = HAND_RATE
-        j1 = omega * omega * (xdot_d[0] - v1) - 2.0 * omega * a1
-        j2 = omega * omega * (xdot_d[1] - v2) - 2.0 * omega * a2
-        a1, a2 = a1 + dt * j1, a2 + dt * j2
-        v1, v2 = v1 + dt * a1, v2 + dt * a2
-        if not all(map(math.isfinite, (v1, v2, a1, a2))):
-            v1 = v2 = a1 = a2 = 0.0
-        self._hand_velocity = (v1, v2, a1, a2)
+        """filter_hand_velocity advanced by dt: (v1, v2, dv1/dt, dv2/dt)."""
+        self._hand_velocity = filter_hand_velocity(self._hand_velocity, xdot_d, dt)
         return self._hand_velocity
 
     def _limited_reference(self, state, hand, drive, weight, pinvs, feed, task, dt: float):

@@ -5,12 +5,14 @@ law for any serial arm whose model hri_core.robot_model gives (the Panda's 7 joi
 Shapes: q, qdot (n,) rad, rad/s; x, x_d (3,) m; J (3, n) m/rad; theta (p,); tau (n,) N m.
 
     delta_eps = Q'(r) e,  r = |x - x_d|, e = (x - x_d) / r                           (eq. 12')
-    v_r = f xdot_d - a delta_eps - J+^T g_B / Kp                              (eq. 14, task)
-    qdot_r = J+ v_r + N z,   J+ = J^T (J J^T + lambda^2 I)^-1,  N = I - J+ J         (eq. 14)
-    qddot_r = dJ+/dt v_r + J+ dv_r/dt + dN/dt z + N dz/dt,  dN/dt = -(dJ+/dt J + J+ Jdot)
-    dv_r/dt = f xddot_d + df/dt xdot_d - da/dt delta_eps - a H_Q (xdot - xdot_d) - ...  (eq. 18)
+    v_task = f xdot_d - a delta_eps + a (v_rest + v_away)               (eq. 14, task space)
+    qdot_r = (1 - sigma) J+ v_task + sigma a u - J+ J+^T g_B / Kp + N z             (eq. 14)
+    qddot_r = d/dt of qdot_r, exact: dJ+/dt, dN/dt = -(dJ+/dt J + J+ Jdot), dsigma/dt, du/dt
+    dv_task/dt = f xddot_d + df/dt xdot_d - da/dt delta_eps - a H_Q (xdot - xdot_d) + ...
+                                                                                     (eq. 18)
     s = qdot - qdot_r                                                                (eq. 17)
-    tau = -Ks s - J^T Kp a delta_eps - g_B + Y(q, qdot, qdot_r, qddot_r) theta_hat   (eq. 16)
+    tau = -Ks s - (1 - sigma) J^T Kp a delta_eps - g_B + Y(q, qdot, qdot_r, qddot_r) theta_hat
+                                                                                     (eq. 16)
     dtheta_hat/dt = -L Y^T s, projected onto the model's box                         (eq. 19)
 
 Q'(r), Q''(r): task_variable.radial_drive, the SCARA's own radial task term (speed cap
@@ -28,8 +30,9 @@ wherever J+ is the exact inverse (manipulability above the damping threshold), s
 velocity and eq. 20-22 do not see z: with V = 1/2 s^T M s + Kp a Q + B + 1/2 dtheta^T L^-1
 dtheta (B the barrier's energy),
 
-    dV/dt = -s^T (Ks + F) s - Kp |a delta_eps + J+^T g_B / Kp|^2 + Kp (da/dt) Q
+    dV/dt = -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w
             + g_B^T N z_post - (v_B / kb) g_B^T N g_B + (feed-forward gate terms),
+    v_e = (1 - sigma) a delta_eps + J+^T g_B / Kp (w: avoid tasks, below; sigma: reach-round),
 
 the posture term g_B^T N z_post is non-zero only within a barrier band (g_B = 0 elsewhere),
 and the last one is <= 0 (N symmetric, idempotent). Joint-limit barrier: joint_limits'
@@ -39,9 +42,21 @@ is gated, and eq. 19 pauses by 1 - near. Per-joint effort limits: tau is scaled 
 that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is. A non-finite
 result gives zero torque and fault=True, theta_hat unchanged.
 
-Not (yet) for n joints: the SCARA's reach-round blend, an avoid task's return to its rest
-position and its retreat from an approaching hand (avoid tasks here only drop the
-feed-forward and follow the potential's push).
+Avoid tasks (open outward; task_variable's module docstring, the SCARA's terms in 3-D):
+the reference drops the hand's velocity (f = 1 - a), reads it through the SCARA's filter
+(adaptive_law.filter_hand_velocity, HAND_RATE), and adds the return to the rest position
+v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the caller's, by default
+where the tool is) and the retreat from an approaching hand v_away = g(r) p(e . xdot_d) e
+(retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e =
+(1 - sigma) a delta_eps + J+^T g_B / Kp and w = f xdot_f + a (v_rest + v_away) - xdot_d
+(ArmOutput.reference_offset; `lyapunov_rate` is the prediction, as adaptive_law's monitor).
+
+Reach-round (follow tasks): where a joint sits in its barrier band while the goal is far
+(the straight descent stalls: the Panda leaning back to a hand behind its base stopped 14 cm
+short) or the region lies beyond the reach, joint_limits.ReachRoundN blends in the joint
+motion u towards an inverse-kinematics pose with sigma (the SCARA's ramp, slewed goal filter
+and capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
+so is the posture pull of the null space (the barrier's push is not).
 No ROS import.
 """
 
@@ -51,14 +66,20 @@ from typing import NamedTuple
 
 import numpy as np
 
-from hri_adaptive_controller.adaptive_law import FEED_FORWARD_RATIO
-from hri_adaptive_controller.joint_limits import FEED_SPEED
+from hri_adaptive_controller.adaptive_law import (
+    FEED_FORWARD_RATIO,
+    filter_hand_velocity,
+    predicted_lyapunov_rate,
+)
+from hri_adaptive_controller.joint_limits import FEED_SPEED, ReachRoundN, ReachRoundSettings
 from hri_adaptive_controller.task_variable import (
     MAX_TASK_HESSIAN,
     DampingSettings,
     TaskDrive,
     TaskDrives,
     radial_drive,
+    rest_term_n,
+    retreat_term_n,
     speed_cap,
     task_potential,
 )
@@ -105,6 +126,7 @@ class ArmGains:
     limit_band: float = 0.15
     barrier_torque: float = 3.0
     limit_speed: float = 0.3
+    reach_round: ReachRoundSettings = field(default_factory=ReachRoundSettings)
 
     def __post_init__(self):
         ks = np.asarray(self.ks, dtype=float)
@@ -170,7 +192,10 @@ class ArmOutput(NamedTuple):
     fault); task_gain K (m^2/s); theta_hat (p,) used for this step; torque_limited, fault;
     fault_reason; damping lambda^2; near: the barrier's proximity in [0, 1]; barrier_gradient
     g_B (n,) N m; weighted_task_variable a delta_eps (3,) m/s; lyapunov: V (J) or part of it,
-    where a caller fills it in (None from step).
+    where a caller fills it in (None from step); blend: the reach-round weight sigma in
+    [0, 1]; barrier_task_velocity J+^T g_B / Kp (3,) m/s (None off the bands), which with
+    (1 - sigma) a delta_eps makes eq. 22's v_e; reference_offset w (3,) m/s: what the
+    reference adds to the hand's velocity besides the task term (eq. 22's avoid term).
     """
 
     tau: np.ndarray
@@ -190,6 +215,9 @@ class ArmOutput(NamedTuple):
     barrier_gradient: np.ndarray | None = None
     weighted_task_variable: np.ndarray | None = None
     lyapunov: float | None = None
+    blend: float = 0.0
+    barrier_task_velocity: np.ndarray | None = None
+    reference_offset: np.ndarray | None = None
 
 
 def _smoothstep_arrays(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -314,6 +342,8 @@ class ArmController(TaskDrives):
         self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._eye_n = np.eye(n)
         self._last: tuple = (None, 0.0, None)
+        self._reach = ReachRoundN(gains.reach_round, self.model, self._lower, self._upper,
+                                  gains.limit_band, self._task_reach)
         self.reset(self.model.theta if theta_hat0 is None else theta_hat0)
 
     @property
@@ -343,6 +373,13 @@ class ArmController(TaskDrives):
             raise ValueError(f'theta_hat0 must be {self.model.theta.size} finite values, '
                              f'got shape {theta.shape}')
         self._theta = np.clip(theta, self.model.theta_lower, self.model.theta_upper)
+        self._reach.reset()
+        self._hand_velocity = (0.0,) * 6
+
+    @property
+    def reaching_round(self) -> bool:
+        """Whether the reach-round blend is heading to (or at) the joint-space motion."""
+        return self._reach.engaged
 
     @property
     def reach(self) -> float:
@@ -376,6 +413,30 @@ class ArmController(TaskDrives):
             error = true_model.theta - output.theta_hat
             value += 0.5 * float(np.sum(error[active] ** 2 / self._rates[active]))
         return value
+
+    def lyapunov_rate(self, output: ArmOutput, task: ActiveTask | None,
+                      friction=None) -> float:
+        """dV/dt of eq. 22 predicted from a step's output (W; not a fault's), as
+        adaptive_law's monitor:
+
+            -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w,
+
+        v_e = (1 - sigma) a delta_eps + J+^T g_B / Kp, w the output's reference_offset (the
+        avoid task's term); friction F (n,) N m s/rad (simulation; default none). Not in it:
+        the barrier band's and the feed-forward gate's terms, and the reach-round blend's
+        sigma-rate terms (module docstring); exact where J+ is (damping 0), off the bands
+        and the blend."""
+        drive = None if task is None else self.drive(task.shape, task.k)
+        potential = (0.0 if drive is None or output.distance is None
+                     else task_potential(output.distance, drive))
+        effective = (1.0 - output.blend) * output.weighted_task_variable
+        if output.barrier_task_velocity is not None:
+            effective = effective + output.barrier_task_velocity
+        return predicted_lyapunov_rate(
+            output.s, effective,
+            0.0 if task is None else task.weight_rate, potential, self._ks, self._gains.kp,
+            np.zeros(self.model.dof) if friction is None else friction,
+            output.reference_offset)
 
     def _kinematics(self, q, dq):
         """x (3,), J (3, n), Jdot (3, n) at (q, dq), base-frame axes."""
@@ -422,9 +483,10 @@ class ArmController(TaskDrives):
         pinv_rate = (rate.T - pinv @ gram_rate) @ inverse
         return pinv, pinv_rate, lam2
 
-    def _null_velocity(self, q, dq, barrier_gradient, barrier_rate):
-        """z (n,) rad/s and dz/dt: towards home (each joint capped at posture_speed) and off
-        the joint limits (module docstring)."""
+    def _null_velocity(self, q, dq, barrier_gradient, barrier_rate, blend):
+        """z (n,) rad/s and dz/dt: towards home (each joint capped at posture_speed; weighted
+        1 - sigma while the reach-round blend moves the joints, blend = (sigma, dsigma/dt))
+        and off the joint limits (module docstring)."""
         gains = self._gains
         z = -gains.posture_gain * (q - self._home)
         z_rate = -gains.posture_gain * dq
@@ -432,6 +494,9 @@ class ArmController(TaskDrives):
             capped = [speed_cap(value, gains.posture_speed) for value in z.tolist()]
             z = np.array([value for value, _ in capped])
             z_rate = z_rate * np.array([slope for _, slope in capped])
+        if blend is not None:
+            sigma, sigma_rate = blend
+            z, z_rate = (1.0 - sigma) * z, (1.0 - sigma) * z_rate - sigma_rate * z
         if gains.barrier_torque > 0.0 and barrier_gradient is not None:
             push = gains.limit_speed / gains.barrier_torque
             z = z - push * barrier_gradient
@@ -450,9 +515,11 @@ class ArmController(TaskDrives):
         along = float(direction @ acceleration) * (slope - ratio)
         return ratio * velocity, ratio * acceleration + along * direction
 
-    def step(self, q, dq, hand: HandState, task: ActiveTask | None, dt: float) -> ArmOutput:
+    def step(self, q, dq, hand: HandState, task: ActiveTask | None, dt: float,
+             rest=None) -> ArmOutput:
         """The torque at (q, dq) (n,) for the hand and task, and theta_hat advanced by dt (s).
 
+        rest (3,) m: an avoid task's rest position (None: where the tool is, so no return).
         Inputs are finite and of the right shapes (the caller checks them where they enter);
         a non-finite result still gives zero torque and fault=True, theta_hat unchanged.
         """
@@ -462,6 +529,8 @@ class ArmController(TaskDrives):
         dq = np.asarray(dq, dtype=float)
         drive = None if task is None else self._control_drive(task.shape, task.k)
         k = 0.0 if drive is None else drive.task_gain
+        self._hand_velocity = filter_hand_velocity(self._hand_velocity,
+                                                   hand.velocity.tolist(), dt)
         try:
             with np.errstate(all='ignore'):
                 x, jac, jac_rate = self._kinematics(q, dq)
@@ -470,45 +539,57 @@ class ArmController(TaskDrives):
                 hand_velocity, hand_acceleration = hand.velocity, hand.acceleration
                 dx = x - hand.position
                 distance = math.sqrt(float(dx @ dx))
-                if drive is None:
-                    weighted = weighted_rate = np.zeros(3)
-                    feed, feed_rate = 1.0, 0.0
-                else:
-                    a, da = task.weight, task.weight_rate
-                    slope, hessian = task_term_3d(dx, drive)
-                    weighted = a * slope
-                    weighted_rate = da * slope + a * (hessian @ (xdot - hand_velocity))
-                    feed, feed_rate = (1.0 - a, -da) if drive.open_outward else (1.0, 0.0)
+                a, da = (0.0, 0.0) if drive is None else (task.weight, task.weight_rate)
+                avoid = drive is not None and drive.open_outward
+                if avoid:
+                    # As step_lean: an avoid task reads the hand's velocity through the
+                    # filter (its rate is continuous, the estimate steps at each /target).
+                    hand_velocity = np.array(self._hand_velocity[:3])
+                    hand_acceleration = np.array(self._hand_velocity[3:])
+                task_velocity, task_rate = self._task_velocity(
+                    drive, (a, da), (x, dx, xdot), (hand_velocity, hand_acceleration),
+                    x if rest is None else rest)
+                weighted = task_velocity[2]
+                feed, feed_rate = (1.0 - a, -da) if avoid else (1.0, 0.0)
                 ff, ff_rate = self._feed_forward(
                     feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
                 g_b, g_b_rate, near = barrier_n(q, dq, self._lower, self._upper,
                                                 gains.limit_band, gains.barrier_torque)
-                if near == 0.0:
-                    # Off every band (the usual case): no gate, no barrier, one J+ for all.
-                    velocity = ff - weighted
-                    qdot_r = pinv @ velocity
-                    qddot_r = pinv_rate @ velocity + pinv @ (ff_rate - weighted_rate)
-                else:
+                joint_ff, joint_ff_rate = pinv @ ff, pinv_rate @ ff + pinv @ ff_rate
+                if near != 0.0:
                     joint_ff, joint_ff_rate = gate_feed_forward_n(
-                        q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
-                        self._upper, gains.limit_band)
+                        q, dq, joint_ff, joint_ff_rate, self._lower, self._upper,
+                        gains.limit_band)
+                qdot_r = joint_ff + pinv @ task_velocity[0]
+                qddot_r = joint_ff_rate + pinv_rate @ task_velocity[0] + pinv @ task_rate
+                region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
+                blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
+                scale = 1.0
+                if blend is not None:
+                    # eq. 14 blended with the joint motion a u, weighted as the task's pull.
+                    sigma, sigma_rate, u, u_rate = blend
+                    u, u_rate = a * u, da * u + a * u_rate
+                    scale = 1.0 - sigma
+                    qddot_r = (scale * qddot_r + sigma_rate * (u - qdot_r) + sigma * u_rate)
+                    qdot_r = scale * qdot_r + sigma * u
+                    blend = (sigma, sigma_rate)
+                barrier_task = None
+                if near != 0.0:
                     # The barrier's task-space velocity J+^T g_B / Kp and its rate.
                     barrier_task = (pinv.T @ g_b) / gains.kp
                     barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
-                    task_velocity = -weighted - barrier_task
-                    task_rate = -weighted_rate - barrier_task_rate
-                    qdot_r = joint_ff + pinv @ task_velocity
-                    qddot_r = joint_ff_rate + pinv_rate @ task_velocity + pinv @ task_rate
+                    qdot_r = qdot_r - pinv @ barrier_task
+                    qddot_r = qddot_r - pinv_rate @ barrier_task - pinv @ barrier_task_rate
                 if self.model.dof > 3:
-                    z, z_rate = self._null_velocity(q, dq, *((None, None) if near == 0.0
-                                                            else (g_b, g_b_rate)))
+                    z, z_rate = self._null_velocity(
+                        q, dq, *((None, None) if near == 0.0 else (g_b, g_b_rate)), blend)
                     null = self._eye_n - pinv @ jac
                     null_rate = -(pinv_rate @ jac + pinv @ jac_rate)
                     qdot_r = qdot_r + null @ z
                     qddot_r = qddot_r + null_rate @ z + null @ z_rate
                 s = dq - qdot_r
                 y = self.model.regressor_unchecked(q, dq, qdot_r, qddot_r)
-                tau_requested = (-self._ks * s - gains.kp * (jac.T @ weighted) - g_b
+                tau_requested = (-self._ks * s - gains.kp * scale * (jac.T @ weighted) - g_b
                                  + y @ theta)
         except (ValueError, np.linalg.LinAlgError) as error:
             return self._fault(f'step failed: {error}')
@@ -526,8 +607,42 @@ class ArmController(TaskDrives):
             if not np.all(np.isfinite(theta_next)):
                 return self._fault('non-finite torque or parameter update')
             self._theta = theta_next
+        # eq. 22's avoid term: w = f xdot_f + a (v_rest + v_away) - xdot_d (the feed-forward
+        # as the reference has it, capped; xdot_f the filtered hand velocity of an avoid task).
+        offset = ff + task_velocity[1] - hand.velocity
         return ArmOutput(tau, tau_requested, s, qdot_r, qddot_r, x, distance, k, theta,
-                         limited, False, '', lam2, near, g_b, weighted)
+                         limited, False, '', lam2, near, g_b, weighted,
+                         blend=0.0 if blend is None else blend[0],
+                         barrier_task_velocity=barrier_task, reference_offset=offset)
+
+    @staticmethod
+    def _task_velocity(drive, weight, motion, hand, rest):
+        """The task's share of v_r, -a delta_eps + a (v_rest + v_away), and its rate (eq.
+        12', 14, 18; task_variable.rest_term_n and retreat_term_n for avoid tasks).
+
+        weight (a, da/dt); motion (x, dx = x - x_d, xdot) (3,) each; hand (xdot_d, xddot_d) as
+        the reference reads them; rest (3,) m. Returns ((v, a (v_rest + v_away), a delta_eps),
+        dv/dt), each (3,)."""
+        if drive is None:
+            zero = np.zeros(3)
+            return (zero, zero, zero), zero
+        (a, da), (x, dx, xdot), (hand_velocity, hand_acceleration) = weight, motion, hand
+        u = xdot - hand_velocity
+        slope, hessian = task_term_3d(dx, drive)
+        weighted = a * slope
+        velocity, rate = -weighted, -(da * slope + a * (hessian @ u))
+        away = np.zeros(3)
+        if drive.open_outward:
+            floats = [v.tolist() for v in (dx, x - rest, u, xdot, hand_velocity,
+                                            hand_acceleration)]
+            term, term_rate = np.zeros(3), np.zeros(3)
+            for part in (rest_term_n(*floats[:4], drive),
+                         retreat_term_n(floats[0], floats[2], *floats[4:], drive)):
+                if part is not None:
+                    term, term_rate = term + part[0], term_rate + part[1]
+            away = a * term
+            velocity, rate = velocity + away, rate + da * term + a * term_rate
+        return (velocity, away, weighted), rate
 
     def _fault(self, reason: str) -> ArmOutput:
         zero = np.zeros(self.model.dof)

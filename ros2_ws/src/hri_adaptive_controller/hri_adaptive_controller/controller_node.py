@@ -187,9 +187,9 @@ PARAMETERS = {
                                '(1/s)', low=0.0, high=100.0),
     'rest_gate': ParameterSpec(float, "avoid tasks: the return fades in over this distance "
                                "outside the region's edge (m)", low=0.001, high=1.0),
-    'rest_position': ParameterSpec(list, 'avoid tasks: rest position [x, y] (m); unset: '
-                                   'where the arm was when the task became active', size=2,
-                                   optional=True),
+    'rest_position': ParameterSpec(list, 'avoid tasks: rest position [x, y] (m) for the '
+                                   'SCARA, [x, y, z] for an n-joint arm; unset: where the arm '
+                                   'was when the task became active', optional=True),
     'effort_limit': ParameterSpec(float, 'torque limit per joint (N m)',
                                   low=0.1, high=500.0),
     'max_effort_rate': ParameterSpec(float, 'largest torque change per joint, per second of '
@@ -297,7 +297,23 @@ def arm_gains_from(values: dict, model: RobotModel) -> ArmGains:
         approach_speed=values['approach_speed'], region_margin=values['region_margin'],
         max_task_speed=values['max_task_speed'], rest_gain=values['rest_gain'],
         rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
-        limit_band=values['joint_limit_band'], barrier_torque=values['barrier_torque'])
+        limit_band=values['joint_limit_band'], barrier_torque=values['barrier_torque'],
+        reach_round=dataclasses.replace(PANDA_GAINS.reach_round,
+                                        enabled=values['reach_round']))
+
+
+def rest_position_from(values: dict, arm: str | None) -> tuple[float, ...] | None:
+    """The fixed rest position of avoid tasks (m): rest_position's 2 values for the SCARA
+    (arm None), 3 for the n-joint arm named `arm`, or None when unset. ValueError with the
+    reason."""
+    fixed = values['rest_position']
+    if fixed is None:
+        return None
+    size, axes = (2, '[x, y]') if arm is None else (3, '[x, y, z]')
+    if len(fixed) != size:
+        raise ValueError(f'rest_position must have {size} values {axes} (m) for '
+                         f'{"the SCARA" if arm is None else arm}, got {len(fixed)}')
+    return tuple(float(v) for v in fixed)
 
 
 def point3_layout(data: bytes):
@@ -344,6 +360,10 @@ class Controller(Node):
             else:
                 self._arm = self._law = ArmController(model, arm_gains_from(values, model))
                 self._joint_names = model.joint_names
+            # An avoid task's rest position: the parameter, or where the arm was when the
+            # task (its name and shape) became active; _rest_key is the task it was taken for.
+            self._fixed_rest = rest_position_from(
+                values, None if self._arm is None else self._arm.model.name)
         except ValueError as error:
             raise StartupError(f'bad controller parameters: {error}') from None
         self._dof = len(self._joint_names)
@@ -379,10 +399,6 @@ class Controller(Node):
         self._shape_key = None
         self._task_payload = None  # (shape or None, k) of the latest TaskState's task
         self._rate_limited = False  # whether max_effort_rate acted on the last command
-        # An avoid task's rest position: the parameter, or where the arm was when the task
-        # (its name and shape) became active; _rest_key is the task it was taken for.
-        fixed = values['rest_position']
-        self._fixed_rest = None if fixed is None else (float(fixed[0]), float(fixed[1]))
         self._rest = self._fixed_rest
         self._rest_key = None
         self._cycles = 0
@@ -816,9 +832,10 @@ class Controller(Node):
                     + task_weight * link.weight * hand.rate)
             if self._rest_key != key:
                 self._rest_key = key
-                if self._fixed_rest is None and self._arm is None:
-                    x = forward_kinematics(self._q, self._values['l1'], self._values['l2'])
-                    self._rest = (float(x[0]), float(x[1]))
+                if self._fixed_rest is None:
+                    x = (forward_kinematics(self._q, self._values['l1'], self._values['l2'])
+                         if self._arm is None else self._arm.model.tool_position(self._q))
+                    self._rest = tuple(x.tolist())
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
         if hand.phase in (PHASE_FADING_OUT, PHASE_IDLE):
             self._status = 'target_lost'
@@ -867,7 +884,8 @@ class Controller(Node):
             else:
                 position, velocity = np.array(hand[0]), np.array(hand[1])
             active = None if task is None else ActiveTask(task[0], weight, rate, task[1])
-            output = arm.step(q, dq, HandState(position, velocity, np.zeros(3)), active, dt)
+            output = arm.step(q, dq, HandState(position, velocity, np.zeros(3)), active, dt,
+                              None if self._rest is None else np.array(self._rest))
             if monitor and not output.fault:
                 output = output._replace(lyapunov=arm.lyapunov(output, q, None))
         except Exception as error:  # noqa: BLE001 a robot command must stay safe

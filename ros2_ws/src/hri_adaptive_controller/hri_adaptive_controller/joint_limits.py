@@ -61,6 +61,8 @@ Avoid tasks (open outward) never reach round: they move away from the hand.
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from hri_adaptive_controller.event_weight import EventWeightSchedule
 from hri_adaptive_controller.task_variable import _smoothstep
 
@@ -70,6 +72,15 @@ GOAL_MARGIN = 0.5
 
 CLAMP_COST = 1000.0
 """Weight of the joint-box clamping against the joint distance when choosing an elbow."""
+
+IK_ITERATIONS = 50
+"""Damped least-squares steps of inverse_kinematics_n from each seed."""
+
+IK_DAMPING = 0.05
+"""m: the damping of inverse_kinematics_n's steps."""
+
+IK_TOLERANCE = 1e-3
+"""m: inverse_kinematics_n stops a seed's iterations this near the goal."""
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
@@ -237,24 +248,18 @@ def _segment_clearance(x1: float, x2: float, y1: float, y2: float) -> float:
     return math.hypot(x1 + t * d1, x2 + t * d2)
 
 
-class ReachRound:
-    """The state of the reach-round blend: sigma's ramp, the filtered joint goal q_f.
+class _JointBlend:
+    """The reach-round blend's state, for any number of joints: sigma's ramp (with a dwell
+    between switches), the slewed and filtered joint goal q_f and the joint motion u
+    (module docstring). ReachRound (the SCARA) and ReachRoundN (n joints) decide when to
+    blend and where to; `_blend` does the rest. `reset` forgets the state (the joint goal
+    restarts from the arm's joints at the next update)."""
 
-    `update` runs once per control step with its dt; `reset` forgets the state (the joint goal
-    restarts from the arm's joints at the next update).
-    """
-
-    BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
-    CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
-    STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
-    STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
     NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
     FAR_GOAL = 0.06  # m from the goal: far
 
-    def __init__(self, settings: ReachRoundSettings, limits: JointLimits, l1: float,
-                 l2: float):
-        self.settings, self.limits, self._l1, self._l2 = settings, limits, l1, l2
-        self._inner, self._outer = workspace_radii(l1, l2, limits)
+    def __init__(self, settings: ReachRoundSettings):
+        self.settings = settings
         self.reset()
 
     def reset(self) -> None:
@@ -264,12 +269,90 @@ class ReachRound:
         self._switched = -math.inf  # time of the last switch
         self._resting = True  # sigma is 0 with no ramp to evaluate
         self._full = False  # sigma is 1 with no ramp to evaluate
-        self._filtered = None  # (q_in1, q_in2, qf1, qf2, dqf1, dqf2)
+        self._filtered = None  # (q_in, q_f, dq_f), tuples of floats
 
     @property
     def engaged(self) -> bool:
         """Whether the blend is heading to (or at) the joint-space motion."""
         return self._engaged
+
+    def _blend(self, wanted: bool, joint_goal, q, dq, dt: float):
+        """Advance by dt (s) towards `wanted` and return (sigma, dsigma/dt, u, du/dt) with u
+        and du/dt tuples of floats, or None while sigma rests at 0. joint_goal: a callable
+        giving the joint goal q* (a tuple, rad), or None to hold q_in where it is; q, dq the
+        joints (tuples of floats)."""
+        settings = self.settings
+        self._time += dt
+        now = self._time
+        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
+            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
+        if wanted != self._engaged:
+            self._engaged, self._switched = wanted, now
+            self._schedule.request('round' if wanted else None, now)
+            self._resting = self._full = False
+        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
+            return None
+        if self._engaged and self._full:  # sigma at 1 and staying there
+            sigma, sigma_rate = 1.0, 0.0
+        else:
+            weight = self._schedule.evaluate(now)
+            sigma, sigma_rate = weight.weight, weight.rate
+            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
+        if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
+            self._filtered = None
+            self._resting = True
+            return None
+        state = self._filtered
+        if state is None:
+            state = (tuple(q), tuple(q), (0.0,) * len(q))
+        q_in, filtered, rate = state
+        if joint_goal is not None:
+            step = settings.slew * dt
+            q_in = tuple(value + min(max(goal - value, -step), step)
+                         for goal, value in zip(joint_goal(), q_in, strict=True))
+        omega = settings.filter_rate
+        # Critically damped second-order filter (semi-implicit Euler); its acceleration is
+        # continuous (q_in is), so the feed-forward of dq_f steps nothing.
+        acc = tuple(omega * omega * (target - f) - 2.0 * omega * df
+                    for target, f, df in zip(q_in, filtered, rate, strict=True))
+        rate = tuple(df + dt * a for df, a in zip(rate, acc, strict=True))
+        filtered = tuple(f + dt * df for f, df in zip(filtered, rate, strict=True))
+        self._filtered = (q_in, filtered, rate)
+        # u = -cap(k e) with a smooth cap on the norm (C1), and its exact time derivative.
+        k = settings.gain
+        e = tuple(value - f for value, f in zip(q, filtered, strict=True))
+        de = tuple(v - df for v, df in zip(dq, rate, strict=True))
+        norm = math.hypot(*e)
+        speed_max = settings.max_speed
+        raw = k * norm
+        if raw <= 1e-12:
+            return (sigma, sigma_rate, tuple(df - k * ei for df, ei in zip(rate, e, strict=True)),
+                    tuple(a - k * dei for a, dei in zip(acc, de, strict=True)))
+        capped = speed_max * math.tanh(raw / speed_max)
+        slope = 1.0 / math.cosh(raw / speed_max) ** 2 * k  # d capped / d norm
+        scale = capped / norm  # u = -scale e
+        along = sum(ei * dei for ei, dei in zip(e, de, strict=True)) / norm  # d norm / dt
+        dscale = (slope - scale) / norm * along
+        return (sigma, sigma_rate,
+                tuple(df - scale * ei for df, ei in zip(rate, e, strict=True)),
+                tuple(a - (scale * dei + dscale * ei) for a, ei, dei in zip(acc, e, de,
+                                                                            strict=True)))
+
+
+class ReachRound(_JointBlend):
+    """The reach-round blend of the SCARA: when and where to (module docstring); `update`
+    runs once per control step with its dt."""
+
+    BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
+    CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
+    STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
+    STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
+
+    def __init__(self, settings: ReachRoundSettings, limits: JointLimits, l1: float,
+                 l2: float):
+        self.limits, self._l1, self._l2 = limits, l1, l2
+        self._inner, self._outer = workspace_radii(l1, l2, limits)
+        super().__init__(settings)
 
     def goal(self, x1: float, x2: float, h1: float, h2: float, d1: float, d2: float):
         """The task-space goal (m): the hand h (d1 = 0) or the point of the region's annulus
@@ -302,8 +385,6 @@ class ReachRound:
         an avoid task: sigma fades to 0); near: the barrier's proximity (barrier()).
         """
         settings = self.settings
-        self._time += dt
-        now = self._time
         target = None  # the joint goal, when worked out for the decision below
         if not settings.enabled or region is None:
             wanted = False
@@ -334,58 +415,176 @@ class ReachRound:
                           or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL)
                           or outside)
             goal = (g1, g2)
-        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
-            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
-        if wanted != self._engaged:
-            self._engaged, self._switched = wanted, now
-            self._schedule.request('round' if wanted else None, now)
-            self._resting = self._full = False
-        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
-            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        if self._engaged and self._full:  # sigma at 1 and staying there
-            sigma, sigma_rate = 1.0, 0.0
+        if goal is None:
+            joint_goal = None
+        elif target is not None:
+            def joint_goal():
+                return target
         else:
-            weight = self._schedule.evaluate(now)
-            sigma, sigma_rate = weight.weight, weight.rate
-            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
-        if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
-            self._filtered = None
-            self._resting = True
+            def joint_goal():
+                return inverse_kinematics(goal[0], goal[1], q1, q2, self._l1, self._l2,
+                                          self.limits)
+        out = self._blend(wanted, joint_goal, (q1, q2), (dq1, dq2), dt)
+        if out is None:
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        state = self._filtered
-        if state is None:
-            state = (q1, q2, q1, q2, 0.0, 0.0)
-        q_in1, q_in2, f1, f2, df1, df2 = state
-        if goal is not None:
-            t1, t2 = target if target is not None else inverse_kinematics(
-                goal[0], goal[1], q1, q2, self._l1, self._l2, self.limits)
-            step = settings.slew * dt
-            q_in1 += min(max(t1 - q_in1, -step), step)
-            q_in2 += min(max(t2 - q_in2, -step), step)
-        omega = settings.filter_rate
-        # Critically damped second-order filter (semi-implicit Euler); its acceleration is
-        # continuous (q_in is), so the feed-forward of dq_f steps nothing.
-        acc1 = omega * omega * (q_in1 - f1) - 2.0 * omega * df1
-        acc2 = omega * omega * (q_in2 - f2) - 2.0 * omega * df2
-        df1 += dt * acc1
-        df2 += dt * acc2
-        f1 += dt * df1
-        f2 += dt * df2
-        self._filtered = (q_in1, q_in2, f1, f2, df1, df2)
-        # u = -cap(k e) with a smooth cap on the norm (C1), and its exact time derivative.
-        k = settings.gain
-        e1, e2 = q1 - f1, q2 - f2
-        de1, de2 = dq1 - df1, dq2 - df2
-        norm = math.hypot(e1, e2)
-        speed_max = settings.max_speed
-        raw = k * norm
-        if raw <= 1e-12:
-            return (sigma, sigma_rate, df1 - k * e1, df2 - k * e2, acc1 - k * de1,
-                    acc2 - k * de2)
-        capped = speed_max * math.tanh(raw / speed_max)
-        slope = 1.0 / math.cosh(raw / speed_max) ** 2 * k  # d capped / d norm
-        scale = capped / norm  # u = -scale e
-        along = (e1 * de1 + e2 * de2) / norm  # d norm / dt
-        dscale = (slope - scale) / norm * along
-        return (sigma, sigma_rate, df1 - scale * e1, df2 - scale * e2,
-                acc1 - (scale * de1 + dscale * e1), acc2 - (scale * de2 + dscale * e2))
+        sigma, sigma_rate, (u1, u2), (ud1, ud2) = out
+        return sigma, sigma_rate, u1, u2, ud1, ud2
+
+
+def inverse_kinematics_n(model, goal, seeds, lower, upper, iterations: int = IK_ITERATIONS):
+    """Joints (n,) rad that put `model`'s tool point at `goal` (3,) m or nearest to it, within
+    the box [lower, upper] (n,) rad: damped least squares from each seed (rows of `seeds`,
+    (k, n)), clamped into the box at every step; of the results, the one that reaches the
+    goal best (CLAMP_COST per m^2 of miss), then the one nearest to the first seed (the
+    arm's joints). model: a RobotModel (tool_position, tool_jacobian)."""
+    best = None
+    first = seeds[0]
+    for seed in seeds:
+        q = np.clip(seed, lower, upper)
+        for _ in range(iterations):
+            miss = goal - model.tool_position(q)
+            if float(miss @ miss) < IK_TOLERANCE ** 2:
+                break
+            jac = model.tool_jacobian(q)
+            step = jac.T @ np.linalg.solve(jac @ jac.T + IK_DAMPING ** 2 * np.eye(3), miss)
+            q = np.clip(q + step, lower, upper)
+        miss = goal - model.tool_position(q)
+        cost = CLAMP_COST * float(miss @ miss) + float((q - first) @ (q - first))
+        if best is None or cost < best[0]:
+            best = (cost, q)
+    return best[1]
+
+
+class ReachRoundN(_JointBlend):
+    """The reach-round blend for an arm of n joints in 3-D (arm_law.ArmController).
+
+    As ReachRound's, with the model's own inverse kinematics (inverse_kinematics_n) and no
+    hole round the base: the blend engages when a joint is in its barrier's band
+    (near > NEAR_BARRIER) while the goal is more than FAR_GOAL away, or the whole region lies
+    beyond the reach; once engaged, it stays until the tool is within FAR_GOAL / 2 of the
+    goal and the joint goal lies CLEAR_BANDS band inside its box (the straight descent, which
+    stalled, is not trusted again before). The joint goal is kept a whole band inside the
+    limits (the barrier off there), and so is the arm while it holds it. The goal is the
+    hand, or the middle of the region's shell towards the arm (d1 > 0), projected into the
+    sphere of the attained reach round the shoulder (less outer_margin). The joint goal q*
+    is solved on engaging from the arm's joints, from its home pose swung to the goal's
+    azimuth about the first joint (for a vertical first axis, the Panda's: a far side
+    reached by turning round) and from the arm's joints so swung, the nearest that reaches
+    (1.3 ms for the Panda's hand behind its base, 2.6 ms for one out of reach, once); then
+    refreshed every IK_PERIOD s from the last q* (IK_REFRESH iterations), so the numerical
+    solve stays off most control cycles.
+
+    model: a RobotModel (tool_position, tool_jacobian, home, shoulder); lower, upper (n,)
+    rad; band (rad): the barrier's; reach (m): the attained reach round the shoulder.
+    """
+
+    IK_PERIOD = 0.02  # s between refreshes of the joint goal while engaged
+    IK_REFRESH = 5  # iterations of each refresh, from the last joint goal
+    CLEAR_BANDS = 0.5  # a joint goal this many bands inside the box hands back to the descent
+
+    def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
+                 reach: float):
+        self._model, self._band = model, band
+        # q* outside the barrier's band (not GOAL_MARGIN band in, as the SCARA's): there the
+        # descent, handed the arm back at the goal, is not blocked again (with half a band,
+        # the Panda reaching behind its base cycled between the two every 2 s).
+        self._box = (np.asarray(lower, dtype=float) + band,
+                     np.asarray(upper, dtype=float) - band)
+        self._shoulder = np.asarray(model.shoulder, dtype=float)
+        self._shoulder_point = tuple(self._shoulder.tolist())
+        self._outer = float(reach)
+        home = np.clip(model.home, *self._box)
+        arm = model.tool_position(home) - self._shoulder
+        self._home, self._home_azimuth = home, math.atan2(arm[1], arm[0])
+        super().__init__(settings)
+
+    def reset(self) -> None:
+        super().reset()
+        self._joint_goal = None  # (time solved, q* (n,))
+
+    def goal(self, x, hand, d1: float, d2: float):
+        """The task-space goal (3,) m (the class docstring) and the hand's distance from the
+        shoulder (m)."""
+        goal = np.array(hand, dtype=float)
+        if d1 > 0.0:
+            away = x - goal
+            norm = math.sqrt(float(away @ away))
+            if norm > 0.0:
+                goal = goal + 0.5 * (d1 + min(d2, d1 + 0.2)) * away / norm
+        radius = float(np.linalg.norm(np.asarray(hand, dtype=float) - self._shoulder))
+        arm = goal - self._shoulder
+        length = math.sqrt(float(arm @ arm))
+        high = self._outer - self.settings.outer_margin
+        if length > high:
+            goal = self._shoulder + arm * (high / length)
+        return goal, radius
+
+    def _solve(self, goal, q, x) -> np.ndarray:
+        """q* for `goal` (3,) m from the seeds of the class docstring; q (n,) the arm's
+        joints, x (3,) m its tool."""
+        arm, tool = goal - self._shoulder, x - self._shoulder
+        azimuth = math.atan2(arm[1], arm[0])
+        swung_home, swung_arm = self._home.copy(), np.array(q, dtype=float)
+        swung_home[0] = math.remainder(self._home[0] + azimuth - self._home_azimuth,
+                                        2.0 * math.pi)
+        swung_arm[0] += math.remainder(azimuth - math.atan2(tool[1], tool[0]), 2.0 * math.pi)
+        return inverse_kinematics_n(self._model, goal, np.array([q, swung_home, swung_arm]),
+                                    *self._box)
+
+    def update(self, q, dq, x, hand, region, near: float, dt: float):
+        """Advance by dt (s) and return (sigma, dsigma/dt, u (n,), du/dt (n,)) or None while
+        sigma rests at 0. q, dq (n,); x, hand (3,) m: the tool and the target; region (d1, d2)
+        m of a follow task, or None (no task, or an avoid task: sigma fades to 0); near: the
+        barrier's proximity (arm_law.barrier_n)."""
+        settings = self.settings
+        joint_goal = None
+        if self._resting and (region is None or not settings.enabled or (
+                near <= self.NEAR_BARRIER and math.dist(hand, self._shoulder_point) - region[1]
+                <= self._outer - settings.outer_margin)):
+            self._time += dt  # resting and nothing to engage it (the usual case): as _blend
+            return None
+        if not settings.enabled or region is None:
+            wanted = False
+        else:
+            goal, hand_radius = self.goal(x, hand, *region)
+            miss = goal - x
+            distance = math.sqrt(float(miss @ miss))
+            outside = hand_radius - region[1] > self._outer - settings.outer_margin
+            if self._engaged:
+                # Stay on the joint-space motion until the tool is at the goal with its joint
+                # goal clear of the limits (CLEAR_BANDS band beyond the barrier's): the
+                # descent handed a pose at the band's edge drifts into it and its push
+                # takes the tool off the goal again.
+                wanted = (outside or distance > 0.5 * self.FAR_GOAL
+                          or not self._clear(self._joint_goal))
+            else:
+                wanted = (near > self.NEAR_BARRIER and distance > self.FAR_GOAL) or outside
+            if wanted:
+                def joint_goal():
+                    return tuple(self._refresh(goal, q, x).tolist())
+            else:
+                self._joint_goal = None
+        out = self._blend(wanted, joint_goal, tuple(q.tolist()), tuple(dq.tolist()), dt)
+        if out is None:
+            return None
+        sigma, sigma_rate, u, du = out
+        return sigma, sigma_rate, np.array(u), np.array(du)
+
+    def _clear(self, joint_goal) -> bool:
+        """Whether the joint goal (time, q*) lies CLEAR_BANDS band inside the box."""
+        if joint_goal is None:
+            return False
+        q, (low, high) = joint_goal[1], self._box
+        margin = self.CLEAR_BANDS * self._band
+        return bool(np.all(q >= low + margin) and np.all(q <= high - margin))
+
+    def _refresh(self, goal, q, x) -> np.ndarray:
+        """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s."""
+        now = self._time
+        if self._joint_goal is None:
+            self._joint_goal = (now, self._solve(goal, q, x))
+        elif now - self._joint_goal[0] >= self.IK_PERIOD:
+            last = self._joint_goal[1]
+            self._joint_goal = (now, inverse_kinematics_n(
+                self._model, goal, last[None, :], *self._box, self.IK_REFRESH))
+        return self._joint_goal[1]

@@ -72,6 +72,7 @@ d(lambda^2)/dt, from J and Jdot = hri_core.dynamics.jacobian_derivative.
 
 import dataclasses
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -432,6 +433,17 @@ def task_term(dx1: float, dx2: float,
             _clip_hessian(h22))
 
 
+def _rest_gate(r: float, drive: TaskDrive) -> tuple[float, float]:
+    """The rest term's gate w(r) and w'(r) (1/m) at r = |x - x_d| (m)."""
+    w, dw = _smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
+    return w, dw / drive.rest_gate
+
+
+def _rest_speed(rho: float, drive: TaskDrive) -> tuple[float, float]:
+    """|c(y)| = cap(k_rest rho) (m/s) at rho = |x - x_rest| (m) and the cap's slope."""
+    return speed_cap(drive.rest_gain * rho, min(drive.max_task_speed, drive.pull_limit))
+
+
 def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     """The avoid task's return to rest, v_rest = w(r) c(y) and its derivatives, in floats.
 
@@ -442,8 +454,7 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     if not drive.open_outward or drive.rest_gain == 0.0:
         return (0.0,) * 9
     r = math.hypot(dx1, dx2)
-    w, dw = _smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
-    dw /= drive.rest_gate
+    w, dw = _rest_gate(r, drive)
     rho = math.hypot(y1, y2)
     if (w == 0.0 and dw == 0.0) or rho == 0.0:
         if rho == 0.0 and w > 0.0:
@@ -452,8 +463,7 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, k, 0.0, k
         return (0.0,) * 9
     n1, n2 = y1 / rho, y2 / rho
-    speed, slope = speed_cap(drive.rest_gain * rho,
-                             min(drive.max_task_speed, drive.pull_limit))
+    speed, slope = _rest_speed(rho, drive)
     c1, c2 = -speed * n1, -speed * n2
     radial, tangential = -slope * drive.rest_gain, -speed / rho
     b11 = w * (radial * n1 * n1 + tangential * (1.0 - n1 * n1))
@@ -461,6 +471,48 @@ def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
     b22 = w * (radial * n2 * n2 + tangential * (1.0 - n2 * n2))
     gw1, gw2 = (dw * dx1 / r, dw * dx2 / r) if r > 0.0 else (0.0, 0.0)
     return w * c1, w * c2, c1, c2, gw1, gw2, b11, b12, b22
+
+
+def rest_term_n(dx, y, u, xdot, drive: TaskDrive):
+    """rest_term for task vectors of any length m (the n-joint law's 3-D task space), in
+    floats: v_rest = w(r) c(y) and dv_rest/dt = c (grad w . u) + w Dc xdot, each a list of m
+    floats (m/s, m/s^2), or None where both are zero (follow tasks; the arm inside the
+    gate's start). dx = x - x_d, y = x - x_rest (m), u = xdot - xdot_d, xdot (m/s): sequences
+    of m floats."""
+    if not drive.open_outward or drive.rest_gain == 0.0:
+        return None
+    r = math.hypot(*dx)
+    w, dw = _rest_gate(r, drive)
+    if w == 0.0 and dw == 0.0:
+        return None
+    rho = math.hypot(*y)
+    if rho == 0.0:  # c(y) = -k y near y = 0: c = 0, Dc = -k I
+        return [0.0] * len(dx), [-w * drive.rest_gain * v for v in xdot]
+    n = [value / rho for value in y]
+    speed, slope = _rest_speed(rho, drive)
+    radial, tangential = -slope * drive.rest_gain, -speed / rho
+    along = (dw / r) * sum(map(operator.mul, dx, u)) if r > 0.0 else 0.0  # grad w . u
+    across = (radial - tangential) * sum(map(operator.mul, n, xdot))
+    return ([-w * speed * value for value in n],
+            [-speed * value * along + w * (across * value + tangential * rate)
+             for value, rate in zip(n, xdot, strict=True)])
+
+
+def _retreat_speed(r: float, c: float, drive: TaskDrive):
+    """retreat_term's radial profile: (g, g'(r) 1/m, p(c) m/s, p'(c)) at r = |dx| (m) and
+    the hand's approach speed c (m/s), or None where the retreat is zero."""
+    shape = drive.shape
+    if not drive.open_outward or shape.s != 1 or shape.d1 <= 0.0:
+        return None
+    if r == 0.0 or r >= shape.d1 + RETREAT_REACH or c <= 0.0:
+        return None
+    band = RETREAT_SPEED
+    p, dp = (c * c / (2.0 * band), c / band) if c < band else (c - 0.5 * band, 1.0)
+    # At most 2 v_max, as the follow tasks' feed-forward (adaptive_law.FEED_FORWARD_RATIO).
+    p, slope = speed_cap(p, 2.0 * drive.max_task_speed)
+    dp *= slope
+    g, dg = _smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
+    return g, -dg / RETREAT_REACH, p, dp
 
 
 def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: float,
@@ -477,29 +529,39 @@ def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: 
     starts only inside d1), so a hand that chases the arm at the arm's own speed no longer
     gains on it.
     """
-    shape = drive.shape
-    if not drive.open_outward or shape.s != 1 or shape.d1 <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0
     r = math.hypot(dx1, dx2)
-    if r == 0.0 or r >= shape.d1 + RETREAT_REACH:
+    e1, e2 = (dx1 / r, dx2 / r) if r > 0.0 else (0.0, 0.0)
+    profile = _retreat_speed(r, e1 * vd1 + e2 * vd2, drive)
+    if profile is None:
         return 0.0, 0.0, 0.0, 0.0
-    e1, e2 = dx1 / r, dx2 / r
-    c = e1 * vd1 + e2 * vd2
-    if c <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    band = RETREAT_SPEED
-    p, dp = (c * c / (2.0 * band), c / band) if c < band else (c - 0.5 * band, 1.0)
-    # At most 2 v_max, as the follow tasks' feed-forward (adaptive_law.FEED_FORWARD_RATIO).
-    p, slope = speed_cap(p, 2.0 * drive.max_task_speed)
-    dp *= slope
-    g, dg = _smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
-    dg = -dg / RETREAT_REACH
+    g, dg, p, dp = profile
     radial = e1 * u1 + e2 * u2  # dr/dt
     de1, de2 = (u1 - e1 * radial) / r, (u2 - e2 * radial) / r  # de/dt
     dc = de1 * vd1 + de2 * vd2 + e1 * ad1 + e2 * ad2
     rate = dg * radial * p + g * dp * dc  # d(g p)/dt
     gp = g * p
     return gp * e1, gp * e2, rate * e1 + gp * de1, rate * e2 + gp * de2
+
+
+def retreat_term_n(dx, u, velocity, acceleration, drive: TaskDrive):
+    """retreat_term for task vectors of any length m, in floats: v_away and its rate, each a
+    list of m floats (m/s, m/s^2), or None where both are zero. dx = x - x_d (m), u = xdot -
+    xdot_d, the hand's velocity and acceleration: sequences of m floats."""
+    r = math.hypot(*dx)
+    if r == 0.0:
+        return None
+    e = [value / r for value in dx]
+    profile = _retreat_speed(r, sum(map(operator.mul, e, velocity)), drive)
+    if profile is None:
+        return None
+    g, dg, p, dp = profile
+    radial = sum(map(operator.mul, e, u))  # dr/dt
+    de = [(rate - value * radial) / r for rate, value in zip(u, e, strict=True)]  # de/dt
+    dc = sum(map(operator.mul, de, velocity)) + sum(map(operator.mul, e, acceleration))
+    rate = dg * radial * p + g * dp * dc  # d(g p)/dt
+    gp = g * p
+    return ([gp * value for value in e],
+            [rate * value + gp * change for value, change in zip(e, de, strict=True)])
 
 
 def _clip_hessian(value: float) -> float:

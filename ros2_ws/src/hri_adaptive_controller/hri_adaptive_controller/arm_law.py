@@ -340,7 +340,6 @@ class ArmController(TaskDrives):
         self._threshold2 = gains.damping.threshold ** 2
         self._max_damping2 = gains.damping.max_damping ** 2
         self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
-        self._eye_n = np.eye(n)
         self._last: tuple = (None, 0.0, None)
         self._reach = ReachRoundN(gains.reach_round, self.model, self._lower, self._upper,
                                   gains.limit_band, self._task_reach)
@@ -555,13 +554,17 @@ class ArmController(TaskDrives):
                     feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
                 g_b, g_b_rate, near = barrier_n(q, dq, self._lower, self._upper,
                                                 gains.limit_band, gains.barrier_torque)
-                joint_ff, joint_ff_rate = pinv @ ff, pinv_rate @ ff + pinv @ ff_rate
-                if near != 0.0:
+                if near == 0.0:
+                    # J+ (ff + v) and its rate in two products each (the usual case).
+                    both = ff + task_velocity[0]
+                    qdot_r = pinv @ both
+                    qddot_r = pinv_rate @ both + pinv @ (ff_rate + task_rate)
+                else:
                     joint_ff, joint_ff_rate = gate_feed_forward_n(
-                        q, dq, joint_ff, joint_ff_rate, self._lower, self._upper,
-                        gains.limit_band)
-                qdot_r = joint_ff + pinv @ task_velocity[0]
-                qddot_r = joint_ff_rate + pinv_rate @ task_velocity[0] + pinv @ task_rate
+                        q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
+                        self._upper, gains.limit_band)
+                    qdot_r = joint_ff + pinv @ task_velocity[0]
+                    qddot_r = joint_ff_rate + pinv_rate @ task_velocity[0] + pinv @ task_rate
                 region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
                 blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
                 scale = 1.0
@@ -583,14 +586,18 @@ class ArmController(TaskDrives):
                 if self.model.dof > 3:
                     z, z_rate = self._null_velocity(
                         q, dq, *((None, None) if near == 0.0 else (g_b, g_b_rate)), blend)
-                    null = self._eye_n - pinv @ jac
-                    null_rate = -(pinv_rate @ jac + pinv @ jac_rate)
-                    qdot_r = qdot_r + null @ z
-                    qddot_r = qddot_r + null_rate @ z + null @ z_rate
+                    # N z = z - J+ (J z), dN/dt z + N dz/dt as products with vectors: no
+                    # n x n matrix is formed.
+                    jz = jac @ z
+                    qdot_r = qdot_r + (z - pinv @ jz)
+                    qddot_r = qddot_r + (z_rate - pinv_rate @ jz
+                                         - pinv @ (jac_rate @ z + jac @ z_rate))
                 s = dq - qdot_r
-                y = self.model.regressor_unchecked(q, dq, qdot_r, qddot_r)
+                # Y theta = Y_rigid theta_rigid + diag(qdot_r) theta_friction (eq. 18).
+                rigid = self.model.rigid_regressor_unchecked(q, dq, qdot_r, qddot_r)
+                split = rigid.shape[1]
                 tau_requested = (-self._ks * s - gains.kp * scale * (jac.T @ weighted) - g_b
-                                 + y @ theta)
+                                 + rigid @ theta[:split] + qdot_r * theta[split:])
         except (ValueError, np.linalg.LinAlgError) as error:
             return self._fault(f'step failed: {error}')
         if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(qddot_r))):
@@ -602,7 +609,8 @@ class ArmController(TaskDrives):
         pace = 0.0 if limited else dt * (1.0 - near)
         if pace > 0.0:
             with np.errstate(all='ignore'):
-                theta_next = np.clip(theta - pace * self._rates * (y.T @ s),
+                gradient = np.concatenate((rigid.T @ s, qdot_r * s))  # Y^T s
+                theta_next = np.clip(theta - pace * self._rates * gradient,
                                      self.model.theta_lower, self.model.theta_upper)
             if not np.all(np.isfinite(theta_next)):
                 return self._fault('non-finite torque or parameter update')

@@ -459,11 +459,16 @@ class PinocchioModel(RobotModel):
         """regressor() for inputs the caller has checked ((n,) finite floats): the 1 kHz
         path. Y_pin is quadratic in the velocity and linear in the acceleration and gravity
         together, so the two calls' difference keeps C(q, dq) dq_r, M ddq_r and g(q)."""
+        return np.hstack([self.rigid_regressor_unchecked(q, dq, dq_r, ddq_r), np.diag(dq_r)])
+
+    def rigid_regressor_unchecked(self, q, dq, dq_r, ddq_r) -> np.ndarray:
+        """The regressor's rigid-body columns (n, 10 n): regressor_unchecked without the
+        friction block diag(dq_r), which a caller multiplies as dq_r * theta_friction (the
+        1 kHz path: no n x n matrix formed)."""
         (plus, plus_data), (minus, minus_data) = self._regressor_models
         regress = self._pin.computeJointTorqueRegressor
-        rigid = 0.25 * (regress(plus, plus_data, q, dq + dq_r, 2.0 * ddq_r)
-                        - regress(minus, minus_data, q, dq - dq_r, -2.0 * ddq_r))
-        return np.hstack([rigid, np.diag(dq_r)])
+        return 0.25 * (regress(plus, plus_data, q, dq + dq_r, 2.0 * ddq_r)
+                       - regress(minus, minus_data, q, dq - dq_r, -2.0 * ddq_r))
 
     def forward_dynamics(self, q, dq, tau) -> np.ndarray:
         """ddq (n,) = M^-1 (tau - C dq - F dq - g) by pinocchio's ABA; inputs unchecked."""

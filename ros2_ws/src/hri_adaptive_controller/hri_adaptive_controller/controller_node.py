@@ -110,6 +110,7 @@ from hri_core.cdr import (
     LayoutReader,
     float64_array_template,
     joint_state_layout,
+    point3_layout,
     point_stamped_layout,
     read_stamp,
 )
@@ -298,14 +299,6 @@ def arm_gains_from(values: dict, model: RobotModel) -> ArmGains:
         max_task_speed=values['max_task_speed'], rest_gain=values['rest_gain'],
         rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
         limit_band=values['joint_limit_band'], barrier_torque=values['barrier_torque'])
-
-
-def point3_layout(data: bytes):
-    """cdr.point_stamped_layout reading x, y and z."""
-    layout = point_stamped_layout(data)
-    if layout is None:
-        return None
-    return dataclasses.replace(layout, offsets=(*layout.offsets, layout.offsets[-1] + 8))
 
 
 def limits_mismatch(ours, theirs) -> str:

@@ -65,6 +65,8 @@ PARAMETERS = {
     'start_delay': ParameterSpec(float, 'time the hand waits before moving (s)', 0.0, 3600.0),
     'waypoints': ParameterSpec(list,
                                'waypoints profile: flat [x0, y0, x1, y1, ...] (m)'),
+    'dimension': ParameterSpec(int, 'waypoints profile: coordinates per waypoint, 2 ([x, y], '
+                               'z = 0) or 3 ([x, y, z])', 2, 3),
     'segment_speeds': ParameterSpec(list, 'waypoints profile: peak speed of each move (m/s); '
                                     'unset: speed', optional=True),
     'pauses': ParameterSpec(list, 'waypoints profile: time at the end of each move (s); '
@@ -89,7 +91,7 @@ PARAMETERS = {
 RECORDING_PARAMETERS = ('recording', 'segment', 'translation', 'yaw', 'auto_place', 'reach',
                         'time_scale', 'at_end')
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
-                      'waypoints', 'segment_speeds', 'pauses', *RECORDING_PARAMETERS)
+                      'waypoints', 'dimension', 'segment_speeds', 'pauses', *RECORDING_PARAMETERS)
 
 
 class HandSim(Node):
@@ -138,7 +140,7 @@ class HandSim(Node):
             speed=value('speed'), period=value('period'), radius=value('radius'),
             start_delay=value('start_delay'), waypoints=tuple(value('waypoints')),
             segment_speeds=tuple(value('segment_speeds') or ()),
-            pauses=tuple(value('pauses') or ()))
+            pauses=tuple(value('pauses') or ()), dimension=value('dimension'))
 
     @staticmethod
     def _replay_from(value) -> Replay:
@@ -173,7 +175,8 @@ class HandSim(Node):
                    'back_and_forth': f'{list(p.start)} <-> {list(p.end)}, period {p.period} s',
                    'circle': f'centre {list(p.start)}, radius {p.radius} m, '
                              f'period {p.period} s',
-                   'waypoints': f'{len(p.waypoints) // 2} points at '
+                   'waypoints': f'{len(p.waypoints) // p.dimension} points in '
+                                f'{p.dimension}-D at '
                                 f'{list(p.segment_speeds) or p.speed} m/s'
                                 + (f', pauses {list(p.pauses)} s' if p.pauses else '')}
         return f'{p.name} ({details[p.name]}, start delay {p.start_delay} s)'
@@ -195,9 +198,10 @@ class HandSim(Node):
         if isinstance(self._source, Replay):
             self._publish_frame()
             return
-        x, y = hand_position(self._source, time.monotonic() - self._started)
+        x, y, z = (*hand_position(self._source, time.monotonic() - self._started), 0.0)[:3]
         stamp = self.get_clock().now().seconds_nanoseconds()
-        self._publisher.publish(self._template.encode((float(x), float(y), 0.0), stamp=stamp))
+        self._publisher.publish(self._template.encode((float(x), float(y), float(z)),
+                                                      stamp=stamp))
 
     def _publish_frame(self) -> None:
         """The newest recorded frame due, once, stamped when it was recorded; nothing for a

@@ -93,6 +93,8 @@ class HandProfile:
     [x0, y0, x1, y1, ...] (m), at least two points; segment_speeds: peak speed (m/s) of each
     waypoints move (one per move; empty: `speed` for all); pauses: time (s) the hand stays at
     each waypoint after the first before it moves on (one per move; empty: none).
+    dimension: coordinates per waypoint, 2 ([x, y], the plane z = 0) or 3 ([x, y, z], a
+    hand in space for an arm that moves in 3-D); the other profiles are planar.
     """
 
     name: str = 'hold'
@@ -105,6 +107,7 @@ class HandProfile:
     waypoints: tuple[float, ...] = field(default=())
     segment_speeds: tuple[float, ...] = field(default=())
     pauses: tuple[float, ...] = field(default=())
+    dimension: int = 2
 
     def __post_init__(self):
         if self.name not in HAND_PROFILES:
@@ -117,14 +120,20 @@ class HandProfile:
         positive(self.radius, 'radius', 'm')
         if not (math.isfinite(self.start_delay) and self.start_delay >= 0.0):
             raise ValueError(f'start_delay must be finite and >= 0 s, got {self.start_delay}')
+        if self.dimension not in (2, 3):
+            raise ValueError(f'dimension must be 2 or 3, got {self.dimension}')
+        if self.dimension == 3 and self.name != 'waypoints':
+            raise ValueError(f'dimension 3 is for the waypoints profile, not {self.name}')
         if self.name == 'waypoints':
+            d = self.dimension
             points = np.asarray(self.waypoints, dtype=float)
-            if points.ndim != 1 or points.size < 4 or points.size % 2:
-                raise ValueError('waypoints must be a flat list [x0, y0, x1, y1, ...] of at '
-                                 f'least two points, got {len(self.waypoints)} values')
+            if points.ndim != 1 or points.size < 2 * d or points.size % d:
+                flat = '[x0, y0, x1, y1, ...]' if d == 2 else '[x0, y0, z0, x1, y1, z1, ...]'
+                raise ValueError(f'waypoints must be a flat list {flat} of at least two '
+                                 f'points, got {len(self.waypoints)} values')
             if not np.all(np.isfinite(points)):
                 raise ValueError('waypoints must be finite')
-            moves = points.size // 2 - 1
+            moves = points.size // d - 1
             for name, values in (('segment_speeds', self.segment_speeds),
                                  ('pauses', self.pauses)):
                 if values and len(values) != moves:
@@ -137,7 +146,7 @@ class HandProfile:
 
 
 def _waypoint_position(points: np.ndarray, t: float, speeds, pauses) -> np.ndarray:
-    """Position along minimum-jerk moves between successive points (k, 2): move i at peak
+    """Position along minimum-jerk moves between successive points (k, d): move i at peak
     speed speeds[i], then a pause of pauses[i] s at its end."""
     for a, b, speed, pause in zip(points[:-1], points[1:], speeds, pauses, strict=True):
         duration = minimum_jerk_duration(float(np.linalg.norm(b - a)), speed)
@@ -151,7 +160,7 @@ def _waypoint_position(points: np.ndarray, t: float, speeds, pauses) -> np.ndarr
 
 def waypoint_schedule(profile: HandProfile) -> list[tuple[float, float]]:
     """(start, end) times (s since the profile started) of each waypoints move."""
-    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, 2)
+    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, profile.dimension)
     moves = len(points) - 1
     speeds = profile.segment_speeds or (profile.speed,) * moves
     pauses = profile.pauses or (0.0,) * moves
@@ -164,7 +173,8 @@ def waypoint_schedule(profile: HandProfile) -> list[tuple[float, float]]:
 
 
 def hand_position(profile: HandProfile, t: float) -> np.ndarray:
-    """Hand position (2,) in m at time t (s) since the profile started.
+    """Hand position (2,) in m at time t (s) since the profile started; (3,) for waypoints
+    of dimension 3.
 
     hold: stays at `start`. approach: minimum-jerk move start -> end at peak speed `speed`,
     then stays at `end`. retreat: the same move backwards, end -> start. back_and_forth:
@@ -188,7 +198,7 @@ def hand_position(profile: HandProfile, t: float) -> np.ndarray:
     if profile.name == 'circle':
         angle = 2.0 * math.pi * tau / profile.period
         return start + profile.radius * np.array([math.cos(angle), math.sin(angle)])
-    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, 2)
+    points = np.asarray(profile.waypoints, dtype=float).reshape(-1, profile.dimension)
     moves = len(points) - 1
     return _waypoint_position(points, tau, profile.segment_speeds or (profile.speed,) * moves,
                               profile.pauses or (0.0,) * moves)

@@ -334,7 +334,7 @@ class Demo:
             domain = self.domain_id + offset
             sim = self.start_teach_sim(domain)
             recorder = self.start('hri_demo_learning', 'recorder', domain=domain,
-                                  output=str(bag))
+                                  output=str(bag), **self.recorder_parameters())
             self.before_demonstrator(sim, recorder)
             human = self.start('scara_sim', 'demonstrator', domain=domain, **demo,
                                **self.demonstrator_parameters())
@@ -359,6 +359,10 @@ class Demo:
     def start_teach_sim(self, domain: int) -> NodeProcess:
         """The simulator a demonstration pushes, on `domain`."""
         return self.start('scara_sim', 'scara_sim', domain=domain)
+
+    def recorder_parameters(self) -> dict:
+        """The demonstration recorder's parameters besides its output (its defaults)."""
+        return {}
 
     def before_demonstrator(self, sim: NodeProcess, recorder: NodeProcess) -> None:
         """Called before each demonstrator starts (the SCARA's nodes are up at once)."""

@@ -8,8 +8,8 @@ bags have no /ee_position); the behaviours with 3-D scripted hands (hand_sim dim
 the live Panda loop (arm_sim, event_manager, controller robot:=panda); the sequence with the
 events from the event_detector in 3-D (dimension 3); a recorded person's hand in 3-D. OUT/
 report.md, OUT/metrics.json and OUT/figures/ as the SCARA's, plus figures/paths_3d.png.
-The short run (after the SCARA's, to keep the whole demo within 4 minutes) records, learns,
-runs follow and the sequence only, at the quick pace.
+The short run (after the SCARA's, to keep the whole demo within 4 minutes) records, learns
+and runs the sequence only (which begins under follow: the arm comes to the waiting hand).
 """
 
 import json
@@ -44,6 +44,10 @@ PANDA_DEMONSTRATIONS = {
 # is up, at 0.2 m/s peak, and the person holds still 1 s after letting go.
 PANDA_DEMONSTRATOR = {'robot': 'panda', 'start_delay': 0.5, 'hold_time': 1.0, 'damping': 80.0,
                       'peak_speed': 0.15}
+# What a Panda's demonstration bag holds: its joint states and URDF, not the tool's position
+# (a real Panda publishes none): the learner computes it with the URDF's forward kinematics.
+PANDA_DEMONSTRATION_TOPICS = ['/joint_states', '/robot_description', '/demo/reference',
+                              '/human/wrench']
 # avoid's region is open outward: its d2 stands for "anywhere farther". The learner caps a1 of
 # a region the arm can leave outward (d2 + 0.15 m within 2 x reach); the Panda's reach bound
 # is 1.09 m, so the default 2 m would count as a region the arm leaves. 2.5 m > 2 x 1.09 m: no
@@ -63,10 +67,11 @@ PANDA_BEHAVIOURS = {
     'follow_safe': {'profile': 'waypoints', 'dimension': 3, 'start_delay': 2.0,
                     'speed': 0.1, 'waypoints': [0.37, 0.0, 0.52, 0.45, 0.20, 0.40]},
 }
-# The sequence's hand: it waits 0.32 m from the tool (the arm comes to it under follow),
+# The sequence's hand: it waits 0.32 m from the tool for 3 s (the arm comes to it under
+# follow in about 2 s),
 # reaches in towards the tool's start at 0.5 m/s (hand_reaches_in: avoid), rests 5 s
 # (hand_rests: follow_safe) and withdraws at 0.1 m/s; the event_detector in 3-D.
-PANDA_SEQUENCE_HAND = {'profile': 'waypoints', 'dimension': 3, 'start_delay': 0.8,
+PANDA_SEQUENCE_HAND = {'profile': 'waypoints', 'dimension': 3, 'start_delay': 3.0,
                        'speed': 0.1,
                        'waypoints': [0.40, -0.25, 0.35, 0.33, 0.0, 0.45, 0.55, -0.15, 0.35],
                        'segment_speeds': [0.5, 0.1], 'pauses': [5.0, 0.0]}
@@ -78,7 +83,8 @@ READY_TIMEOUT = 20.0  # s: the Panda's model takes a second to load in each node
 
 
 class PandaDemo(Demo):
-    """The demo's stages on the Panda in 3-D; `short`: follow and the sequence only."""
+    """The demo's stages on the Panda in 3-D; `short`: no behaviour runs of their own and no
+    recorded person, the sequence only."""
 
     robot = 'panda'
     dimension = 3
@@ -94,15 +100,15 @@ class PandaDemo(Demo):
         self.short = short
         self.metrics['robot'] = 'panda'
         self.metrics['short'] = short
-        if short:
-            self.behaviours = {'follow': PANDA_BEHAVIOURS['follow']}
 
     def stages(self) -> list[tuple[str, callable]]:
-        """(label, stage) in order; the short run leaves out the recorded person."""
+        """(label, stage) in order; the short run leaves out the behaviours' own runs and
+        the recorded person."""
         stages = [('record demonstrations in 3-D', self.record_demonstrations),
-                  ('learn tasks from the bags (their URDF)', self.learn),
-                  ('run ' + ', '.join(self.behaviours) + ' closed-loop', self.run_behaviours),
-                  ('sequential task with events in 3-D', self.run_sequence)]
+                  ('learn tasks from the bags (their URDF)', self.learn)]
+        if not self.short:
+            stages.append(('run the behaviours closed-loop', self.run_behaviours))
+        stages.append(('sequential task with events in 3-D', self.run_sequence))
         if not self.short:
             stages.append(('a recorded person in 3-D', self.run_recorded_person))
         stages.append(('write the report', self.write_report))
@@ -124,6 +130,9 @@ class PandaDemo(Demo):
 
     def demonstrator_parameters(self) -> dict:
         return PANDA_DEMONSTRATOR
+
+    def recorder_parameters(self) -> dict:
+        return {'topics': PANDA_DEMONSTRATION_TOPICS}
 
     def loop_overrides(self, initial_task: str, hand: dict, detector: bool) -> dict:
         return {
@@ -183,6 +192,26 @@ class PandaDemo(Demo):
         figure.savefig(self.figures / 'paths_3d.png', dpi=100)
         plt.close(figure)
 
+    def behaviour_lines(self) -> list[str]:
+        """The report's section on the behaviours' own runs."""
+        lines = ['', '## Behaviours, closed loop on the simulated Panda', '',
+                 '| task | region (m) | reached | time to region (s) | steady distance (m) '
+                 '| peak torque (N m) | largest step (N m) | controller rate (Hz) | '
+                 'deadline misses | cycles without control |',
+                 '|---|---|---|---|---|---|---|---|---|---|']
+        for name, m in self.metrics['behaviours'].items():
+            ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
+            lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
+                         f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
+                         f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
+                         f'{m["max_effort_step"]:.3f} | {m["controller_rate_hz"]:.0f} | '
+                         f'{m["deadline_misses"]} | '
+                         f'{100 * m["control_dropout_fraction"]:.1f} % |')
+        return lines + ['', 'Torque per joint (tau1-tau7), distance and the 3-D paths; steps '
+                        'as in the SCARA\'s report (between consecutive 1 kHz commands).', '',
+                        *[f'![{n}](figures/behaviour_{n}.png)'
+                          for n in self.metrics['behaviours']]]
+
     def write_report(self) -> None:
         self.paths_figure()
         model = robot_model('panda')
@@ -192,7 +221,7 @@ class PandaDemo(Demo):
                  f'Run of {run} on {time.strftime("%Y-%m-%d %H:%M")}. The Panda (7 joints, '
                  f'franka_description URDF, reach bound {model.reach:.2f} m) in arm_sim at '
                  '1 kHz; hands, tool and distances in 3-D.' + (
-                     ' Short run: the follow behaviour and the event sequence only (the '
+                     ' Short run: the event sequence only, which begins under follow (the '
                      'whole demo stays within 4 minutes); `scripts/demo.sh --robot panda` '
                      'runs every stage.' if self.short else ''), '',
                  '## What was demonstrated', '']
@@ -201,7 +230,8 @@ class PandaDemo(Demo):
             lines.append(f'- `{name}`: the simulated person pushed the Panda\'s tool in 3-D '
                          f'({demo["mode"]}, x_r = {demo["reference"]} m) and let go {stop} m '
                          'from x_r; the bag holds /joint_states and /robot_description, no '
-                         '/ee_position: the learner used the URDF\'s forward kinematics.')
+                         '/ee_position: the learner computed the tool\'s path with the '
+                         'URDF\'s forward kinematics.')
         lines += ['- `follow_safe`: eq. 4 combines the two, follow shifted out by 0.23 m.', '',
                   '## What was learned', '',
                   f'avoid\'s open region: workspace_radius {PANDA_WORKSPACE_RADIUS} m '
@@ -212,23 +242,9 @@ class PandaDemo(Demo):
             lines.append(f'| {name} | {m["s"]:+d} | {m["d1"]:.3f} | {m["d2"]:.3f} | '
                          f'{m["k"]:.4g} | {m["a1"]:.4g} | {m["a2"]:.4g} | {m["cost"]:.3g} | '
                          f'{m["iterations"]} |')
-        lines += ['', *[f'![fit {n}](figures/fit_{n}.png)' for n in self.metrics['learning']],
-                  '', '## Behaviours, closed loop on the simulated Panda', '',
-                  '| task | region (m) | reached | time to region (s) | steady distance (m) '
-                  '| peak torque (N m) | largest step (N m) | controller rate (Hz) | '
-                  'deadline misses | cycles without control |',
-                  '|---|---|---|---|---|---|---|---|---|---|']
-        for name, m in self.metrics['behaviours'].items():
-            ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
-            lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
-                         f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
-                         f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
-                         f'{m["max_effort_step"]:.3f} | {m["controller_rate_hz"]:.0f} | '
-                         f'{m["deadline_misses"]} | '
-                         f'{100 * m["control_dropout_fraction"]:.1f} % |')
-        lines += ['', 'Torque per joint (tau1-tau7), distance and the 3-D paths; steps as in '
-                  'the SCARA\'s report (between consecutive 1 kHz commands).', '',
-                  *[f'![{n}](figures/behaviour_{n}.png)' for n in self.metrics['behaviours']]]
+        lines += ['', *[f'![fit {n}](figures/fit_{n}.png)' for n in self.metrics['learning']]]
+        if self.metrics['behaviours']:
+            lines += self.behaviour_lines()
         if 'sequence' in self.metrics:
             seq = self.metrics['sequence']
             lines += ['', '## Sequential task with events, in 3-D', '',

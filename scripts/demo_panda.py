@@ -25,6 +25,7 @@ from demo import (
     SEQUENCE_TOPICS,
     Demo,
     StageError,
+    _or_dash,
 )
 
 from hri_bringup.processes import READY_LINES, NodeProcess, not_logged, wait_until_logged
@@ -67,11 +68,11 @@ PANDA_BEHAVIOURS = {
     'follow_safe': {'profile': 'waypoints', 'dimension': 3, 'start_delay': 2.0,
                     'speed': 0.1, 'waypoints': [0.37, 0.0, 0.52, 0.45, 0.20, 0.40]},
 }
-# The sequence's hand: it waits 0.32 m from the tool for 3 s (the arm comes to it under
-# follow in about 2 s),
+# The sequence's hand: it waits 0.32 m from the tool for 4.5 s (the arm comes to it under
+# follow in about 4 s),
 # reaches in towards the tool's start at 0.5 m/s (hand_reaches_in: avoid), rests 5 s
 # (hand_rests: follow_safe) and withdraws at 0.1 m/s; the event_detector in 3-D.
-PANDA_SEQUENCE_HAND = {'profile': 'waypoints', 'dimension': 3, 'start_delay': 3.0,
+PANDA_SEQUENCE_HAND = {'profile': 'waypoints', 'dimension': 3, 'start_delay': 4.5,
                        'speed': 0.1,
                        'waypoints': [0.40, -0.25, 0.35, 0.33, 0.0, 0.45, 0.55, -0.15, 0.35],
                        'segment_speeds': [0.5, 0.1], 'pauses': [5.0, 0.0]}
@@ -266,7 +267,7 @@ class PandaDemo(Demo):
             detected = ', '.join(f"{e['event']} -> {e['task'] or 'none'} at {e['t']:.1f} s"
                                  for e in person['events']) or 'none'
             rows = [f"| {task} | {person[task]['seconds']:.1f} | "
-                    f"{person[task]['follow_median_distance']:.3f} | "
+                    f"{_or_dash(person[task]['follow_median_distance'], '.3f')} | "
                     f"{100 * person[task]['close_fraction']:.1f} % | "
                     f"{person[task]['largest_effort_step']:.3f} |"
                     for task in ('follow', 'avoid', 'follow_safe') if task in person]

@@ -50,7 +50,7 @@ from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
 from hri_core.recorded_motion import ReachAnnulus  # noqa: E402
 from hri_core.separation import ProtectiveSeparation, separation_verdict  # noqa: E402
-from hri_core.task_file import load_task_file  # noqa: E402
+from hri_core.task_file import TaskRecord, load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from hri_demo_learning.figures import plot_task_fit  # noqa: E402
 from hri_demo_learning.learning import (  # noqa: E402
@@ -227,6 +227,23 @@ def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures:
     }
 
 
+def behaviour_table(behaviours: dict) -> list[str]:
+    """The report's table of the behaviours' closed-loop runs (metrics['behaviours'])."""
+    lines = ['| task | region (m) | reached | time to region (s) | steady distance (m) '
+             '| peak torque (N m) | final torque (N m) | largest step (N m) '
+             '| controller rate (Hz) | deadline misses | cycles without control |',
+             '|---|---|---|---|---|---|---|---|---|---|---|']
+    for name, m in behaviours.items():
+        ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
+        lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
+                     f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
+                     f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
+                     f'{m["final_peak_torque"]:.3f} | {m["max_effort_step"]:.3f} | '
+                     f'{m["controller_rate_hz"]:.0f} | '
+                     f'{m["deadline_misses"]} | {100 * m["control_dropout_fraction"]:.1f} % |')
+    return lines
+
+
 class StageError(Exception):
     """A stage failed; the message says why."""
 
@@ -375,10 +392,7 @@ class Demo:
     def learn(self) -> None:
         # The learners are independent: they run side by side, and beside them (in two worker
         # processes) the in-process fits behind the Table I comparison, which need only the bags.
-        learners = {name: self.start('hri_demo_learning', 'learner',
-                                     bags=[str(self.bags / b) for b in bags], shifts=shifts,
-                                     task_name=name, output_dir=str(self.tasks), once=True)
-                    for name, (bags, shifts) in self.learning.items()}
+        learners = self.start_learners()
         with ProcessPoolExecutor(max_workers=2) as pool:
             comparisons = {name: pool.submit(compare_with_paper, name,
                                              [str(self.bags / b) for b in bags], shifts,
@@ -386,14 +400,26 @@ class Demo:
                            for name, (bags, shifts) in self.learning.items()}
             self._collect_learned(learners, comparisons)
 
+    def start_learners(self, **params) -> dict[str, NodeProcess]:
+        """A learner (once) per task of `learning`, side by side, with `params` besides."""
+        return {name: self.start('hri_demo_learning', 'learner',
+                                 bags=[str(self.bags / b) for b in bags], shifts=shifts,
+                                 task_name=name, output_dir=str(self.tasks), once=True,
+                                 **params)
+                for name, (bags, shifts) in self.learning.items()}
+
+    def learned(self, name: str, learner: NodeProcess) -> TaskRecord:
+        """The task `learner` wrote, once it has exited 0."""
+        code = learner.wait(120.0)
+        self.running.remove(learner)
+        if code != 0:
+            learner.stop()
+            raise StageError(f'learner {name} exited {code}; log {learner.log_path}')
+        return load_task_file(self.tasks / f'{name}.yaml')
+
     def _collect_learned(self, learners: dict, comparisons: dict) -> None:
         for name, learner in learners.items():
-            code = learner.wait(120.0)
-            self.running.remove(learner)
-            if code != 0:
-                learner.stop()
-                raise StageError(f'learner {name} exited {code}; log {learner.log_path}')
-            record = load_task_file(self.tasks / f'{name}.yaml')
+            record = self.learned(name, learner)
             summary = [line for line in learner.log().splitlines() if 'learned' in line]
             print(f'  {name}: S={record.s:+d} d1={record.d1:.3f} d2={record.d2:.3f} '
                   f'a1={record.a1:.4g} a2={record.a2:.4g} C={record.cost:.3g} '
@@ -898,18 +924,7 @@ class Demo:
                   'region. S, d1 and d2 fix the task type.', '']
         lines += [f'![fit {n}](figures/fit_{n}.png)' for n in LEARNING]
         lines += ['', '## Behaviours, closed loop on the simulated SCARA', '',
-                  '| task | region (m) | reached | time to region (s) | steady distance (m) '
-                  '| peak torque (N m) | final torque (N m) | largest step (N m) '
-                  '| controller rate (Hz) | deadline misses | cycles without control |',
-                  '|---|---|---|---|---|---|---|---|---|---|---|']
-        for name, m in self.metrics['behaviours'].items():
-            ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
-            lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
-                         f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
-                         f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
-                         f'{m["final_peak_torque"]:.3f} | {m["max_effort_step"]:.3f} | '
-                         f'{m["controller_rate_hz"]:.0f} | '
-                         f'{m["deadline_misses"]} | {100 * m["control_dropout_fraction"]:.1f} % |')
+                  *behaviour_table(self.metrics['behaviours'])]
         lines += ['', 'Largest step: the largest change of the commanded torque between two '
                   'consecutive 1 kHz control cycles (commands received at most 1.5 ms apart; '
                   'the bar is 1 N m), after the first command. The first command is a step '

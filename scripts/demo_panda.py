@@ -20,18 +20,15 @@ from dataclasses import asdict
 import matplotlib.pyplot as plt
 from demo import (
     LEARNING,
-    LOOP_PRIORITY,
-    RUN_TOPICS,
-    SEQUENCE_TOPICS,
     Demo,
     StageError,
     _or_dash,
+    behaviour_table,
 )
 
 from hri_bringup.processes import READY_LINES, NodeProcess, not_logged, wait_until_logged
 from hri_core.recorded_motion import ReachAnnulus
 from hri_core.robot_model import robot_model
-from hri_core.task_file import load_task_file
 from hri_demo_learning.bag_io import read_bag
 
 # The Panda's tool starts at (0.307, 0, 0.487) m (its home pose). The demonstrations: follow
@@ -136,15 +133,12 @@ class PandaDemo(Demo):
         return {'topics': PANDA_DEMONSTRATION_TOPICS}
 
     def loop_overrides(self, initial_task: str, hand: dict, detector: bool) -> dict:
-        return {
-            'event_manager': {'tasks_dir': str(self.tasks), 'initial_task': initial_task,
-                              'ramp_time': 1.0},
-            'recorder': {'topics': SEQUENCE_TOPICS if detector else RUN_TOPICS},
-            'hand_sim': hand,
-            'arm_sim': {'robot': 'panda', 'realtime_priority': LOOP_PRIORITY},
-            'controller': {'robot': 'panda', 'realtime_priority': LOOP_PRIORITY},
-            'event_detector': {'dimension': 3},
-        }
+        """The SCARA's, with arm_sim and the controller on the Panda, the detector in 3-D."""
+        overrides = super().loop_overrides(initial_task, hand, detector)
+        overrides['arm_sim'] = {**overrides.pop('scara_sim'), 'robot': 'panda'}
+        overrides['controller']['robot'] = 'panda'
+        overrides['event_detector'] = {'dimension': 3}
+        return overrides
 
     def hand_reach(self) -> ReachAnnulus:
         return PANDA_HAND_REACH
@@ -152,18 +146,9 @@ class PandaDemo(Demo):
     def learn(self) -> None:
         """The three learners side by side, from the bags' URDF; each one's figure of the
         fit is figures/fit_<task>.png. (No Table I comparison: Table I is the SCARA's.)"""
-        learners = {name: self.start('hri_demo_learning', 'learner',
-                                     bags=[str(self.bags / b) for b in bags], shifts=shifts,
-                                     task_name=name, output_dir=str(self.tasks), once=True,
-                                     workspace_radius=PANDA_WORKSPACE_RADIUS)
-                    for name, (bags, shifts) in self.learning.items()}
+        learners = self.start_learners(workspace_radius=PANDA_WORKSPACE_RADIUS)
         for name, learner in learners.items():
-            code = learner.wait(120.0)
-            self.running.remove(learner)
-            if code != 0:
-                learner.stop()
-                raise StageError(f'learner {name} exited {code}; log {learner.log_path}')
-            record = load_task_file(self.tasks / f'{name}.yaml')
+            record = self.learned(name, learner)
             shutil.copy(self.tasks / f'{name}.png', self.figures / f'fit_{name}.png')
             print(f'  {name}: S={record.s:+d} d1={record.d1:.3f} d2={record.d2:.3f} '
                   f'a1={record.a1:.4g} a2={record.a2:.4g} K={record.k:.4g} '
@@ -196,18 +181,7 @@ class PandaDemo(Demo):
     def behaviour_lines(self) -> list[str]:
         """The report's section on the behaviours' own runs."""
         lines = ['', '## Behaviours, closed loop on the simulated Panda', '',
-                 '| task | region (m) | reached | time to region (s) | steady distance (m) '
-                 '| peak torque (N m) | largest step (N m) | controller rate (Hz) | '
-                 'deadline misses | cycles without control |',
-                 '|---|---|---|---|---|---|---|---|---|---|']
-        for name, m in self.metrics['behaviours'].items():
-            ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
-            lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
-                         f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
-                         f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
-                         f'{m["max_effort_step"]:.3f} | {m["controller_rate_hz"]:.0f} | '
-                         f'{m["deadline_misses"]} | '
-                         f'{100 * m["control_dropout_fraction"]:.1f} % |')
+                 *behaviour_table(self.metrics['behaviours'])]
         return lines + ['', 'Torque per joint (tau1-tau7), distance and the 3-D paths; steps '
                         'as in the SCARA\'s report (between consecutive 1 kHz commands).', '',
                         *[f'![{n}](figures/behaviour_{n}.png)'

@@ -184,6 +184,18 @@ def effort_steps(bag: Path) -> tuple[float, float]:
     return float(np.max(np.abs(efforts[first]))), largest
 
 
+def equal_scales(axis) -> None:
+    """One scale on the three axes of 3-D axes (a path along one axis is not magnified);
+    nothing for a plane (its aspect is set equal already)."""
+    if not hasattr(axis, 'get_zlim3d'):
+        return
+    limits = np.array([axis.get_xlim3d(), axis.get_ylim3d(), axis.get_zlim3d()])
+    centres, half = limits.mean(axis=1), np.ptp(limits, axis=1).max() / 2.0
+    axis.set_xlim3d(centres[0] - half, centres[0] + half)
+    axis.set_ylim3d(centres[1] - half, centres[1] + half)
+    axis.set_zlim3d(centres[2] - half, centres[2] + half)
+
+
 def efforts(states) -> np.ndarray:
     """The efforts of ControllerState messages (N, joints) N m; zeros where one has none."""
     joints = max((len(m.effort) for m in states), default=2)
@@ -635,6 +647,7 @@ class Demo:
             plane.plot(0.0, 0.0, 0.0, 'k+')
             plane.set_title(f'{RECORDED_TAKE.stem}: paths in 3-D (+: the base)')
         plane.legend(loc='best', fontsize=8)
+        equal_scales(plane)
         distance = np.linalg.norm(hand_at_arm - arm_xy, axis=1)
         distance_axis.plot(arm_t - t0, distance, color='k', linewidth=0.8)
         for t in switches:
@@ -731,6 +744,7 @@ class Demo:
         plane.set_title('paths (o start, square end)' if self.dimension == 2
                         else 'paths in 3-D (o start, square end)')
         plane.legend(loc='best')
+        equal_scales(plane)
         figure.tight_layout()
         figure.savefig(self.figures / f'behaviour_{task}.png', dpi=110)
         plt.close(figure)

@@ -24,6 +24,7 @@ from demo import (
     StageError,
     _or_dash,
     behaviour_table,
+    equal_scales,
 )
 
 from hri_bringup.processes import READY_LINES, NodeProcess, not_logged, wait_until_logged
@@ -172,6 +173,7 @@ class PandaDemo(Demo):
                     axis.plot(*xyz[0], 'o', color=colour)
                     axis.plot(*xyz[-1], 's', color=colour)
             axis.set_title(run)
+            equal_scales(axis)
             axis.legend(loc='upper left', fontsize='small')
         figure.suptitle('Panda: hand and tool paths in 3-D (o start, square end)')
         figure.tight_layout()

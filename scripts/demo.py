@@ -1085,8 +1085,8 @@ def main() -> int:
             demo.stop_all()
     if robots == ['scara', 'panda']:
         with (out / 'report.md').open('a') as report:
-            report.write('\n## The Panda in 3-D\n\nA short Panda run (follow and the event '
-                         'sequence in 3-D): [panda/report.md](panda/report.md); '
+            report.write('\n## The Panda in 3-D\n\nA short Panda run (the event sequence '
+                         'in 3-D, from follow): [panda/report.md](panda/report.md); '
                          '`scripts/demo.sh --robot panda` runs every stage on it.\n')
     print(f'[demo] done in {time.monotonic() - started:.0f} s: '
           + ', '.join(str(demo.out / 'report.md') for demo, _ in runs))

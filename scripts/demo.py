@@ -9,6 +9,9 @@ Stages (each prints what it does; a failing stage is named and the exit code is 
   5. a recorded person (a Vicon take, data/human-motion) as the hand, from follow, the tasks
      switched by the event_detector;
   6. write OUT/report.md, OUT/figures/*.png and OUT/metrics.json.
+Then (not with --quick) a short run of the Panda in 3-D into OUT/panda/ (scripts/demo_panda.py:
+demonstrations, learning, the event sequence); --robot panda runs every stage on the Panda
+alone, --robot scara the SCARA alone.
 Run through scripts/demo.sh, which sets the project up and sources its environment first.
 Every process is started on this run's own ROS_DOMAIN_ID, discovery on loopback, and ended by
 PID when its stage ends or fails.

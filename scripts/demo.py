@@ -9,6 +9,9 @@ Stages (each prints what it does; a failing stage is named and the exit code is 
   5. a recorded person (a Vicon take, data/human-motion) as the hand, from follow, the tasks
      switched by the event_detector;
   6. write OUT/report.md, OUT/figures/*.png and OUT/metrics.json.
+Then (not with --quick) a short run of the Panda in 3-D into OUT/panda/ (scripts/demo_panda.py:
+demonstrations, learning, the event sequence); --robot panda runs every stage on the Panda
+alone, --robot scara the SCARA alone.
 Run through scripts/demo.sh, which sets the project up and sources its environment first.
 Every process is started on this run's own ROS_DOMAIN_ID, discovery on loopback, and ended by
 PID when its stage ends or fails.
@@ -50,7 +53,7 @@ from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
 from hri_core.recorded_motion import ReachAnnulus  # noqa: E402
 from hri_core.separation import ProtectiveSeparation, separation_verdict  # noqa: E402
-from hri_core.task_file import load_task_file  # noqa: E402
+from hri_core.task_file import TaskRecord, load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
 from hri_demo_learning.figures import plot_task_fit  # noqa: E402
 from hri_demo_learning.learning import (  # noqa: E402
@@ -117,6 +120,9 @@ QUICK_DEMONSTRATION = {'start_delay': 0.5, 'hold_time': 1.5}
 # beside the recorder and this script, the controller's rate was 388-782 Hz (median of each
 # run's second half) in one --quick run on this 2-core machine.
 LOOP_PRIORITY = 50
+# s the recorder has to write its bag and exit once stopped: a Panda run's 1 kHz topics on
+# this loaded 2-core machine, with the loop at SCHED_FIFO, took longer than 5 s once.
+RECORDER_STOP_TIMEOUT = 20.0
 MAX_DOMAIN_ID = 232  # the highest ROS_DOMAIN_ID whose Fast DDS ports fit below 65536
 # The sequence's hand: it waits 0.6 m from the arm, which comes to it under follow; it reaches
 # in to 0.3 m from the arm's start at 0.5 m/s (the event_detector's rule hand_reaches_in:
@@ -144,11 +150,12 @@ def _or_dash(value: float, spec: str) -> str:
 
 
 def hand_profile(hand: dict) -> HandProfile:
-    """The HandProfile of a waypoints hand of BEHAVIOURS."""
+    """The HandProfile of a waypoints hand of BEHAVIOURS (its points in 2-D or 3-D)."""
     return HandProfile(name='waypoints', waypoints=tuple(hand['waypoints']),
                        speed=hand['speed'], start_delay=hand['start_delay'],
                        segment_speeds=tuple(hand.get('segment_speeds', ())),
-                       pauses=tuple(hand.get('pauses', ())))
+                       pauses=tuple(hand.get('pauses', ())),
+                       dimension=hand.get('dimension', 2))
 
 
 def hand_stops_at(hand: dict) -> float:
@@ -178,6 +185,24 @@ def effort_steps(bag: Path) -> tuple[float, float]:
     consecutive = np.diff(times) <= 1.5e-3
     largest = float(np.max(steps[consecutive])) if np.any(consecutive) else float('nan')
     return float(np.max(np.abs(efforts[first]))), largest
+
+
+def equal_scales(axis) -> None:
+    """One scale on the three axes of 3-D axes (a path along one axis is not magnified);
+    nothing for a plane (its aspect is set equal already)."""
+    if not hasattr(axis, 'get_zlim3d'):
+        return
+    limits = np.array([axis.get_xlim3d(), axis.get_ylim3d(), axis.get_zlim3d()])
+    centres, half = limits.mean(axis=1), np.ptp(limits, axis=1).max() / 2.0
+    axis.set_xlim3d(centres[0] - half, centres[0] + half)
+    axis.set_ylim3d(centres[1] - half, centres[1] + half)
+    axis.set_zlim3d(centres[2] - half, centres[2] + half)
+
+
+def efforts(states) -> np.ndarray:
+    """The efforts of ControllerState messages (N, joints) N m; zeros where one has none."""
+    joints = max((len(m.effort) for m in states), default=2)
+    return np.array([list(m.effort) or [0.0] * joints for m in states]).reshape(-1, joints)
 
 
 def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures: Path,
@@ -217,12 +242,41 @@ def compare_with_paper(name: str, bags: list[str], shifts: list[float], figures:
     }
 
 
+def behaviour_table(behaviours: dict) -> list[str]:
+    """The report's table of the behaviours' closed-loop runs (metrics['behaviours'])."""
+    lines = ['| task | region (m) | reached | time to region (s) | steady distance (m) '
+             '| peak torque (N m) | final torque (N m) | largest step (N m) '
+             '| controller rate (Hz) | deadline misses | cycles without control |',
+             '|---|---|---|---|---|---|---|---|---|---|---|']
+    for name, m in behaviours.items():
+        ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
+        lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
+                     f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
+                     f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
+                     f'{m["final_peak_torque"]:.3f} | {m["max_effort_step"]:.3f} | '
+                     f'{m["controller_rate_hz"]:.0f} | '
+                     f'{m["deadline_misses"]} | {100 * m["control_dropout_fraction"]:.1f} % |')
+    return lines
+
+
 class StageError(Exception):
     """A stage failed; the message says why."""
 
 
 class Demo:
-    """Runs the stages, keeping every process it starts so it can end them by PID."""
+    """Runs the stages, keeping every process it starts so it can end them by PID.
+
+    The SCARA's demo; demo_panda.PandaDemo overrides the class settings and the hooks
+    (`start_teach_sim`, `loop_overrides`, `learn`, `write_report`) for the Panda in 3-D."""
+
+    robot = 'scara'
+    dimension = 2  # coordinates of the hand and the tool: the SCARA moves in the plane
+    sim_node = 'scara_sim'  # the live loop's simulator (hri_bringup.processes)
+    demonstrations = DEMONSTRATIONS
+    learning = LEARNING
+    behaviours = BEHAVIOURS
+    sequence_hand = SEQUENCE_HAND
+    settle_after_hand: float | None = None  # s a run goes on after its hand stops (None: 25 s)
 
     def __init__(self, out: Path, quick: bool, domain_id: int):
         self.out = out
@@ -248,9 +302,10 @@ class Demo:
         self.running.append(process)
         return process
 
-    def stop(self, *processes: NodeProcess) -> None:
-        """Stop `processes` together (SIGINT to all, then the waits); each must exit 0."""
-        codes = stop_all(processes, timeout=5.0)
+    def stop(self, *processes: NodeProcess, timeout: float = 5.0) -> None:
+        """Stop `processes` together (SIGINT to all, then the waits up to `timeout` s); each
+        must exit 0."""
+        codes = stop_all(processes, timeout=timeout)
         for process in processes:
             self.running.remove(process)
         failed = [f'{p.name} exited {code} when stopped; log {p.log_path}'
@@ -301,7 +356,7 @@ class Demo:
         # The demonstrations are independent: each runs on a domain of its own (the demo's
         # domain and the ones after it), side by side.
         sessions = {}
-        for offset, (name, demo) in enumerate(DEMONSTRATIONS.items()):
+        for offset, (name, demo) in enumerate(self.demonstrations.items()):
             bag = self.bags / name
             shutil.rmtree(bag, ignore_errors=True)
             stop = demo.get('stop_distance', demo.get('safe_distance'))
@@ -309,11 +364,12 @@ class Demo:
                   f'x_r = {demo["reference"]}, stops {stop} m from it')
             self.metrics.setdefault('demonstrations', {})[name] = demo
             domain = self.domain_id + offset
-            sim = self.start('scara_sim', 'scara_sim', domain=domain)
+            sim = self.start_teach_sim(domain)
             recorder = self.start('hri_demo_learning', 'recorder', domain=domain,
-                                  output=str(bag))
-            timing = QUICK_DEMONSTRATION if self.quick else {}
-            human = self.start('scara_sim', 'demonstrator', domain=domain, **demo, **timing)
+                                  output=str(bag), **self.recorder_parameters())
+            self.before_demonstrator(sim, recorder)
+            human = self.start('scara_sim', 'demonstrator', domain=domain, **demo,
+                               **self.demonstrator_parameters())
             sessions[name] = (bag, sim, recorder, human)
         started = time.monotonic()
         label = f'{", ".join(sessions)}: demonstrating'
@@ -332,29 +388,53 @@ class Demo:
             self.stop(sim)
             print(f'    bag {bag}: {read_bag(bag).counts()}')
 
+    def start_teach_sim(self, domain: int) -> NodeProcess:
+        """The simulator a demonstration pushes, on `domain`."""
+        return self.start('scara_sim', 'scara_sim', domain=domain)
+
+    def recorder_parameters(self) -> dict:
+        """The demonstration recorder's parameters besides its output (its defaults)."""
+        return {}
+
+    def before_demonstrator(self, sim: NodeProcess, recorder: NodeProcess) -> None:
+        """Called before each demonstrator starts (the SCARA's nodes are up at once)."""
+
+    def demonstrator_parameters(self) -> dict:
+        """The demonstrator's parameters besides the demonstration's own."""
+        return QUICK_DEMONSTRATION if self.quick else {}
+
     # -- stage 2 -----------------------------------------------------------------------
     def learn(self) -> None:
         # The learners are independent: they run side by side, and beside them (in two worker
         # processes) the in-process fits behind the Table I comparison, which need only the bags.
-        learners = {name: self.start('hri_demo_learning', 'learner',
-                                     bags=[str(self.bags / b) for b in bags], shifts=shifts,
-                                     task_name=name, output_dir=str(self.tasks), once=True)
-                    for name, (bags, shifts) in LEARNING.items()}
+        learners = self.start_learners()
         with ProcessPoolExecutor(max_workers=2) as pool:
             comparisons = {name: pool.submit(compare_with_paper, name,
                                              [str(self.bags / b) for b in bags], shifts,
                                              self.figures, self.gauss_newton_updates)
-                           for name, (bags, shifts) in LEARNING.items()}
+                           for name, (bags, shifts) in self.learning.items()}
             self._collect_learned(learners, comparisons)
+
+    def start_learners(self, **params) -> dict[str, NodeProcess]:
+        """A learner (once) per task of `learning`, side by side, with `params` besides."""
+        return {name: self.start('hri_demo_learning', 'learner',
+                                 bags=[str(self.bags / b) for b in bags], shifts=shifts,
+                                 task_name=name, output_dir=str(self.tasks), once=True,
+                                 **params)
+                for name, (bags, shifts) in self.learning.items()}
+
+    def learned(self, name: str, learner: NodeProcess) -> TaskRecord:
+        """The task `learner` wrote, once it has exited 0."""
+        code = learner.wait(120.0)
+        self.running.remove(learner)
+        if code != 0:
+            learner.stop()
+            raise StageError(f'learner {name} exited {code}; log {learner.log_path}')
+        return load_task_file(self.tasks / f'{name}.yaml')
 
     def _collect_learned(self, learners: dict, comparisons: dict) -> None:
         for name, learner in learners.items():
-            code = learner.wait(120.0)
-            self.running.remove(learner)
-            if code != 0:
-                learner.stop()
-                raise StageError(f'learner {name} exited {code}; log {learner.log_path}')
-            record = load_task_file(self.tasks / f'{name}.yaml')
+            record = self.learned(name, learner)
             summary = [line for line in learner.log().splitlines() if 'learned' in line]
             print(f'  {name}: S={record.s:+d} d1={record.d1:.3f} d2={record.d2:.3f} '
                   f'a1={record.a1:.4g} a2={record.a2:.4g} C={record.cost:.3g} '
@@ -378,30 +458,60 @@ class Demo:
         # The hand starts last, once the others are up, so its script begins with the loop
         # running.
         try:
-            loop = start_live_loop(self.domain_id, {
-                'event_manager': {'tasks_dir': str(self.tasks), 'initial_task': initial_task,
-                                  'ramp_time': 1.0},
-                'recorder': {'topics': SEQUENCE_TOPICS if detector else RUN_TOPICS},
-                'hand_sim': hand,
-                'scara_sim': {'realtime_priority': LOOP_PRIORITY},
-                'controller': {'realtime_priority': LOOP_PRIORITY},
-            }, log_dir=self.logs, record=bag, ready_timeout=30.0,
-                nodes=[*LIVE_LOOP, *(['event_detector'] if detector else [])])
+            loop = start_live_loop(
+                self.domain_id, self.loop_overrides(initial_task, hand, detector),
+                log_dir=self.logs, record=bag, ready_timeout=30.0,
+                nodes=[*(self.sim_node if n == 'scara_sim' else n for n in LIVE_LOOP),
+                       *(['event_detector'] if detector else [])])
         except NodesNotReadyError as error:
             raise StageError(f'{error}; logs in {self.logs}') from None
         self.running.extend(loop.values())
         self.run_for(seconds, f'{run}: running', list(loop.values()))
         # The hand first, then the recorder: the bag ends with the loop still running; then
         # the loop's nodes together.
-        for name in ('hand_sim', 'recorder'):
-            self.stop(loop[name])
+        # The recorder may take a while to write what it holds on a loaded machine.
+        self.stop(loop['hand_sim'])
+        self.stop(loop['recorder'], timeout=RECORDER_STOP_TIMEOUT)
         self.stop(*(process for name, process in loop.items()
                     if name not in ('hand_sim', 'recorder')))
         return bag
 
+    def loop_overrides(self, initial_task: str, hand: dict, detector: bool) -> dict:
+        """The live loop's parameters (hri_bringup.processes.start_live_loop's overrides)."""
+        return {
+            'event_manager': {'tasks_dir': str(self.tasks), 'initial_task': initial_task,
+                              'ramp_time': 1.0},
+            'recorder': {'topics': SEQUENCE_TOPICS if detector else RUN_TOPICS},
+            'hand_sim': hand,
+            'scara_sim': {'realtime_priority': LOOP_PRIORITY},
+            'controller': {'realtime_priority': LOOP_PRIORITY},
+        }
+
+    def hand_reach(self) -> ReachAnnulus:
+        """The reach hand_sim's auto_place puts a recorded person's path in."""
+        return ReachAnnulus(*load_defaults('scara_sim', 'hand_sim')['reach'])
+
+    def points(self, messages) -> np.ndarray:
+        """PointStamped messages as (N, dimension) m."""
+        return np.array([(m.point.x, m.point.y, m.point.z)[:self.dimension]
+                         for m in messages]).reshape(-1, self.dimension)
+
+    def path_axis(self, figure, *position):
+        """The subplot of the paths: a plane for the SCARA, 3-D axes for an arm in space."""
+        if self.dimension == 2:
+            axis = figure.add_subplot(*position)
+            axis.set_aspect('equal', adjustable='datalim')
+        else:
+            axis = figure.add_subplot(*position, projection='3d')
+            axis.set_zlabel('z (m)')
+        axis.set_xlabel('x (m)')
+        axis.set_ylabel('y (m)')
+        return axis
+
     def run_behaviours(self) -> None:
-        for task, hand in BEHAVIOURS.items():
-            seconds = 25.0
+        for task, hand in self.behaviours.items():
+            seconds = 25.0 if self.settle_after_hand is None \
+                else hand_stops_at(hand) + self.settle_after_hand
             if self.quick:
                 hand = {**hand, 'speed': hand['speed'] * QUICK_SPEED_UP,
                         'start_delay': min(hand['start_delay'], QUICK_START_DELAY)}
@@ -415,17 +525,19 @@ class Demo:
             self.behaviour_report(task, bag)
 
     def run_sequence(self) -> None:
-        seconds = hand_stops_at(SEQUENCE_HAND) + SEQUENCE_SETTLE
+        hand = self.sequence_hand
+        seconds = hand_stops_at(hand) + SEQUENCE_SETTLE
         print(f'  sequence follow -> avoid -> follow_safe, events from the event_detector: '
-              f'hand {SEQUENCE_HAND["waypoints"]} at {SEQUENCE_HAND["segment_speeds"]} m/s, '
-              f'resting {SEQUENCE_HAND["pauses"][0]:g} s; {seconds:.0f} s')
-        bag = self.closed_loop('sequence', 'follow', SEQUENCE_HAND, seconds, detector=True)
+              f'hand {hand["waypoints"]} at {hand["segment_speeds"]} m/s, '
+              f'resting {hand["pauses"][0]:g} s; {seconds:.0f} s')
+        bag = self.closed_loop('sequence', 'follow', hand, seconds, detector=True)
         self.sequence_report(bag)
 
     def run_recorded_person(self) -> None:
         seconds = 10.0 if self.quick else RECORDED_SECONDS
+        reach = self.hand_reach()
         hand = {'profile': 'recording', 'recording': str(RECORDED_TAKE), 'auto_place': True,
-                'at_end': 'loop'}
+                'at_end': 'loop', 'reach': [reach.inner, reach.outer]}
         print(f'  a recorded person ({RECORDED_TAKE.stem}, Vicon, 100 Hz) as the hand for '
               f'{seconds:.0f} s, from follow; the event_detector switches the tasks')
         bag = self.closed_loop('recorded_person', 'follow', hand, seconds, detector=True)
@@ -446,8 +558,7 @@ class Demo:
         def stamped(topic):
             messages = contents[topic].messages
             return (np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
-                              for m in messages]),
-                    np.array([(m.point.x, m.point.y) for m in messages]))
+                              for m in messages]), self.points(messages))
 
         hand_t, hand_xy = stamped('/target')
         arm_t, arm_xy = stamped('/ee_position')
@@ -474,7 +585,7 @@ class Demo:
         hand_at_arm = hand_xy[np.maximum(newest, 0)].copy()
         hand_at_arm[(newest < 0) | (arm_t - hand_t[np.maximum(newest, 0)] > 0.05)] = np.nan
         controller = load_defaults('hri_adaptive_controller', 'controller')
-        reach = ReachAnnulus(*load_defaults('scara_sim', 'hand_sim')['reach'])
+        reach = self.hand_reach()
         t0 = hand_t[0]
         summary = {'take': RECORDED_TAKE.stem,
                    'target_glitches': int(max(m.target_glitches for m in states)),
@@ -519,25 +630,27 @@ class Demo:
         print(f'    /target jumps held: {summary["target_glitches"]}')
         self.metrics['recorded_person'] = summary
         figure = plt.figure(figsize=(11, 6))
-        plane = figure.add_subplot(1, 2, 2)
+        plane = self.path_axis(figure, 1, 2, 2)
         distance_axis = figure.add_subplot(2, 2, 1)
         effort_axis = figure.add_subplot(2, 2, 3, sharex=distance_axis)
         colours = {'follow': 'tab:blue', 'avoid': 'tab:purple', 'follow_safe': 'tab:green'}
-        plane.plot(hand_xy[:, 0], hand_xy[:, 1], '.', color='tab:orange', markersize=1.5,
+        plane.plot(*hand_xy.T, '.', color='tab:orange', markersize=1.5,
                    label='hand (recorded)')
         for task, colour in colours.items():
             path = np.where((arm_task == task)[:, None], arm_xy, np.nan)
             if np.any(arm_task == task):
-                plane.plot(path[:, 0], path[:, 1], color=colour, label=f'arm, {task}')
-        for radius in (reach.inner, reach.outer):
-            plane.add_patch(plt.Circle((0.0, 0.0), radius, fill=False, linestyle=':',
-                                       color='grey'))
-        plane.plot(0.0, 0.0, 'k+')
-        plane.set_aspect('equal', adjustable='datalim')
-        plane.set_xlabel('x (m)')
-        plane.set_ylabel('y (m)')
-        plane.set_title(f'{RECORDED_TAKE.stem}: paths (dotted: the reach)')
+                plane.plot(*path.T, color=colour, label=f'arm, {task}')
+        if self.dimension == 2:
+            for radius in (reach.inner, reach.outer):
+                plane.add_patch(plt.Circle((0.0, 0.0), radius, fill=False, linestyle=':',
+                                           color='grey'))
+            plane.plot(0.0, 0.0, 'k+')
+            plane.set_title(f'{RECORDED_TAKE.stem}: paths (dotted: the reach)')
+        else:
+            plane.plot(0.0, 0.0, 0.0, 'k+')
+            plane.set_title(f'{RECORDED_TAKE.stem}: paths in 3-D (+: the base)')
         plane.legend(loc='best', fontsize=8)
+        equal_scales(plane)
         distance = np.linalg.norm(hand_at_arm - arm_xy, axis=1)
         distance_axis.plot(arm_t - t0, distance, color='k', linewidth=0.8)
         for t in switches:
@@ -547,12 +660,13 @@ class Demo:
         distance_axis.set_ylabel('|hand - arm| (m)')
         distance_axis.set_title('distance to the hand (dashed: a detected switch)')
         distance_axis.legend(loc='upper right', fontsize=8)
-        effort_axis.plot(command_t - t0, commands[:, 0], label='tau1', linewidth=0.8)
-        effort_axis.plot(command_t - t0, commands[:, 1], label='tau2', linewidth=0.8)
+        for joint in range(commands.shape[1]):
+            effort_axis.plot(command_t - t0, commands[:, joint], label=f'tau{joint + 1}',
+                             linewidth=0.8)
         effort_axis.set_xlim(0.0, float(arm_t[-1] - t0))   # from the first hand sample
         effort_axis.set_xlabel('t (s)')
         effort_axis.set_ylabel('torque (N m)')
-        effort_axis.legend(loc='upper right', fontsize=8)
+        effort_axis.legend(loc='upper right', fontsize=8, ncol=1 + commands.shape[1] // 4)
         figure.tight_layout()
         figure.savefig(self.figures / 'recorded_person.png', dpi=110)
         plt.close(figure)
@@ -576,7 +690,7 @@ class Demo:
             't': t - float(t[0]),
             't0': float(t[0]),  # bag time (s since the epoch) of t = 0
             'distance': np.array([m.distance for m in messages]),
-            'effort': np.array([list(m.effort) or [0.0, 0.0] for m in messages]),
+            'effort': efforts(messages),
             'weight': np.array([m.weight for m in messages]),
             'lyapunov': np.array([m.lyapunov for m in messages]),
             'task': [m.task for m in messages],
@@ -608,11 +722,12 @@ class Demo:
         figure = plt.figure(figsize=(11, 5))
         top = figure.add_subplot(2, 2, 1)
         bottom = figure.add_subplot(2, 2, 3, sharex=top)
-        plane = figure.add_subplot(1, 2, 2)
-        top.plot(series['t'], series['effort'][:, 0], label='tau1')
-        top.plot(series['t'], series['effort'][:, 1], label='tau2')
+        plane = self.path_axis(figure, 1, 2, 2)
+        for joint in range(series['effort'].shape[1]):
+            top.plot(series['t'], series['effort'][:, joint], label=f'tau{joint + 1}')
         top.set_ylabel('torque (N m)')
-        top.legend(loc='upper right')
+        top.legend(loc='upper right', ncol=1 + series['effort'].shape[1] // 4,
+                   fontsize=None if self.dimension == 2 else 'small')
         top.set_title(f'{task}: torque and distance to the hand (cf. paper Figs. 4-6)')
         bottom.axhspan(record.d1, min(record.d2, 0.6), color='tab:green', alpha=0.2,
                        label='desired region')
@@ -625,15 +740,14 @@ class Demo:
         for topic, label, colour in (('/target', 'hand', 'tab:orange'),
                                      ('/ee_position', 'end-effector', 'tab:blue')):
             if topic in paths and paths[topic].messages:
-                xy = np.array([(m.point.x, m.point.y) for m in paths[topic].messages])
-                plane.plot(xy[:, 0], xy[:, 1], color=colour, label=label)
+                xy = self.points(paths[topic].messages)
+                plane.plot(*xy.T, color=colour, label=label)
                 plane.plot(*xy[0], 'o', color=colour)
                 plane.plot(*xy[-1], 's', color=colour)
-        plane.set_aspect('equal', adjustable='datalim')
-        plane.set_xlabel('x (m)')
-        plane.set_ylabel('y (m)')
-        plane.set_title('paths (o start, square end)')
+        plane.set_title('paths (o start, square end)' if self.dimension == 2
+                        else 'paths in 3-D (o start, square end)')
         plane.legend(loc='best')
+        equal_scales(plane)
         figure.tight_layout()
         figure.savefig(self.figures / f'behaviour_{task}.png', dpi=110)
         plt.close(figure)
@@ -827,18 +941,7 @@ class Demo:
                   'region. S, d1 and d2 fix the task type.', '']
         lines += [f'![fit {n}](figures/fit_{n}.png)' for n in LEARNING]
         lines += ['', '## Behaviours, closed loop on the simulated SCARA', '',
-                  '| task | region (m) | reached | time to region (s) | steady distance (m) '
-                  '| peak torque (N m) | final torque (N m) | largest step (N m) '
-                  '| controller rate (Hz) | deadline misses | cycles without control |',
-                  '|---|---|---|---|---|---|---|---|---|---|---|']
-        for name, m in self.metrics['behaviours'].items():
-            ttr = '-' if m['time_to_region'] is None else f'{m["time_to_region"]:.2f}'
-            lines.append(f'| {name} | [{m["d1"]:.3f}, {m["d2"]:.3f}] | '
-                         f'{"yes" if m["in_region_at_end"] else "no"} | {ttr} | '
-                         f'{m["steady_distance"]:.3f} | {m["peak_torque"]:.2f} | '
-                         f'{m["final_peak_torque"]:.3f} | {m["max_effort_step"]:.3f} | '
-                         f'{m["controller_rate_hz"]:.0f} | '
-                         f'{m["deadline_misses"]} | {100 * m["control_dropout_fraction"]:.1f} % |')
+                  *behaviour_table(self.metrics['behaviours'])]
         lines += ['', 'Largest step: the largest change of the commanded torque between two '
                   'consecutive 1 kHz control cycles (commands received at most 1.5 ms apart; '
                   'the bar is 1 N m), after the first command. The first command is a step '
@@ -925,6 +1028,9 @@ class Demo:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--quick', action='store_true', help='shorter closed-loop runs')
+    parser.add_argument('--robot', choices=('scara', 'panda'),
+                        help='one robot only: scara, or panda (every stage, in OUT/panda/); '
+                        'default: the SCARA, then a short Panda run (--quick: the SCARA only)')
     parser.add_argument('--out', type=Path, default=REPO_ROOT / 'report',
                         help='output folder (default: report/)')
     args = parser.parse_args()
@@ -937,27 +1043,40 @@ def main() -> int:
         return 2
     domain = int(domain_text)
     out = args.out.resolve()
-    for sub in ('logs', 'bags', 'tasks', 'figures'):
-        (out / sub).mkdir(parents=True, exist_ok=True)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    demo = Demo(out, args.quick, domain)
-    stages = [
-        ('1/6 record demonstrations', demo.record_demonstrations),
-        ('2/6 learn tasks from the bags', demo.learn),
-        ('3/6 run the behaviours closed-loop', demo.run_behaviours),
-        ('4/6 sequential task with events', demo.run_sequence),
-        ('5/6 a recorded person, tasks switched by the event_detector', demo.run_recorded_person),
-        ('6/6 write the report', demo.write_report),
-    ]
+    robots = [args.robot] if args.robot else ['scara'] if args.quick else ['scara', 'panda']
+    runs = []
+    if 'scara' in robots:
+        demo = Demo(out, args.quick, domain)
+        runs.append((demo, [
+            ('1/6 record demonstrations', demo.record_demonstrations),
+            ('2/6 learn tasks from the bags', demo.learn),
+            ('3/6 run the behaviours closed-loop', demo.run_behaviours),
+            ('4/6 sequential task with events', demo.run_sequence),
+            ('5/6 a recorded person, tasks switched by the event_detector',
+             demo.run_recorded_person),
+            ('6/6 write the report', demo.write_report),
+        ]))
+    if 'panda' in robots:
+        from demo_panda import PandaDemo  # the Panda's settings, imported when asked for
+        panda = PandaDemo(out / 'panda', args.quick, domain, short=args.robot is None)
+        runs.append((panda, panda.stages()))
+    for demo, _ in runs:
+        for sub in ('logs', 'bags', 'tasks', 'figures'):
+            (demo.out / sub).mkdir(parents=True, exist_ok=True)
     # SIGTERM ends the run like Ctrl-C: processes stopped, non-zero exit.
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     started = time.monotonic()
     current = ''
     try:
-        for current, stage in stages:
-            print(f'[demo] stage {current} ({time.monotonic() - started:.0f} s elapsed)',
+        for demo, stages in runs:
+            robot_started = time.monotonic()
+            for current, stage in stages:
+                print(f'[demo] stage {current} ({time.monotonic() - started:.0f} s elapsed)',
+                      flush=True)
+                stage()
+            print(f'[demo] {demo.robot}: {time.monotonic() - robot_started:.0f} s',
                   flush=True)
-            stage()
     except (StageError, ValueError) as error:
         print(f'\n[demo] FAILED in stage {current}: {error}', file=sys.stderr)
         return 1
@@ -965,10 +1084,19 @@ def main() -> int:
         print(f'\n[demo] interrupted in stage {current}', file=sys.stderr)
         return 130
     finally:
-        demo.stop_all()
-    print(f'[demo] done in {time.monotonic() - started:.0f} s: {out / "report.md"}')
+        for demo, _ in runs:
+            demo.stop_all()
+    if robots == ['scara', 'panda']:
+        with (out / 'report.md').open('a') as report:
+            report.write('\n## The Panda in 3-D\n\nA short Panda run (the event sequence '
+                         'in 3-D, from follow): [panda/report.md](panda/report.md); '
+                         '`scripts/demo.sh --robot panda` runs every stage on it.\n')
+    print(f'[demo] done in {time.monotonic() - started:.0f} s: '
+          + ', '.join(str(demo.out / 'report.md') for demo, _ in runs))
     return 0
 
 
 if __name__ == '__main__':
+    # demo_panda imports this module as `demo`: the same module, not a second copy.
+    sys.modules.setdefault('demo', sys.modules['__main__'])
     sys.exit(main())

@@ -35,9 +35,9 @@ READY = 'rule(s):'  # the detector's start line
 
 
 class Script:
-    """Publishes the hand (`hand(t)` -> (2,) m, or None: no message) and the tool (`tool(t)`)
-    from t = 0 for `duration` s in a thread; `stamps` maps each hand message's stamp (s)
-    to its position."""
+    """Publishes the hand (`hand(t)` -> (2,) or (3,) m, or None: no message) and the tool
+    (`tool(t)`) from t = 0 for `duration` s in a thread; `stamps` maps each hand message's
+    stamp (s) to its position."""
 
     def __init__(self, probe, hand, tool, duration: float):
         self._hand_pub = probe.publisher(topics.TARGET.name, PointStamped, topics.TARGET.qos)
@@ -69,6 +69,7 @@ class Script:
             msg.header.stamp = now
             msg.header.frame_id = 'base'
             msg.point.x, msg.point.y = float(point[0]), float(point[1])
+            msg.point.z = float(point[2]) if len(point) > 2 else 0.0
             publisher.publish(msg)
         return stamp, point
 
@@ -226,6 +227,30 @@ def test_separation_agrees_with_the_formula_on_its_published_speeds(
     # moving away at up to 0.1 m/s.
     assert max(m.robot_speed for m in messages) == pytest.approx(0.25, abs=0.03)
     assert min(m.human_speed for m in messages) == pytest.approx(-0.1, abs=0.02)
+
+
+def test_in_3d_the_separation_and_the_speeds_are_taken_in_space(nodes, probe, tmp_path):
+    """dimension 3 (an arm in space): a hand coming straight down at 0.3 m/s onto a still tool
+    under it. The separation is their distance in space (all of it height) and the hand's
+    speed towards the tool 0.3 m/s; in the plane both would read 0."""
+    separation = probe.collect(topics.SEPARATION.name, SeparationState, topics.SEPARATION.qos)
+    start_detector(nodes, tmp_path, dimension=3)
+    tool = np.array([0.31, 0.0, 0.49])  # m, the Panda's tool at home
+
+    def hand(t):
+        return tool + [0.0, 0.0, 0.5 - 0.3 * min(max(t - 0.5, 0.0), 1.0)]
+
+    Script(probe, hand, lambda t: tool, 2.0).start().join()
+    time.sleep(0.2)
+    messages = list(separation)
+    assert len(messages) >= 2.0 * 50 * 0.7
+    assert messages[0].separation == pytest.approx(0.5, abs=0.002)
+    assert messages[-1].separation == pytest.approx(0.2, abs=0.002)
+    # Mid-descent, 0.33 s and more after the hand set off (3 filter time constants).
+    moving = [m for m in messages if 0.25 <= m.separation <= 0.40]
+    assert len(moving) >= 5
+    assert all(m.human_speed == pytest.approx(0.3, abs=0.03) for m in moving), \
+        [round(m.human_speed, 3) for m in moving]
 
 
 @pytest.mark.exclusive  # the 1 kHz loop

@@ -68,12 +68,13 @@ def publish_hand(probe, position, started: dict, stop: threading.Event) -> threa
     return thread
 
 
-def run_panda_loop(nodes, probe, task: str, hand, duration: float):
-    """The loop with `task` faded in and the hand `hand` for `duration` s after the first
-    joint state: (joint states, commands, controller states, controller). `hand`: a point or
-    a function of time for the probe to publish (see publish_hand), or a dict of hand_sim
-    parameters (hand_sim starts once the arm publishes). The event_manager and the controller
-    start first, so the arm is controlled from its first step (a Panda without torque sags)."""
+def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=None):
+    """The loop with `task` (of `tasks_dir`; None: Table I's) faded in and the hand `hand` for
+    `duration` s after the first joint state: (joint states, commands, controller states,
+    controller). `hand`: a point or a function of time for the probe to publish (see
+    publish_hand), or a dict of hand_sim parameters (hand_sim starts once the arm publishes).
+    The event_manager and the controller start first, so the arm is controlled from its first
+    step (a Panda without torque sags)."""
     stop, started = threading.Event(), {}
     if not isinstance(hand, dict):
         publish_hand(probe, hand, started, stop)
@@ -82,7 +83,7 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float):
         commands = probe.collect(topics.EFFORT_COMMANDS.name, Float64MultiArray, RELIABLE)
         reports = probe.collect(topics.CONTROLLER_STATE.name, ControllerState, RELIABLE)
         manager = nodes('hri_adaptive_controller', 'event_manager', params={
-            'tasks_dir': str(paper_tasks_dir()), 'initial_task': task})
+            'tasks_dir': str(tasks_dir or paper_tasks_dir()), 'initial_task': task})
         controller = nodes('hri_adaptive_controller', 'controller',
                            params={'robot': 'panda'})
         assert controller.wait_for_line('control on each /joint_states', START_TIMEOUT), \

@@ -255,3 +255,18 @@ def test_hand_sim_publishes_its_profile_on_target(nodes, probe):
     assert all(t.header.frame_id == 'base' for t in sample)
     stamps = np.array([stamp_ns(t) for t in sample]) / 1e9
     assert np.median(np.diff(stamps)) == pytest.approx(0.01, rel=0.2)
+
+
+def test_hand_sim_moves_through_3d_waypoints(nodes, probe):
+    """dimension 3: the waypoints are [x, y, z] and /target carries the height."""
+    targets = probe.collect('/target', PointStamped, RELIABLE)
+    hand = nodes('scara_sim', 'hand_sim',
+                 params={'profile': 'waypoints', 'dimension': 3, 'speed': 0.5,
+                         'start_delay': 1.0, 'waypoints': [0.3, 0.0, 0.8, 0.3, 0.0, 0.6]})
+    # still 1 s, then the move takes 1.875 x 0.2 m / 0.5 m/s = 0.75 s; then the hand stays
+    assert wait_for(lambda: len(targets) >= 200, START_TIMEOUT), hand.log()
+    points = np.array([[t.point.x, t.point.y, t.point.z] for t in list(targets)])
+    np.testing.assert_allclose(points[:, :2], [[0.3, 0.0]] * len(points), atol=1e-12)
+    assert points[0, 2] == pytest.approx(0.8, abs=0.01)
+    np.testing.assert_allclose(points[-1], [0.3, 0.0, 0.6], atol=1e-9)
+    assert 'points in 3-D' in hand.log()

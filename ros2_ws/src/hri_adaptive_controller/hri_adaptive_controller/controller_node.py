@@ -110,6 +110,7 @@ from hri_core.cdr import (
     LayoutReader,
     float64_array_template,
     joint_state_layout,
+    point3_layout,
     point_stamped_layout,
     read_stamp,
 )
@@ -314,14 +315,6 @@ def rest_position_from(values: dict, arm: str | None) -> tuple[float, ...] | Non
         raise ValueError(f'rest_position must have {size} values {axes} (m) for '
                          f'{"the SCARA" if arm is None else arm}, got {len(fixed)}')
     return tuple(float(v) for v in fixed)
-
-
-def point3_layout(data: bytes):
-    """cdr.point_stamped_layout reading x, y and z."""
-    layout = point_stamped_layout(data)
-    if layout is None:
-        return None
-    return dataclasses.replace(layout, offsets=(*layout.offsets, layout.offsets[-1] + 8))
 
 
 def limits_mismatch(ours, theirs) -> str:

@@ -3,9 +3,10 @@ publishes their separation with the ISO/TS 15066 protective separation distance.
 
     ros2 run hri_adaptive_controller event_detector [--ros-args --params-file MY.yaml]
 
-Inputs: the hand on /target and the tool on /ee_position (geometry_msgs/PointStamped, x and y
-in the base frame), the current task on /hri/task_state (the task the event_manager is heading
-to: its pending task during a switch). Every 1 / publish_rate_hz s the node takes what has
+Inputs: the hand on /target and the tool on /ee_position (geometry_msgs/PointStamped in the base
+frame: x and y, or x, y and z with `dimension` 3 for an arm that moves in space), the current
+task on /hri/task_state (the task the event_manager is heading to: its pending task during a
+switch). Every 1 / publish_rate_hz s the node takes what has
 come (the subscriptions live on an intake node no executor spins, so the 1 kHz tool positions
 cost no callback each), estimates both velocities (hri_core.velocity_estimator), and
 
@@ -34,7 +35,7 @@ from rclpy.serialization import deserialize_message
 from hri_adaptive_controller.event_rules import EventDetector, RuleError, load_rules
 from hri_adaptive_controller.separation_monitor import SeparationMonitor
 from hri_core import topics
-from hri_core.cdr import LayoutReader, point_stamped_layout, read_stamp
+from hri_core.cdr import LayoutReader, point3_layout, point_stamped_layout, read_stamp
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -58,6 +59,9 @@ def _constant(description: str) -> ParameterSpec:
 PARAMETERS = {
     'rules': ParameterSpec(str, 'the event rules as YAML text: a mapping rule name -> '
                            'settings (hri_adaptive_controller/event_rules.py)', read_only=True),
+    'dimension': ParameterSpec(int, 'coordinates of the positions compared: 2 (x, y: the '
+                               'planar SCARA) or 3 (x, y, z: an arm in space)', low=2, high=3,
+                               read_only=True),
     'publish_rate_hz': ParameterSpec(float, 'rate of the rules and of /hri/separation (Hz)',
                                      low=1.0, high=500.0, read_only=True),
     'hand_filter_time': ParameterSpec(float, 'time constant of the hand velocity estimate (s)',
@@ -97,10 +101,13 @@ class EventDetectorNode(Node):
         settings = ProtectiveSeparation.from_mapping(values)
         self._detector = EventDetector(rules)
         self._monitor = SeparationMonitor(settings, values['hand_filter_time'],
-                                          values['tool_filter_time'], values['input_timeout'])
+                                          values['tool_filter_time'], values['input_timeout'],
+                                          values['dimension'])
+        self._dimension = values['dimension']
         self._current_task: str | None = None
         self._frame = ''
-        self._tool_reader = LayoutReader(point_stamped_layout)
+        self._tool_reader = LayoutReader(point_stamped_layout if self._dimension == 2
+                                         else point3_layout)
         self._last_warning: dict[str, float] = {}
 
         self._event_pub = self.create_publisher(TaskEvent, topics.EVENTS.name,
@@ -155,13 +162,13 @@ class EventDetectorNode(Node):
             except Exception as error:  # noqa: BLE001 whatever the deserialiser raises
                 self._warn('hand_cdr', f'target dropped: unreadable ({error})')
                 continue
-            x, y = msg.point.x, msg.point.y
-            if not (math.isfinite(x) and math.isfinite(y)):
+            point = (msg.point.x, msg.point.y, msg.point.z)[:self._dimension]
+            if not all(math.isfinite(v) for v in point):
                 self._warn('hand_non_finite', 'target dropped: non-finite position')
                 continue
             self._frame = msg.header.frame_id
             stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-            self._monitor.hand((x, y), stamp, now)
+            self._monitor.hand(point, stamp, now)
 
     def _take_tool(self, now: float) -> None:
         for data, _ in take_raw(self._tool_sub):
@@ -172,15 +179,15 @@ class EventDetectorNode(Node):
                 except Exception as error:  # noqa: BLE001 whatever the deserialiser raises
                     self._warn('tool_cdr', f'ee_position dropped: unreadable ({error})')
                     continue
-                values = (msg.point.x, msg.point.y)
+                values = (msg.point.x, msg.point.y, msg.point.z)[:self._dimension]
                 stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             else:
                 sec, nanosec = read_stamp(data)
                 stamp = sec + 1e-9 * nanosec
-            if not (math.isfinite(values[0]) and math.isfinite(values[1])):
+            if not all(math.isfinite(v) for v in values):
                 self._warn('tool_non_finite', 'ee_position dropped: non-finite position')
                 continue
-            self._monitor.tool(values[:2], stamp, now)
+            self._monitor.tool(values, stamp, now)
 
     def _tick(self) -> None:
         now = time.monotonic()

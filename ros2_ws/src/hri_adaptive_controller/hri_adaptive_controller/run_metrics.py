@@ -202,12 +202,14 @@ def longest_high_effort_hold(t, effort, threshold: float) -> float:
 
 def take_metrics(t, hand, tool, effort, criteria: TakeCriteria) -> TakeMetrics:
     """All of TakeMetrics for one take. t (N,) s; hand (N, 2|3) m with NaN rows where no hand
-    was seen; tool (N, 2) m; effort (N, 2) N m (the applied torque at each sample)."""
+    was seen; tool (N, 2|3) m; effort (N, n) N m (the applied torque at each sample). The
+    distances are in 3-D where both hand and tool are, else in the plane."""
     t = _times(t)
     hand, tool = _rows(hand, t, 'hand'), _rows(tool, t, 'tool')
     effort = _rows(effort, t, 'effort')
     considered = considered_samples(t, hand, criteria)
-    distance = np.linalg.norm(hand[considered, :2] - tool[considered, :2], axis=1)
+    axes = min(hand.shape[1], tool.shape[1])
+    distance = np.linalg.norm(hand[considered, :axes] - tool[considered, :axes], axis=1)
     close = distance < criteria.d1 - criteria.avoid_margin
     return TakeMetrics(
         follow_median_distance=float(np.median(distance)) if distance.size else math.nan,

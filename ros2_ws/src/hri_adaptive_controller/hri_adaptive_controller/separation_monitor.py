@@ -18,17 +18,17 @@ RESTART_JUMP = 0.5  # s: a stamp this far back is a restarted source, not a late
 
 
 class _TrackedPoint:
-    """A point's newest position (2,) m, its receive time and its velocity (2,) m/s from
-    stamped samples (VelocityEstimator: low-passed differences)."""
+    """A point's newest position (d,) m, its receive time and its velocity (d,) m/s from
+    stamped samples (VelocityEstimator: low-passed differences; d = 2 or 3)."""
 
-    def __init__(self, filter_time: float):
-        self._estimator = VelocityEstimator(filter_time)
+    def __init__(self, filter_time: float, dimension: int = 2):
+        self._estimator = VelocityEstimator(filter_time, dimension)
         self.position: np.ndarray | None = None
         self.received: float | None = None
         self._stamp: float | None = None
 
     def offer(self, position, stamp: float, received: float) -> bool:
-        """A sample (2,) m stamped `stamp` s, received at `received` s; False (dropped) if its
+        """A sample (d,) m stamped `stamp` s, received at `received` s; False (dropped) if its
         stamp does not advance, unless it is RESTART_JUMP s back: a restarted source, whose
         past is forgotten."""
         if self._stamp is not None and stamp <= self._stamp:
@@ -51,23 +51,24 @@ class SeparationMonitor:
 
     settings: the S_p constants; hand_filter_time, tool_filter_time (s): time constants of
     the velocity estimates (hri_core.velocity_estimator); input_timeout (s): a hand (or tool)
-    whose newest sample came longer ago than this counts as absent.
+    whose newest sample came longer ago than this counts as absent; dimension: 2 (positions
+    (x, y), the planar SCARA) or 3 ((x, y, z), an arm in space).
     """
 
     def __init__(self, settings: ProtectiveSeparation, hand_filter_time: float,
-                 tool_filter_time: float, input_timeout: float):
+                 tool_filter_time: float, input_timeout: float, dimension: int = 2):
         self.settings = settings
-        self._hand = _TrackedPoint(hand_filter_time)
-        self._tool = _TrackedPoint(tool_filter_time)
+        self._hand = _TrackedPoint(hand_filter_time, dimension)
+        self._tool = _TrackedPoint(tool_filter_time, dimension)
         self._timeout = input_timeout
 
     def hand(self, position, stamp: float, received: float) -> bool:
-        """A hand position (2,) m stamped `stamp` s, received at `received` s (the clock of
+        """A hand position (d,) m stamped `stamp` s, received at `received` s (the clock of
         `observe`); False if dropped (its stamp does not advance)."""
         return self._hand.offer(position, stamp, received)
 
     def tool(self, position, stamp: float, received: float) -> bool:
-        """A tool position (2,) m stamped `stamp` s, received at `received` s."""
+        """A tool position (d,) m stamped `stamp` s, received at `received` s."""
         return self._tool.offer(position, stamp, received)
 
     def observe(self, now: float) -> tuple[Observation, SeparationSample | None]:

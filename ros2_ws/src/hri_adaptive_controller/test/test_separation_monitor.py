@@ -52,6 +52,22 @@ def test_monitor_estimates_velocities_and_forgets_a_stale_hand():
     assert obs.separation is None and sample is None and obs.since_hand == pytest.approx(0.25)
 
 
+def test_a_3d_monitor_measures_separation_and_speed_in_space():
+    monitor = SeparationMonitor(SETTINGS, hand_filter_time=0.05, tool_filter_time=0.01,
+                                input_timeout=0.2, dimension=3)
+    # The hand comes straight down onto the still tool at 0.3 m/s: all of it along z.
+    for k in range(100):
+        t = 0.01 * k
+        monitor.hand((0.3, 0.0, 0.9 - 0.3 * t), t, t)
+        monitor.tool((0.3, 0.0, 0.4), t, t)
+    obs, sample = monitor.observe(0.995)
+    assert sample.separation == pytest.approx(0.5 - 0.3 * 0.99)
+    assert sample.human_speed == pytest.approx(0.3, rel=1e-3)
+    assert obs.hand_motion == pytest.approx(0.3, rel=1e-3)
+    with pytest.raises(ValueError, match=r'position must be 3 values \[x, y, z\], got 2'):
+        monitor.hand((0.3, 0.0), 1.0, 1.0)
+
+
 # -- T_s and B of the defaults against the arm's stop in the pure closed loop ---------------
 
 def stop_from_peak_speed(hand) -> tuple[float, float, float]:

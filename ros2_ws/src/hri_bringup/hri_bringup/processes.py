@@ -41,10 +41,13 @@ _log_counter = itertools.count()
 # The nodes of the live loop by name: (package, executable), in the order they are started.
 # The recorder comes before the hand so that a bag holds the hand's whole script, and the
 # hand comes last so that its script (start_delay, waypoints) begins with the loop up.
+# arm_sim (any arm from its URDF, e.g. robot: panda) stands in for scara_sim; it starts after
+# the controller, as an arm under gravity sags while no controller holds it.
 LIVE_LOOP_EXECUTABLES: dict[str, tuple[str, str]] = {
     'scara_sim': ('scara_sim', 'scara_sim'),
     'event_manager': ('hri_adaptive_controller', 'event_manager'),
     'controller': ('hri_adaptive_controller', 'controller'),
+    'arm_sim': ('scara_sim', 'arm_sim'),
     'event_detector': ('hri_adaptive_controller', 'event_detector'),
     'recorder': ('hri_demo_learning', 'recorder'),
     'hand_sim': ('scara_sim', 'hand_sim'),
@@ -57,6 +60,7 @@ SYSTEM_NODES = ('scara_sim', 'event_manager', 'controller', 'event_detector', 'h
 # A line each executable logs once it is up (its parameters are read, its loop is running).
 READY_LINES: dict[str, str] = {
     'scara_sim': 'simulating at',
+    'arm_sim': 'simulating ',
     'hand_sim': 'hand profile',
     'demonstrator': 'demonstration around',
     'recorder': 'recording into',

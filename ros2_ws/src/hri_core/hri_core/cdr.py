@@ -25,6 +25,7 @@ full deserialiser). A std_msgs/Header is the stamp (int32 sec, uint32 nanosec) a
 these equal to rclpy's serialiser.
 """
 
+import dataclasses
 import operator
 import struct
 from collections.abc import Callable, Sequence
@@ -141,6 +142,14 @@ def point_stamped_layout(data: bytes) -> CdrLayout | None:
     if size != len(data):
         return None
     return CdrLayout(bytes(data), size, ((0, 2), _FRAME_LENGTH), (point, point + 8))
+
+
+def point3_layout(data: bytes) -> CdrLayout | None:
+    """point_stamped_layout reading x, y and z."""
+    layout = point_stamped_layout(data)
+    if layout is None:
+        return None
+    return dataclasses.replace(layout, offsets=(*layout.offsets, layout.offsets[-1] + 8))
 
 
 def joint_state_layout(data: bytes, joints: Sequence[str],

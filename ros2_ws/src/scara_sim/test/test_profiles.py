@@ -514,3 +514,14 @@ def test_a_3d_demonstration_brings_the_panda_to_its_goal_in_space(panda, mode, r
     assert abs(moved[2]) > 0.2 * np.linalg.norm(moved)
     speeds = np.linalg.norm(np.diff(path, axis=0), axis=1) / 1e-3
     assert 0.1 <= speeds.max() <= 0.3
+
+
+def test_waypoints_in_3d_move_through_space():
+    profile = HandProfile(name='waypoints', waypoints=(0.3, 0.0, 0.8, 0.3, 0.0, 0.5),
+                          speed=0.2, dimension=3)
+    ((_, end),) = waypoint_schedule(profile)
+    assert end == pytest.approx(1.875 * 0.3 / 0.2)
+    np.testing.assert_allclose(hand_position(profile, 0.0), [0.3, 0.0, 0.8])
+    np.testing.assert_allclose(hand_position(profile, end + 0.1), [0.3, 0.0, 0.5])
+    with pytest.raises(ValueError, match=r'flat list \[x0, y0, z0, x1, y1, z1, \.\.\.\]'):
+        HandProfile(name='waypoints', waypoints=(0.3, 0.0, 0.8, 0.3), dimension=3)

@@ -57,6 +57,11 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path
     bag = tmp_path / 'bag'
     processes = {
         'scara_sim': nodes('scara_sim', 'scara_sim'),
+        # The Panda beside it, on topics of its own (the SCARA's loop stays as it is).
+        'arm_sim': nodes('scara_sim', 'arm_sim', params={'robot': 'panda'}, remaps={
+            topic: f'/panda{topic}' for topic in ('/joint_states', '/effort_controller/commands',
+                                                  '/ee_position', '/human/wrench',
+                                                  '/robot_description')}),
         'hand_sim': nodes('scara_sim', 'hand_sim', params={'profile': 'circle'}),
         'demonstrator': nodes('scara_sim', 'demonstrator', params={'hold_time': 600.0}),
         'recorder': nodes('hri_demo_learning', 'recorder', params={'output': str(bag)}),

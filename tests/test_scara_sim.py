@@ -269,4 +269,4 @@ def test_hand_sim_moves_through_3d_waypoints(nodes, probe):
     np.testing.assert_allclose(points[:, :2], [[0.3, 0.0]] * len(points), atol=1e-12)
     assert points[0, 2] == pytest.approx(0.8, abs=0.01)
     np.testing.assert_allclose(points[-1], [0.3, 0.0, 0.6], atol=1e-9)
-    assert 'points in 3-D' in hand.log()
+    assert '3-D) at 100 Hz' in hand.log()

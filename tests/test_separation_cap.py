@@ -63,6 +63,9 @@ def test_the_limit_holds_the_arm_outside_s_p(live_loop, probe):
     assert all(not m.below_protective for m in samples[-10:])
 
 
+# The control case (slow): follow's reaching its region on the live loop is the default run's
+# test_task_behaviour follow test; the unit tests hold the cap on and off in the pure loop.
+@pytest.mark.slow
 def test_without_the_limit_the_arm_enters_follow_s_region(live_loop, probe):
     samples = run(live_loop, probe, limit_on=False)
     assert min(m.separation for m in samples) <= D2_FOLLOW + 0.01

@@ -161,7 +161,7 @@ class PandaDemo(Demo):
         """figures/paths_3d.png: the hand's and the tool's paths of every run, in 3-D."""
         runs = [*self.metrics['behaviours'], *(['sequence'] if 'sequence' in self.metrics
                                                else [])]
-        figure = plt.figure(figsize=(4.2 * len(runs), 4.4))
+        figure = plt.figure(figsize=(max(4.2 * len(runs), 6.0), 4.4))
         for index, run in enumerate(runs, 1):
             axis = self.path_axis(figure, 1, len(runs), index)
             paths = read_bag(self.bags / f'run_{run}', topics=['/target', '/ee_position'])
@@ -175,7 +175,7 @@ class PandaDemo(Demo):
             axis.set_title(run)
             equal_scales(axis)
             axis.legend(loc='upper left', fontsize='small')
-        figure.suptitle('Panda: hand and tool paths in 3-D (o start, square end)')
+        figure.suptitle('Panda: hand and tool paths in 3-D\n(o start, square end)')
         figure.tight_layout()
         figure.savefig(self.figures / 'paths_3d.png', dpi=100)
         plt.close(figure)

@@ -157,9 +157,6 @@ def test_a_hand_reaching_in_at_half_a_metre_a_second_switches_to_avoid_before_d1
     assert max(m.human_speed for m in separation) == pytest.approx(0.5, abs=0.05)
 
 
-# On the topics under slow: the same property is test_event_rules' hypothesis test (three
-# noise kinds, many seeds, the same rules) in the default run.
-@pytest.mark.slow
 def test_a_hand_resting_on_a_zone_boundary_with_5_mm_noise_fires_nothing_for_10_s(
         nodes, probe, tmp_path):
     boundary = 0.3  # m

@@ -3,7 +3,8 @@
 with a 3-D force, follow and avoid, to the demonstration's end, recorded live by the recorder
 (joint states and /robot_description, no /ee_position) and learned from the bag by the
 learner node through the URDF's forward kinematics, to the demonstrated task type; the learned
-follow then runs on the live Panda loop and brings the tool into its region round a 3-D hand.
+follow then runs on the live Panda loop and brings the tool into its region round a 3-D hand,
+and (slow) the learned avoid backs the tool away from a hand reaching in along z.
 """
 
 import numpy as np
@@ -15,7 +16,12 @@ from hri_bringup.processes import READY_LINES, wait_for
 from hri_core.robot_model import robot_model
 from scara_sim.demonstrator_node import DEFAULT_REFERENCES
 from tests.test_learner import assert_learned, run_once
-from tests.test_panda_loop import HAND_OFFSET, check_commands_and_limits, run_panda_loop
+from tests.test_panda_loop import (
+    HAND_OFFSET,
+    backs_away_from_a_hand_reaching_in,
+    check_commands_and_limits,
+    run_panda_loop,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -70,14 +76,20 @@ def radial_speeds(stamps, path, reference) -> tuple[np.ndarray, np.ndarray]:
     return speed, (distance[WINDOW:] - distance[:-WINDOW]) / dt
 
 
-@pytest.mark.parametrize(('mode', 'reference', 'final_distance', 'sign'), [
-    # follow's learned task then runs on the live 1 kHz loop, whose timing needs the machine
-    pytest.param('follow', DEFAULT_REFERENCES['panda'], 0.041, -1.0,
-                 marks=pytest.mark.exclusive),
-    ('avoid', (0.31, 0.004, 0.49), 0.183, 1.0),  # 6 mm from the tool at home
+AVOID_REFERENCE = (0.31, 0.004, 0.49)  # m, 6 mm from the tool at home
+
+
+@pytest.mark.parametrize(('mode', 'reference', 'final_distance', 'sign', 'run_learned'), [
+    # A learned task that then runs on the live 1 kHz loop, whose timing needs the machine:
+    # follow in the default run, avoid under slow (avoid's learning alone in the default run).
+    pytest.param('follow', DEFAULT_REFERENCES['panda'], 0.041, -1.0, True,
+                 marks=pytest.mark.exclusive, id='follow-run'),
+    pytest.param('avoid', AVOID_REFERENCE, 0.183, 1.0, False, id='avoid'),
+    pytest.param('avoid', AVOID_REFERENCE, 0.183, 1.0, True,
+                 marks=[pytest.mark.exclusive, pytest.mark.slow], id='avoid-run'),
 ])
 def test_a_3d_demonstration_on_the_panda_is_recorded_and_learned_to_its_task(
-        nodes, probe, tmp_path, mode, reference, final_distance, sign):
+        nodes, probe, tmp_path, mode, reference, final_distance, sign, run_learned):
     params = {'mode': mode}
     if mode == 'avoid':
         params['reference'] = list(reference)
@@ -117,10 +129,13 @@ def test_a_3d_demonstration_on_the_panda_is_recorded_and_learned_to_its_task(
     if mode == 'follow':
         assert record.d1 == 0.0
         assert record.d2 == pytest.approx(final_distance, abs=0.006)
-        run_learned_follow(nodes, probe, tasks, record.d2)
+        if run_learned:
+            run_learned_follow(nodes, probe, tasks, record.d2)
     else:
         assert record.d1 == pytest.approx(final_distance, abs=0.006)
         assert record.d2 == WORKSPACE_RADIUS
+        if run_learned:
+            backs_away_from_a_hand_reaching_in(nodes, probe, record.d1, tasks_dir=tasks)
 
 
 def run_learned_follow(nodes, probe, tasks, region: float) -> None:
@@ -143,6 +158,48 @@ def run_learned_follow(nodes, probe, tasks, region: float) -> None:
     step, _ = check_commands_and_limits(model, q, efforts)
     print(f'learned follow on the live Panda: in its region ({region:.3f} m) '
           f'{entered:.2f} s after the first state; largest effort step {step:.3f} N m')
+
+
+@pytest.mark.exclusive
+@pytest.mark.slow
+def test_follow_at_a_distance_learned_from_two_live_panda_bags_runs_on_the_panda(
+        nodes, probe, tmp_path):
+    """eq. 4 on the Panda: a follow and an avoid demonstration recorded live, learned together
+    (follow shifted out by 0.23 m) into follow_safe with d1 from avoid and d2 = 0.23 m + the
+    follow's; on the live Panda loop the tool then comes from 0.3 m into [d1, d2] round a
+    still 3-D hand within ENTER_TIME s and stays, every command within the limits."""
+    bags = []
+    for mode, params in (('follow', {}), ('avoid', {'reference': list(AVOID_REFERENCE)})):
+        bags.append(tmp_path / mode)
+        code, log, *_ = run_panda_demonstration(nodes, probe, bag=bags[-1], mode=mode,
+                                                **params)
+        assert code == 0, log
+    tasks = tmp_path / 'tasks'
+    code, log = run_once(nodes, tasks, bags=[str(bag) for bag in bags], shifts=[0.23, 0.0],
+                         task_name='follow_safe', workspace_radius=WORKSPACE_RADIUS)
+    record = assert_learned(code, log, tasks / 'follow_safe.yaml')
+    print(f'learned follow_safe: S={record.s:+d} d1={record.d1:.4f} d2={record.d2:.4f} '
+          f'K={record.k:.4g}')
+    assert record.s == 1 and record.k > 0.0
+    assert record.d1 == pytest.approx(0.183, abs=0.006)
+    assert record.d2 == pytest.approx(0.23 + 0.041, abs=0.008)
+    model = robot_model('panda')
+    hand = model.tool_position(model.home) + HAND_OFFSET
+    sample, efforts, _, controller = run_panda_loop(nodes, probe, 'follow_safe', hand,
+                                                    ENTER_TIME + 0.5, tasks_dir=tasks)
+    times = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in sample])
+    q = np.array([m.position for m in sample])
+    distance = np.linalg.norm(np.array([model.tool_position(row) for row in q[::10]]) - hand,
+                              axis=1)
+    inside = (distance >= record.d1) & (distance <= record.d2)
+    assert inside.any(), f'distances {distance.min():.3f}-{distance.max():.3f} m'
+    entered = times[::10][int(np.argmax(inside))] - times[0]
+    assert entered <= ENTER_TIME, entered
+    assert inside[int(np.argmax(inside)):].all()
+    step, _ = check_commands_and_limits(model, q, efforts)
+    print(f'learned follow_safe on the live Panda: in [{record.d1:.3f}, {record.d2:.3f}] m '
+          f'{entered:.2f} s after the first state, at {distance[-1]:.3f} m at the end; '
+          f'largest effort step {step:.3f} N m')
 
 
 def test_a_planar_reference_on_the_panda_is_one_line_and_exit_1(nodes):

@@ -9,7 +9,8 @@ ros2_control's JointGroupEffortController): one wake-up per cycle, the command c
 the newest state; its change since the last command is limited to `max_effort_rate` times
 the time between their joint states, at most one period (effort_rate; after the clamp), and
 it stays within `applied_effort_cycles` periods' worth of the effort the joint state reports
-applied (a simulator's), so a late burst of commands cannot step the drive by more.
+when that effort is a command it sent (effort_rate.CommandEcho: a simulator's applied
+torque), so a late burst of commands cannot step the drive by more.
 With `mode: velocity` it publishes the joint-velocity reference qdot_r of eq. 14 on
 /velocity_controller/commands instead. theta_hat advances by the time between the joint
 states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
@@ -89,7 +90,7 @@ from hri_adaptive_controller.arm_law import (
     ArmGains,
     HandState,
 )
-from hri_adaptive_controller.effort_rate import EffortRateLimiter
+from hri_adaptive_controller.effort_rate import CommandEcho, EffortRateLimiter
 from hri_adaptive_controller.event_weight import (
     PHASE_ACTIVE,
     PHASE_FADING_IN,
@@ -198,11 +199,11 @@ PARAMETERS = {
                                      'cycle)', low=1.0, high=1e6),
     'applied_effort_cycles': ParameterSpec(int, 'each command also stays within '
                                            'max_effort_rate times this many control periods '
-                                           'of the effort the joint state reports applied (a '
-                                           "simulator's drive torque), whichever command of a "
-                                           'late burst the drive takes; 0: off, for drives '
-                                           'whose JointState.effort is a measured torque',
-                                           low=0, high=100),
+                                           'of the effort the joint state reports, when that '
+                                           'is a command this node sent (a simulator echoing '
+                                           'the torque it applies; a measured torque is left '
+                                           'alone), whichever command of a late burst the '
+                                           'drive takes; 0: off', low=0, high=100),
     'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
                                          low=0.002, high=10.0),
     'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: the task fades '
@@ -384,7 +385,10 @@ class Controller(Node):
         # a(E, t) of the task in force; its payload: (shape or None, k).
         self._weights = TaskWeightHold(values['task_fade_time'], MAX_WEIGHT_EXTRAPOLATION)
         self._limiter = EffortRateLimiter(values['max_effort_rate'], self._dof)
-        self._applied = None  # the effort (N m) the latest joint state reports, if it has one
+        # The effort (N m) the latest joint state reports, when it is a command this node sent
+        # (a simulator's applied torque; a measured torque never matches).
+        self._applied = None
+        self._echo = CommandEcho()
         self._set_applied_band(values)
         # The link to the event_manager as a second weight on a (1 while TaskStates come):
         # None until the first TaskState, which is used at once, as before.
@@ -600,8 +604,7 @@ class Controller(Node):
         # stand still), bounded to 10 periods after a gap.
         dt = stamp - previous if stamp > previous else now - self._joint_time
         self._q, self._dq = q, dq
-        # A non-finite effort is not a torque to stay near: as if none were reported.
-        self._applied = effort if effort is not None and math.isfinite(sum(effort)) else None
+        self._applied = self._echo.applied(effort)
         self._joint_stamp, self._joint_time = stamp, now
         if not self._zero_timer.is_canceled():
             self._zero_timer.cancel()
@@ -774,6 +777,8 @@ class Controller(Node):
             command, self._rate_limited = self._limiter.limit(
                 output.tau, min(dt, self._period), applied, self._applied_band)
         self._command_pub.publish(self._command_template.encode(command))
+        if self._applied_band > 0.0:
+            self._echo.sent(tuple(command))
         # One read of the clock for input_age and the ControllerState's stamp: the stamp minus
         # input_age is then exactly the stamp of the joint state the cycle ran on, and the
         # cycle's own time lies between the two. The node's clock is the system clock unless

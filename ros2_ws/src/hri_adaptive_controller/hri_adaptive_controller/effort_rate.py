@@ -15,7 +15,8 @@ That bounds each command against the one before, not what the drive applies: on 
 machine the simulator took commands in late bursts and applied only the newest, stepping its
 torque by the sum of the commands it skipped (2.95 N m between consecutive joint states,
 measured, with every command within 1 N m of the one before). Where the joint states report
-the torque the drive applies (a simulator's JointState.effort), each command also stays within
+the torque the drive applies (a simulator's JointState.effort: an echo of a command sent,
+which CommandEcho recognises; a measured torque never is one), each command also stays within
 applied_band of it: a burst computed while the drive held one torque lies within that band of
 it, whichever command of the burst the drive takes. Applied after the clamp to
 effort_limit: tau_prev and tau_law both lie in the box |tau_i| <= effort_limit, so tau does too.
@@ -77,3 +78,32 @@ class EffortRateLimiter:
             out.append(value)
         self.previous = tuple(out)
         return self.previous, limited
+
+
+class CommandEcho:
+    """Recognises a joint state's effort as a command this controller sent: the torque a
+    simulator reports as applied is the command it took, bit for bit, while a real drive's
+    JointState.effort is a measured torque that never equals one. Only an echo is a torque
+    the applied band may be centred on.
+
+    Keeps the last `depth` commands (tuples of floats, N m); a late burst is a few tens.
+    """
+
+    def __init__(self, depth: int = 64):
+        if depth < 1:
+            raise ValueError(f'depth must be >= 1, got {depth}')
+        self._depth = depth
+        self._sent: dict[tuple, None] = {}
+
+    def sent(self, command: tuple) -> None:
+        """Remember `command`, the newest sent (forgetting the oldest beyond depth)."""
+        sent = self._sent
+        sent.pop(command, None)
+        sent[command] = None
+        if len(sent) > self._depth:
+            del sent[next(iter(sent))]
+
+    def applied(self, effort: tuple | None) -> tuple | None:
+        """`effort` if it is one of the remembered commands (the drive applies it), else
+        None."""
+        return effort if effort is not None and effort in self._sent else None

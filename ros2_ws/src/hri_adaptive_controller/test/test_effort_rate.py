@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from hri_adaptive_controller.effort_rate import EffortRateLimiter
+from hri_adaptive_controller.effort_rate import CommandEcho, EffortRateLimiter
 
 
 def test_a_step_becomes_a_ramp_at_the_rate_times_the_elapsed_time():
@@ -92,3 +92,20 @@ def test_the_applied_band_wins_over_the_rate_and_keeps_within_the_clamp_box():
     limiter.reset((20.0, 20.0))
     tau, _ = limiter.limit((20.0, 20.0), 1e-3, applied=(20.0, 19.0), applied_band=2.0)
     assert tau == pytest.approx((20.0, 20.0))  # within the box the caller clamped to
+
+
+def test_only_an_echo_of_a_sent_command_counts_as_the_applied_torque():
+    echo = CommandEcho(depth=3)
+    assert echo.applied((1.0, 2.0)) is None and echo.applied(None) is None
+    for k in range(5):
+        echo.sent((float(k), -float(k)))
+    assert echo.applied((4.0, -4.0)) == (4.0, -4.0)      # the newest: a simulator's echo
+    assert echo.applied((2.0, -2.0)) == (2.0, -2.0)      # three back: a late drive
+    assert echo.applied((1.0, -1.0)) is None             # forgotten beyond the depth
+    assert echo.applied((4.0 + 1e-9, -4.0)) is None      # a measured torque near it
+    echo.sent((2.0, -2.0))                               # sent again: the newest now
+    echo.sent((5.0, -5.0))
+    echo.sent((6.0, -6.0))
+    assert echo.applied((2.0, -2.0)) == (2.0, -2.0)
+    with pytest.raises(ValueError, match='depth must be >= 1'):
+        CommandEcho(depth=0)

@@ -77,12 +77,12 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path
         tmp_path)
     signals = dict(zip(processes, itertools.cycle((signal.SIGINT, signal.SIGTERM))))
     targets = probe.collect('/target', PointStamped, RELIABLE)
-    assert wait_until_logged({processes[name]: line for name, line in NODE_READY_LINES.items()},
-                             40.0), {
-        name: process.log() for name, process in processes.items()
-        if NODE_READY_LINES[name] not in process.log()}
-    assert wait_for(lambda: len(targets) > 10, 10.0)
-    try:
+    try:  # the reference is no fixture's: ended here whatever fails
+        assert wait_until_logged({processes[name]: NODE_READY_LINES[name]
+                                  for name in processes}, 40.0), {
+            name: process.log() for name, process in processes.items()
+            if NODE_READY_LINES[name] not in process.log()}
+        assert wait_for(lambda: len(targets) > 10, 10.0)
         assert reference.wait_for_line('reference up', 10.0), reference.log()
         time.sleep(1.0)  # every node in its loop, messages flowing
         reference_code, reference_time = exit_time(reference, signal.SIGINT)

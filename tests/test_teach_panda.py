@@ -130,7 +130,7 @@ def test_a_3d_demonstration_on_the_panda_is_recorded_and_learned_to_its_task(
         assert record.d1 == 0.0
         assert record.d2 == pytest.approx(final_distance, abs=0.006)
         if run_learned:
-            run_learned_follow(nodes, probe, tasks, record.d2)
+            run_learned_band(nodes, probe, tasks, 'follow', (0.0, record.d2))
     else:
         assert record.d1 == pytest.approx(final_distance, abs=0.006)
         assert record.d2 == WORKSPACE_RADIUS
@@ -138,26 +138,29 @@ def test_a_3d_demonstration_on_the_panda_is_recorded_and_learned_to_its_task(
             backs_away_from_a_hand_reaching_in(nodes, probe, record.d1, tasks_dir=tasks)
 
 
-def run_learned_follow(nodes, probe, tasks, region: float) -> None:
-    """The learned follow on the live Panda loop (arm_sim, event_manager, controller
-    robot:=panda), a still hand 0.3 m from the tool in 3-D: the tool is within `region` m of
-    the hand within ENTER_TIME s and stays; every command within the Panda's limits."""
+def run_learned_band(nodes, probe, tasks, task: str, band: tuple[float, float]) -> None:
+    """The learned `task` of `tasks` on the live Panda loop (arm_sim, event_manager,
+    controller robot:=panda), a still hand 0.3 m from the tool in 3-D: the tool's distance to
+    the hand is within `band` (d1, d2) m within ENTER_TIME s and stays; every command within
+    the Panda's limits."""
     model = robot_model('panda')
     hand = model.tool_position(model.home) + HAND_OFFSET
-    sample, efforts, _, controller = run_panda_loop(nodes, probe, 'follow', hand,
+    sample, efforts, _, controller = run_panda_loop(nodes, probe, task, hand,
                                                     ENTER_TIME + 0.5, tasks_dir=tasks)
     times = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in sample])
     q = np.array([m.position for m in sample])
     distance = np.linalg.norm(np.array([model.tool_position(row) for row in q[::10]]) - hand,
                               axis=1)
-    inside = distance <= region
-    assert inside.any(), f'closest {distance.min():.3f} m; {controller.log()[-2000:]}'
+    inside = (distance >= band[0]) & (distance <= band[1])
+    assert inside.any(), (f'distances {distance.min():.3f}-{distance.max():.3f} m; '
+                          f'{controller.log()[-2000:]}')
     entered = times[::10][int(np.argmax(inside))] - times[0]
     assert entered <= ENTER_TIME, entered
     assert inside[int(np.argmax(inside)):].all(), distance[int(np.argmax(inside)):].max()
     step, _ = check_commands_and_limits(model, q, efforts)
-    print(f'learned follow on the live Panda: in its region ({region:.3f} m) '
-          f'{entered:.2f} s after the first state; largest effort step {step:.3f} N m')
+    print(f'learned {task} on the live Panda: in [{band[0]:.3f}, {band[1]:.3f}] m '
+          f'{entered:.2f} s after the first state, at {distance[-1]:.3f} m at the end; '
+          f'largest effort step {step:.3f} N m')
 
 
 @pytest.mark.exclusive
@@ -183,23 +186,7 @@ def test_follow_at_a_distance_learned_from_two_live_panda_bags_runs_on_the_panda
     assert record.s == 1 and record.k > 0.0
     assert record.d1 == pytest.approx(0.183, abs=0.006)
     assert record.d2 == pytest.approx(0.23 + 0.041, abs=0.008)
-    model = robot_model('panda')
-    hand = model.tool_position(model.home) + HAND_OFFSET
-    sample, efforts, _, controller = run_panda_loop(nodes, probe, 'follow_safe', hand,
-                                                    ENTER_TIME + 0.5, tasks_dir=tasks)
-    times = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in sample])
-    q = np.array([m.position for m in sample])
-    distance = np.linalg.norm(np.array([model.tool_position(row) for row in q[::10]]) - hand,
-                              axis=1)
-    inside = (distance >= record.d1) & (distance <= record.d2)
-    assert inside.any(), f'distances {distance.min():.3f}-{distance.max():.3f} m'
-    entered = times[::10][int(np.argmax(inside))] - times[0]
-    assert entered <= ENTER_TIME, entered
-    assert inside[int(np.argmax(inside)):].all()
-    step, _ = check_commands_and_limits(model, q, efforts)
-    print(f'learned follow_safe on the live Panda: in [{record.d1:.3f}, {record.d2:.3f}] m '
-          f'{entered:.2f} s after the first state, at {distance[-1]:.3f} m at the end; '
-          f'largest effort step {step:.3f} N m')
+    run_learned_band(nodes, probe, tasks, 'follow_safe', (record.d1, record.d2))
 
 
 def test_a_planar_reference_on_the_panda_is_one_line_and_exit_1(nodes):

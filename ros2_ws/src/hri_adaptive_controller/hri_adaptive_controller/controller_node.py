@@ -777,7 +777,7 @@ class Controller(Node):
             command, self._rate_limited = self._limiter.limit(
                 output.tau, min(dt, self._period), applied, self._applied_band)
         self._command_pub.publish(self._command_template.encode(command))
-        if self._applied_band > 0.0:
+        if self._applied_band > 0.0 and not self._velocity_mode:  # velocities echo nothing
             self._echo.sent(tuple(command))
         # One read of the clock for input_age and the ControllerState's stamp: the stamp minus
         # input_age is then exactly the stamp of the joint state the cycle ran on, and the

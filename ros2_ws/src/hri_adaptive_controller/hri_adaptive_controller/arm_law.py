@@ -282,6 +282,29 @@ def task_term_3d(dx: np.ndarray, drive: TaskDrive) -> tuple[np.ndarray, np.ndarr
     return slope * e, hessian
 
 
+def task_term_3d_along(dx: np.ndarray, u: np.ndarray,
+                       drive: TaskDrive) -> tuple[np.ndarray, np.ndarray]:
+    """task_term_3d's delta_eps (3,) m/s and H_Q u (3,) m/s^2 for u (3,) m/s: the control
+    step's path, in plain floats where no entry of H_Q needs its bound (|Q''|, |Q'/r| <=
+    MAX_TASK_HESSIAN: then every entry is, H_Q being a blend of the two), else through
+    task_term_3d's bounded matrix."""
+    (d0, d1, d2), (u0, u1, u2) = dx.tolist(), u.tolist()
+    r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    slope, curvature = radial_drive(r, drive)
+    if r == 0.0:
+        return np.zeros(3), curvature * u
+    tangential = slope / r
+    if not (-MAX_TASK_HESSIAN <= curvature <= MAX_TASK_HESSIAN
+            and -MAX_TASK_HESSIAN <= tangential <= MAX_TASK_HESSIAN):
+        gradient, hessian = task_term_3d(dx, drive)
+        return gradient, hessian @ u
+    e0, e1, e2 = d0 / r, d1 / r, d2 / r
+    along = (curvature - tangential) * (e0 * u0 + e1 * u1 + e2 * u2)
+    return (np.array((slope * e0, slope * e1, slope * e2)),
+            np.array((along * e0 + tangential * u0, along * e1 + tangential * u1,
+                      along * e2 + tangential * u2)))
+
+
 REACH_SAMPLES = 2000
 """Joint configurations sampled (seeded, uniform within the limits) for `attained_reach`."""
 
@@ -331,6 +354,10 @@ class ArmController(TaskDrives):
         if not np.all(self._effort > 0.0):
             raise ValueError(f'{self.model.name} has a joint without an effort limit > 0: '
                              f'{limits.effort.tolist()}')
+        self._inverse_effort = 1.0 / self._effort
+        # Where no barrier acts (barrier_n's bands start here): checked first each step.
+        self._inner_lower = self._lower + gains.limit_band
+        self._inner_upper = self._upper - gains.limit_band
         self._ks = np.asarray(gains.ks, dtype=float)
         per_joint = len(INERTIA_NAMES)
         self._rates = np.concatenate([np.tile(gains.adaptation[:per_joint], n),
@@ -372,6 +399,7 @@ class ArmController(TaskDrives):
             raise ValueError(f'theta_hat0 must be {self.model.theta.size} finite values, '
                              f'got shape {theta.shape}')
         self._theta = np.clip(theta, self.model.theta_lower, self.model.theta_upper)
+        self._pending = None  # theta_hat's update from the last `command`, for `adapt`
         self._reach.reset()
         self._hand_velocity = (0.0,) * 6
 
@@ -453,10 +481,11 @@ class ArmController(TaskDrives):
         """Damped J+ (n, 3), dJ+/dt (n, 3) and lambda^2 (task_variable's damping law with
         w = sqrt(det(J J^T))). The 3x3 algebra in plain floats (numpy's small-matrix calls
         cost more than the arithmetic)."""
-        gram_rate = rate @ jac.T
-        gram_rate = gram_rate + gram_rate.T
         (g00, g01, g02), (_, g11, g12), (_, _, g22) = (jac @ jac.T).tolist()
-        (e00, e01, e02), (_, e11, e12), (_, _, e22) = gram_rate.tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (rate @ jac.T).tolist()
+        # dG/dt = Jdot J^T + J Jdot^T, symmetric.
+        e00, e01, e02, e11, e12, e22 = (2.0 * r00, r01 + r10, r02 + r20, 2.0 * r11, r12 + r21,
+                                        2.0 * r22)
         # The adjugate of the symmetric G; det(G) = g0 . adj0.
         c00, c01, c02 = g11 * g22 - g12 * g12, g02 * g12 - g01 * g22, g01 * g12 - g02 * g11
         c11, c12, c22 = g00 * g22 - g02 * g02, g01 * g02 - g00 * g12, g00 * g11 - g01 * g01
@@ -477,8 +506,8 @@ class ArmController(TaskDrives):
             raise ValueError('singular Jacobian and no damping (max_damping = 0)')
         inverse = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
         pinv = jac.T @ inverse
-        if lam2_rate != 0.0:
-            gram_rate = gram_rate + lam2_rate * np.eye(3)
+        e00, e11, e22 = e00 + lam2_rate, e11 + lam2_rate, e22 + lam2_rate  # d(lambda^2 I)/dt
+        gram_rate = np.array([[e00, e01, e02], [e01, e11, e12], [e02, e12, e22]])
         pinv_rate = (rate.T - pinv @ gram_rate) @ inverse
         return pinv, pinv_rate, lam2
 
@@ -489,8 +518,9 @@ class ArmController(TaskDrives):
         gains = self._gains
         z = -gains.posture_gain * (q - self._home)
         z_rate = -gains.posture_gain * dq
-        if np.max(np.abs(z)) > gains.posture_speed:
-            capped = [speed_cap(value, gains.posture_speed) for value in z.tolist()]
+        values = z.tolist()
+        if max(map(abs, values)) > gains.posture_speed:
+            capped = [speed_cap(value, gains.posture_speed) for value in values]
             z = np.array([value for value, _ in capped])
             z_rate = z_rate * np.array([slope for _, slope in capped])
         if blend is not None:
@@ -521,7 +551,18 @@ class ArmController(TaskDrives):
         rest (3,) m: an avoid task's rest position (None: where the tool is, so no return).
         Inputs are finite and of the right shapes (the caller checks them where they enter);
         a non-finite result still gives zero torque and fault=True, theta_hat unchanged.
+        `command` then `adapt`, in one call.
         """
+        output = self.command(q, dq, hand, task, dt, rest)
+        if not output.fault and not self.adapt():
+            return self._fault('non-finite torque or parameter update')
+        return output
+
+    def command(self, q, dq, hand: HandState, task: ActiveTask | None, dt: float,
+                rest=None) -> ArmOutput:
+        """step's torque (eq. 14-18), with theta_hat's update (eq. 19) kept for `adapt`: a
+        controller sends the torque first (the update serves the next cycle only)."""
+        self._pending = None
         gains = self._gains
         theta = self._theta
         q = np.asarray(q, dtype=float)
@@ -530,98 +571,121 @@ class ArmController(TaskDrives):
         k = 0.0 if drive is None else drive.task_gain
         self._hand_velocity = filter_hand_velocity(self._hand_velocity,
                                                    hand.velocity.tolist(), dt)
+        # No np.errstate here (4 us a cycle): overflow and invalid values end in the finite
+        # checks below, which turn them into a fault.
         try:
-            with np.errstate(all='ignore'):
-                x, jac, jac_rate = self._kinematics(q, dq)
-                pinv, pinv_rate, lam2 = self._pseudo_inverse(jac, jac_rate)
-                xdot = jac @ dq
-                hand_velocity, hand_acceleration = hand.velocity, hand.acceleration
-                dx = x - hand.position
-                distance = math.sqrt(float(dx @ dx))
-                a, da = (0.0, 0.0) if drive is None else (task.weight, task.weight_rate)
-                avoid = drive is not None and drive.open_outward
-                if avoid:
-                    # As step_lean: an avoid task reads the hand's velocity through the
-                    # filter (its rate is continuous, the estimate steps at each /target).
-                    hand_velocity = np.array(self._hand_velocity[:3])
-                    hand_acceleration = np.array(self._hand_velocity[3:])
-                task_velocity, task_rate = self._task_velocity(
-                    drive, (a, da), (x, dx, xdot), (hand_velocity, hand_acceleration),
-                    x if rest is None else rest)
-                weighted = task_velocity[2]
-                feed, feed_rate = (1.0 - a, -da) if avoid else (1.0, 0.0)
-                ff, ff_rate = self._feed_forward(
-                    feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
+            x, jac, jac_rate = self._kinematics(q, dq)
+            pinv, pinv_rate, lam2 = self._pseudo_inverse(jac, jac_rate)
+            xdot = jac @ dq
+            hand_velocity, hand_acceleration = hand.velocity, hand.acceleration
+            dx = x - hand.position
+            distance = math.sqrt(float(dx @ dx))
+            a, da = (0.0, 0.0) if drive is None else (task.weight, task.weight_rate)
+            avoid = drive is not None and drive.open_outward
+            if avoid:
+                # As step_lean: an avoid task reads the hand's velocity through the
+                # filter (its rate is continuous, the estimate steps at each /target).
+                hand_velocity = np.array(self._hand_velocity[:3])
+                hand_acceleration = np.array(self._hand_velocity[3:])
+            task_velocity, task_rate = self._task_velocity(
+                drive, (a, da), (x, dx, xdot), (hand_velocity, hand_acceleration),
+                x if rest is None else rest)
+            weighted = task_velocity[2]
+            feed, feed_rate = (1.0 - a, -da) if avoid else (1.0, 0.0)
+            ff, ff_rate = self._feed_forward(
+                feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
+            if (q >= self._inner_lower).all() and (q <= self._inner_upper).all():
+                g_b = g_b_rate = None  # outside every band (the usual case)
+                near = 0.0
+            else:
                 g_b, g_b_rate, near = barrier_n(q, dq, self._lower, self._upper,
                                                 gains.limit_band, gains.barrier_torque)
-                if near == 0.0:
-                    # J+ (ff + v) and its rate in two products each (the usual case).
-                    both = ff + task_velocity[0]
-                    qdot_r = pinv @ both
-                    qddot_r = pinv_rate @ both + pinv @ (ff_rate + task_rate)
-                else:
-                    joint_ff, joint_ff_rate = gate_feed_forward_n(
-                        q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
-                        self._upper, gains.limit_band)
-                    qdot_r = joint_ff + pinv @ task_velocity[0]
-                    qddot_r = joint_ff_rate + pinv_rate @ task_velocity[0] + pinv @ task_rate
-                region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
-                blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
-                scale = 1.0
-                if blend is not None:
-                    # eq. 14 blended with the joint motion a u, weighted as the task's pull.
-                    sigma, sigma_rate, u, u_rate = blend
-                    u, u_rate = a * u, da * u + a * u_rate
-                    scale = 1.0 - sigma
-                    qddot_r = (scale * qddot_r + sigma_rate * (u - qdot_r) + sigma * u_rate)
-                    qdot_r = scale * qdot_r + sigma * u
-                    blend = (sigma, sigma_rate)
-                barrier_task = None
-                if near != 0.0:
-                    # The barrier's task-space velocity J+^T g_B / Kp and its rate.
-                    barrier_task = (pinv.T @ g_b) / gains.kp
-                    barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
-                    qdot_r = qdot_r - pinv @ barrier_task
-                    qddot_r = qddot_r - pinv_rate @ barrier_task - pinv @ barrier_task_rate
-                if self.model.dof > 3:
-                    z, z_rate = self._null_velocity(
-                        q, dq, *((None, None) if near == 0.0 else (g_b, g_b_rate)), blend)
-                    # N z = z - J+ (J z), dN/dt z + N dz/dt as products with vectors: no
-                    # n x n matrix is formed.
-                    jz = jac @ z
-                    qdot_r = qdot_r + (z - pinv @ jz)
-                    qddot_r = qddot_r + (z_rate - pinv_rate @ jz
-                                         - pinv @ (jac_rate @ z + jac @ z_rate))
-                s = dq - qdot_r
-                # Y theta = Y_rigid theta_rigid + diag(qdot_r) theta_friction (eq. 18).
-                rigid = self.model.rigid_regressor_unchecked(q, dq, qdot_r, qddot_r)
-                split = rigid.shape[1]
-                tau_requested = (-self._ks * s - gains.kp * scale * (jac.T @ weighted) - g_b
-                                 + rigid @ theta[:split] + qdot_r * theta[split:])
+            if near == 0.0:
+                # J+ (ff + v) and its rate in two products each (the usual case).
+                both = ff + task_velocity[0]
+                qdot_r = pinv @ both
+                qddot_r = pinv_rate @ both + pinv @ (ff_rate + task_rate)
+            else:
+                joint_ff, joint_ff_rate = gate_feed_forward_n(
+                    q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
+                    self._upper, gains.limit_band)
+                qdot_r = joint_ff + pinv @ task_velocity[0]
+                qddot_r = joint_ff_rate + pinv_rate @ task_velocity[0] + pinv @ task_rate
+            region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
+            blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
+            scale = 1.0
+            if blend is not None:
+                # eq. 14 blended with the joint motion a u, weighted as the task's pull.
+                sigma, sigma_rate, u, u_rate = blend
+                u, u_rate = a * u, da * u + a * u_rate
+                scale = 1.0 - sigma
+                qddot_r = (scale * qddot_r + sigma_rate * (u - qdot_r) + sigma * u_rate)
+                qdot_r = scale * qdot_r + sigma * u
+                blend = (sigma, sigma_rate)
+            barrier_task = None
+            if near != 0.0:
+                # The barrier's task-space velocity J+^T g_B / Kp and its rate.
+                barrier_task = (pinv.T @ g_b) / gains.kp
+                barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
+                qdot_r = qdot_r - pinv @ barrier_task
+                qddot_r = qddot_r - pinv_rate @ barrier_task - pinv @ barrier_task_rate
+            if self.model.dof > 3:
+                z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate, blend)
+                # N z = z - J+ (J z), dN/dt z + N dz/dt as products with vectors: no
+                # n x n matrix is formed.
+                jz = jac @ z
+                qdot_r = qdot_r + (z - pinv @ jz)
+                qddot_r = qddot_r + (z_rate - pinv_rate @ jz
+                                     - pinv @ (jac_rate @ z + jac @ z_rate))
+            s = dq - qdot_r
+            # Y theta = Y_rigid theta_rigid + diag(qdot_r) theta_friction (eq. 18).
+            rigid = self.model.rigid_regressor_unchecked(q, dq, qdot_r, qddot_r)
+            split = rigid.shape[1]
+            tau_requested = (rigid @ theta[:split] + qdot_r * theta[split:] - self._ks * s
+                             - jac.T @ ((gains.kp * scale) * weighted))
+            if g_b is not None:
+                tau_requested -= g_b
         except (ValueError, np.linalg.LinAlgError) as error:
             return self._fault(f'step failed: {error}')
-        if not (np.all(np.isfinite(tau_requested)) and np.all(np.isfinite(qddot_r))):
+        peak = float((np.abs(tau_requested) * self._inverse_effort).max())
+        if not math.isfinite(peak + float(qddot_r.sum())):  # NaN or inf in either
             return self._fault('non-finite torque or parameter update')
-        peak = float(np.max(np.abs(tau_requested) / self._effort))
         limited = peak > 1.0
         tau = tau_requested / peak if limited else tau_requested.copy()
         # eq. 19, paused near a limit and while the torque is clamped (as step_lean).
         pace = 0.0 if limited else dt * (1.0 - near)
         if pace > 0.0:
-            with np.errstate(all='ignore'):
-                gradient = np.concatenate((rigid.T @ s, qdot_r * s))  # Y^T s
-                theta_next = np.clip(theta - pace * self._rates * gradient,
-                                     self.model.theta_lower, self.model.theta_upper)
-            if not np.all(np.isfinite(theta_next)):
-                return self._fault('non-finite torque or parameter update')
-            self._theta = theta_next
+            self._pending = (rigid, s, qdot_r, pace)
         # eq. 22's avoid term: w = f xdot_f + a (v_rest + v_away) - xdot_d (the feed-forward
         # as the reference has it, capped; xdot_f the filtered hand velocity of an avoid task).
         offset = ff + task_velocity[1] - hand.velocity
+        if g_b is None:
+            g_b = np.zeros(self.model.dof)
         return ArmOutput(tau, tau_requested, s, qdot_r, qddot_r, x, distance, k, theta,
                          limited, False, '', lam2, near, g_b, weighted,
                          blend=0.0 if blend is None else blend[0],
                          barrier_task_velocity=barrier_task, reference_offset=offset)
+
+    def adapt(self) -> bool:
+        """Advance theta_hat by the last `command`'s update, eq. 19 (once; none after a fault,
+        a clamped torque or within a barrier band): theta - pace L Y^T s projected onto the
+        model's box. False, theta_hat unchanged, if the update is not finite."""
+        if self._pending is None:
+            return True
+        rigid, s, qdot_r, pace = self._pending
+        self._pending = None
+        # In place in one new array (np.clip costs 3 us more than the two ufuncs; NaN passes
+        # both, caught by the sum).
+        theta_next = np.concatenate((rigid.T @ s, qdot_r * s))  # Y^T s
+        theta_next *= self._rates
+        theta_next *= -pace
+        theta_next += self._theta
+        np.maximum(theta_next, self.model.theta_lower, out=theta_next)
+        np.minimum(theta_next, self.model.theta_upper, out=theta_next)
+        if not math.isfinite(float(theta_next.sum())):
+            return False
+        self._theta = theta_next
+        return True
 
     @staticmethod
     def _task_velocity(drive, weight, motion, hand, rest):
@@ -636,9 +700,9 @@ class ArmController(TaskDrives):
             return (zero, zero, zero), zero
         (a, da), (x, dx, xdot), (hand_velocity, hand_acceleration) = weight, motion, hand
         u = xdot - hand_velocity
-        slope, hessian = task_term_3d(dx, drive)
+        slope, hessian_u = task_term_3d_along(dx, u, drive)
         weighted = a * slope
-        velocity, rate = -weighted, -(da * slope + a * (hessian @ u))
+        velocity, rate = -weighted, -(da * slope + a * hessian_u)
         away = np.zeros(3)
         if drive.open_outward:
             floats = [v.tolist() for v in (dx, x - rest, u, xdot, hand_velocity,

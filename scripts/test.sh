@@ -4,8 +4,9 @@
 # `slow` (soak, multi-host); `scripts/test.sh --all` runs them too. Further arguments go to pytest.
 #
 # Two phases of topic-level tests (marker `integration`): first those not marked `exclusive`,
-# in HRI_TEST_WORKERS (default 2) pytest-xdist workers (worksteal: an idle worker takes tests
-# queued for a busy one); then the `exclusive` ones (a 1 kHz closed loop, whose timing checks
+# in HRI_TEST_WORKERS (default 3; they wait on processes they start more than they compute, so
+# three on two cores took 97 s against 128 s with two, four 104 s) pytest-xdist workers
+# (worksteal: an idle worker takes tests queued for a busy one); then the `exclusive` ones (a 1 kHz closed loop, whose timing checks
 # need the CPU) one at a time, and beside them the pure unit tests (no ROS process) at the
 # lowest CPU priority (nice 19): a closed-loop test keeps about 1.7 of the two cores busy, less
 # while its processes start and stop, and the unit tests take what it leaves idle without
@@ -39,10 +40,10 @@ tally() {
   fi
 }
 not_slow=${selection:+$selection and }
-echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-2}" \
+echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-3}" \
   "workers" >&2
 code=0
-HRI_TEST_SCOPE=integration python -m pytest -n "${HRI_TEST_WORKERS:-2}" --dist worksteal \
+HRI_TEST_SCOPE=integration python -m pytest -n "${HRI_TEST_WORKERS:-3}" --dist worksteal \
   -m "${not_slow}integration and not exclusive" "$@" || code=$?
 tally "$code"
 echo "[test] pytest, phase 2: exclusive tests one at a time; beside them the unit tests at" \

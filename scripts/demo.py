@@ -108,7 +108,7 @@ BEHAVIOURS = {
 # QUICK_START_DELAY s first (the robot reaches a still hand in about 0.5 s, once the task has
 # faded in over 1 s), and each run ends QUICK_SETTLE s after its hand stops (1 s to settle, then
 # the 2 s window whose median distance the metrics judge).
-QUICK_SPEED_UP = 1.6
+QUICK_SPEED_UP = 2.0
 QUICK_START_DELAY = 1.0  # s
 QUICK_SETTLE = 3.0  # s
 QUICK_PAUSE = 2.0  # s, longest pause of a hand at a waypoint
@@ -132,6 +132,10 @@ SEQUENCE_HAND = {'profile': 'waypoints', 'start_delay': 0.8, 'speed': 0.1,
                  'waypoints': [0.35, -0.30, 0.35, 0.0, 0.55, -0.15],
                  'segment_speeds': [0.5, 0.1], 'pauses': [5.0, 0.0]}
 SEQUENCE_SETTLE = 4.0  # s after the hand stops
+# --quick: the hand rests 4 s (hand_rests fires after 3 s), withdraws twice as fast and the
+# run ends 3 s after it stops (1 s to settle, then the 2 s window the final metrics judge).
+QUICK_SEQUENCE_REST = 4.0  # s
+QUICK_SEQUENCE_SETTLE = 3.0  # s
 RUN_TOPICS = ['/hri/controller_state', '/hri/task_state', '/target', '/ee_position',
               '/effort_controller/commands']
 SEQUENCE_TOPICS = [*RUN_TOPICS, '/hri/events', '/hri/separation']
@@ -140,7 +144,8 @@ SEQUENCE_TOPICS = [*RUN_TOPICS, '/hri/events', '/hri/separation']
 # the event_detector's default rules. The first RECORDED_SETTLE s after each switch are left
 # out of the figures (the task fades in).
 RECORDED_TAKE = REPO_ROOT / 'data' / 'human-motion' / 'TossTheCan_0.csv'
-RECORDED_SECONDS = 20.0  # s, within the take's 21 s: no loop's wrap (--quick: 10 s)
+RECORDED_SECONDS = 20.0  # s, within the take's 21 s: no loop's wrap
+QUICK_RECORDED_SECONDS = 8.0  # s: the avoid task from about 2 s, judged from 4 s
 RECORDED_SETTLE = 2.0  # s
 
 
@@ -526,7 +531,14 @@ class Demo:
 
     def run_sequence(self) -> None:
         hand = self.sequence_hand
-        seconds = hand_stops_at(hand) + SEQUENCE_SETTLE
+        settle = SEQUENCE_SETTLE
+        if self.quick:
+            reach_in, withdraw = hand['segment_speeds']
+            hand = {**hand, 'pauses': [min(hand['pauses'][0], QUICK_SEQUENCE_REST),
+                                       *hand['pauses'][1:]],
+                    'segment_speeds': [reach_in, withdraw * QUICK_SPEED_UP]}
+            settle = QUICK_SEQUENCE_SETTLE
+        seconds = hand_stops_at(hand) + settle
         print(f'  sequence follow -> avoid -> follow_safe, events from the event_detector: '
               f'hand {hand["waypoints"]} at {hand["segment_speeds"]} m/s, '
               f'resting {hand["pauses"][0]:g} s; {seconds:.0f} s')
@@ -534,7 +546,7 @@ class Demo:
         self.sequence_report(bag)
 
     def run_recorded_person(self) -> None:
-        seconds = 10.0 if self.quick else RECORDED_SECONDS
+        seconds = QUICK_RECORDED_SECONDS if self.quick else RECORDED_SECONDS
         reach = self.hand_reach()
         hand = {'profile': 'recording', 'recording': str(RECORDED_TAKE), 'auto_place': True,
                 'at_end': 'loop', 'reach': [reach.inner, reach.outer]}

@@ -118,22 +118,34 @@ def check_commands_and_limits(model, q, efforts) -> tuple[float, float]:
     return step, margin.min()
 
 
+def enters_band_and_stays(model, sample, hand, band: tuple[float, float], enter_time: float,
+                          controller):
+    """Assert that the tool's distance to the still `hand` (3,) m came within `band` (d1, d2)
+    m at most `enter_time` s after the first joint state of `sample` and stayed there.
+    Returns (when it entered (s), the states' times (s), their q, the distances (m) from
+    then on, every 10th state)."""
+    times = np.array([stamp_seconds(msg) for msg in sample]) - stamp_seconds(sample[0])
+    q = np.array([msg.position for msg in sample])
+    distance = np.linalg.norm(np.array([model.tool_position(row) for row in q[::10]]) - hand,
+                              axis=1)
+    inside = (distance >= band[0]) & (distance <= band[1])
+    assert inside.any(), (f'distances {distance.min():.3f}-{distance.max():.3f} m; '
+                          f'{controller.log()[-2000:]}')
+    first = int(np.argmax(inside))
+    entered = times[::10][first]
+    assert entered <= enter_time, entered
+    assert inside[first:].all(), distance[first:].max()
+    return entered, times, q, distance[first:]
+
+
 def test_the_panda_follows_a_still_3d_hand_and_holds(nodes, probe):
     model = robot_model('panda')
     region = load_task_file(paper_tasks_dir() / 'follow.yaml').d2
     hand = model.tool_position(model.home) + HAND_OFFSET
     sample, efforts, reports, controller = run_panda_loop(nodes, probe, 'follow', hand,
                                                           ENTER_TIME + HOLD_TIME)
-    first = stamp_seconds(sample[0])
-    times = np.array([stamp_seconds(msg) for msg in sample]) - first
-    q = np.array([msg.position for msg in sample])
-    tool = np.array([model.tool_position(row) for row in q[::10]])
-    distance = np.linalg.norm(tool - hand, axis=1)
-    inside = distance <= region
-    assert inside.any(), f'closest {distance.min():.3f} m; {controller.log()[-2000:]}'
-    entered = times[::10][int(np.argmax(inside))]
-    assert entered <= ENTER_TIME, entered
-    assert inside[int(np.argmax(inside)):].all(), distance[int(np.argmax(inside)):].max()
+    entered, times, q, held = enters_band_and_stays(model, sample, hand, (0.0, region),
+                                                    ENTER_TIME, controller)
     assert times[-1] - entered >= HOLD_TIME - 0.5
     step, margin = check_commands_and_limits(model, q, efforts)
     # theta_hat adapts (77 values, from the URDF's).
@@ -141,9 +153,9 @@ def test_the_panda_follows_a_still_3d_hand_and_holds(nodes, probe):
     assert len(thetas[-1]) == model.theta.size
     assert np.linalg.norm(thetas[-1] - model.theta) > 1e-3
     print(f'panda follow: in the region {entered:.2f} s after the first state, held '
-          f'{times[-1] - entered:.1f} s (farthest {distance[int(np.argmax(inside)):].max():.4f} '
-          f'm of {region} m); largest effort step {step:.3f} N m; nearest limit '
-          f'{np.degrees(margin):.1f} deg; {len(sample) / times[-1]:.0f} joint states/s; '
+          f'{times[-1] - entered:.1f} s (farthest {held.max():.4f} m of {region} m); largest '
+          f'effort step {step:.3f} N m; nearest limit {np.degrees(margin):.1f} deg; '
+          f'{len(sample) / times[-1]:.0f} joint states/s; '
           f'state->command median {1e3 * np.median([m.input_age for m in reports]):.2f} ms, '
           f'{reports[-1].deadline_misses} deadline misses')
 

@@ -20,6 +20,7 @@ from tests.test_panda_loop import (
     HAND_OFFSET,
     backs_away_from_a_hand_reaching_in,
     check_commands_and_limits,
+    enters_band_and_stays,
     run_panda_loop,
 )
 
@@ -147,19 +148,11 @@ def run_learned_band(nodes, probe, tasks, task: str, band: tuple[float, float]) 
     hand = model.tool_position(model.home) + HAND_OFFSET
     sample, efforts, _, controller = run_panda_loop(nodes, probe, task, hand,
                                                     ENTER_TIME + 0.5, tasks_dir=tasks)
-    times = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in sample])
-    q = np.array([m.position for m in sample])
-    distance = np.linalg.norm(np.array([model.tool_position(row) for row in q[::10]]) - hand,
-                              axis=1)
-    inside = (distance >= band[0]) & (distance <= band[1])
-    assert inside.any(), (f'distances {distance.min():.3f}-{distance.max():.3f} m; '
-                          f'{controller.log()[-2000:]}')
-    entered = times[::10][int(np.argmax(inside))] - times[0]
-    assert entered <= ENTER_TIME, entered
-    assert inside[int(np.argmax(inside)):].all(), distance[int(np.argmax(inside)):].max()
+    entered, _, q, held = enters_band_and_stays(model, sample, hand, band, ENTER_TIME,
+                                                controller)
     step, _ = check_commands_and_limits(model, q, efforts)
     print(f'learned {task} on the live Panda: in [{band[0]:.3f}, {band[1]:.3f}] m '
-          f'{entered:.2f} s after the first state, at {distance[-1]:.3f} m at the end; '
+          f'{entered:.2f} s after the first state, at {held[-1]:.3f} m at the end; '
           f'largest effort step {step:.3f} N m')
 
 

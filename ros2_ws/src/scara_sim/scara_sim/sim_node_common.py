@@ -53,11 +53,22 @@ from hri_core.robot_model import RobotModel, robot_model
 from scara_sim.simulation import (
     FixedStepClock,
     RealTimeStepper,
+    StampSlew,
     StepState,
     joint_command_floats,
 )
 
 WARN_THROTTLE = 2.0  # s between two warnings about malformed input
+CLOCK_READ_LIMIT = 20_000  # ns: a system clock read between two monotonic ones this far apart
+
+
+def clock_offset() -> int | None:
+    """The system clock minus the monotonic one (ns), or None if the process was held up while
+    reading them (a stopped or preempted thread would read a drift that is not there)."""
+    before = time.monotonic_ns()
+    system = time.time_ns()
+    after = time.monotonic_ns()
+    return None if after - before > CLOCK_READ_LIMIT else system - (before + after) // 2
 
 # Which arm a node simulates or works on (robot_from_parameters).
 ROBOT_PARAMETERS = {
@@ -155,6 +166,11 @@ class SteppedSimNode(Node):
         self.failure = None  # the one-line reason the stepping stopped, if it did
         self._stepper: RealTimeStepper | None = None
         self._stamp0 = 0
+        # The stamps follow the system clock where it drifts from the monotonic one
+        # (StampSlew); None: the node runs on ROS time, which the stamps take as it is.
+        self._stamp_slew: StampSlew | None = None
+        self._clock_offset0 = 0
+        self._stamp_correction = 0  # ns
         self._reported = (0, 0, 0)
         self._last_report = time.monotonic()
 
@@ -303,6 +319,14 @@ class SteppedSimNode(Node):
             self._stepper = RealTimeStepper(self._sim, FixedStepClock(
                 self._sim.dt, self._max_catch_up, now))
             self._stamp0 = self.get_clock().now().nanoseconds
+            offset = None
+            for _ in range(0 if self.get_clock().ros_time_is_active else 10):
+                offset = clock_offset()
+                if offset is not None:
+                    break
+            if offset is not None:  # else the stamps stay start + simulated time
+                self._stamp_slew = StampSlew(round(self._sim.dt * 1e9))
+                self._clock_offset0 = offset
             sim = self._sim
             state = StepState(0.0, tuple(sim.q.tolist()), tuple(sim.dq.tolist()),
                               tuple(sim.applied_effort.tolist()))
@@ -311,6 +335,10 @@ class SteppedSimNode(Node):
             return
         self._take_commands()
         states = self._stepper.advance(now, self._inputs)
+        offset = None if self._stamp_slew is None else clock_offset()
+        if offset is not None:
+            self._stamp_correction = self._stamp_slew.update(offset - self._clock_offset0,
+                                                             len(states))
         for state in states:
             self._publish_joint_state(state)
         if states:
@@ -320,7 +348,8 @@ class SteppedSimNode(Node):
 
     def _stamp(self, state: StepState) -> tuple[int, int]:
         """(sec, nanosec) of the time `state` stands for."""
-        return divmod(self._stamp0 + round(state.sim_time * 1e9), 10 ** 9)
+        return divmod(self._stamp0 + self._stamp_correction + round(state.sim_time * 1e9),
+                      10 ** 9)
 
     def _publish_joint_state(self, state: StepState) -> None:
         self._joint_pub.publish(self._joint_template.encode(

@@ -12,9 +12,11 @@ from hri_core.dynamics import (
 )
 from scara_sim.simulation import (
     EARLY_TOLERANCE,
+    STAMP_DEADBAND,
     FixedStepClock,
     RealTimeStepper,
     ScaraSimulator,
+    StampSlew,
     VelocityLoop,
     clamp_to_joint_limits,
     clip_torque,
@@ -249,3 +251,34 @@ def test_a_timeout_is_judged_per_step_in_a_caught_up_tick():
     assert asked == pytest.approx([k * 1e-3 for k in range(1, 21)])
     assert [list(s.effort) for s in states[:10]] == [[2.0, -1.0]] * 10
     assert [list(s.effort) for s in states[10:]] == [[0.0, 0.0]] * 10
+
+
+def test_stamps_follow_a_slewed_system_clock_one_step_apart_and_never_back():
+    # The system clock runs 5 ms/s (0.5 %) off the monotonic one for 20 s, then steps back
+    # by 30 ms: the stamps (start + simulated time + correction) keep up with the drift
+    # within the deadband plus one tick's slew, stay 1 ms apart within 1 %, and go on
+    # increasing while the step back is caught up.
+    rng = np.random.default_rng(3)
+    slew = StampSlew(dt_ns=1_000_000)
+    stamps, lag = [], []
+    drift = 0.0
+    for tick in range(40_000):
+        steps = 2 if rng.random() < 0.01 else 1  # a late tick now and then
+        drift += 5_000.0 * steps if tick < 20_000 else 0.0
+        if tick == 20_000:
+            drift -= 30e6
+        reading = round(drift + rng.normal(0.0, 500.0))  # two clock reads, 0.5 us apart
+        correction = slew.update(reading, steps)
+        stamps.append(tick * 1_000_000 + correction)
+        if tick < 20_000:
+            lag.append(drift - correction)
+    periods = np.diff(stamps)
+    assert np.all(periods > 0)
+    assert np.all(np.abs(periods - np.round(periods / 1e6) * 1e6) <= 10_000)
+    assert max(np.abs(lag[100:])) <= STAMP_DEADBAND + 20_000
+    assert abs(drift - slew.correction) <= STAMP_DEADBAND + 20_000  # caught up again
+
+
+def test_stamps_left_alone_within_the_deadband():
+    slew = StampSlew(dt_ns=1_000_000)
+    assert [slew.update(drift, 1) for drift in (0, 40_000, -40_000, 49_999)] == [0, 0, 0, 0]

@@ -166,6 +166,30 @@ PANDA_GAINS = ArmGains(
 )
 
 
+# A URDF arm's Ks: each joint's share of the Panda's (40 N m s/rad per 87 N m of effort limit),
+# at most KS_RATE times the least inertia that joint moves. Ks / M is how fast s decays (1/s);
+# the Panda's gains have 26-86 1/s. The effort share alone gave the UR3's and UR10's wrists
+# (0.5-8 g m^2 against 54 N m) Ks dt / M = 3-47 at 1 kHz: s overshot each cycle and the arm
+# spun through its limits.
+KS_RATE = 60.0  # 1/s
+KS_PER_EFFORT = 40.0 / 87.0  # s/rad
+INERTIA_SAMPLES = 200  # seeded configurations over which each joint's least inertia is taken
+
+
+def default_arm_ks(model: RobotModel, samples: int = INERTIA_SAMPLES) -> tuple[float, ...]:
+    """Ks (n,) N m s/rad for an arm without gains of its own: min(KS_PER_EFFORT effort_i,
+    KS_RATE min_q M_ii(q)) over the home pose and `samples` seeded configurations within the
+    joint limits (the inertia a joint moves changes with the outer joints)."""
+    rng = np.random.default_rng(0)
+    lower = np.where(np.isfinite(model.limits.lower), model.limits.lower, -math.pi)
+    upper = np.where(np.isfinite(model.limits.upper), model.limits.upper, math.pi)
+    least = np.diag(model.mass_matrix(model.home)).copy()
+    for q in rng.uniform(lower, upper, (samples, model.dof)):
+        least = np.minimum(least, np.diag(model.mass_matrix(q)))
+    return tuple(float(v) for v in np.minimum(KS_PER_EFFORT * model.limits.effort,
+                                              KS_RATE * least))
+
+
 class HandState(NamedTuple):
     """The hand (target) x_d (3,) m, xdot_d (3,) m/s, xddot_d (3,) m/s^2."""
 
@@ -645,8 +669,8 @@ class ArmController(TaskDrives):
                              - jac.T @ ((gains.kp * scale) * weighted))
             if g_b is not None:
                 tau_requested -= g_b
-        except (ValueError, np.linalg.LinAlgError) as error:
-            return self._fault(f'step failed: {error}')
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as error:
+            return self._fault(f'step failed: {error!r}')
         peak = float((np.abs(tau_requested) * self._inverse_effort).max())
         if not math.isfinite(peak + float(qddot_r.sum())):  # NaN or inf in either
             return self._fault('non-finite torque or parameter update')

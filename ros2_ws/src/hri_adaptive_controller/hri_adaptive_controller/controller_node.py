@@ -89,6 +89,7 @@ from hri_adaptive_controller.arm_law import (
     ArmController,
     ArmGains,
     HandState,
+    default_arm_ks,
 )
 from hri_adaptive_controller.effort_rate import CommandEcho, EffortRateLimiter
 from hri_adaptive_controller.event_weight import (
@@ -283,15 +284,13 @@ def arm_model_from(values: dict) -> RobotModel | None:
 
 def arm_gains_from(values: dict, model: RobotModel) -> ArmGains:
     """ArmGains for `model` from parameter values: arm_ks and arm_adaptation_gain if set,
-    else PANDA_GAINS' (for a URDF arm: its Ks scaled per joint by the effort limits); the
-    task, speed, rate-limit and barrier parameters shared with the SCARA's. ValueError with
-    the reason if invalid."""
+    else PANDA_GAINS' (for another arm: Ks from its effort limits and link inertias,
+    arm_law.default_arm_ks); the task, speed, rate-limit and barrier parameters shared with
+    the SCARA's. ValueError with the reason if invalid."""
     ks = values['arm_ks']
     if ks is None:
-        if len(PANDA_GAINS.ks) == model.dof:
-            ks = PANDA_GAINS.ks
-        else:  # a URDF arm: Ks in proportion to each joint's effort limit (Panda's 40 / 87)
-            ks = tuple(float(v) * 40.0 / 87.0 for v in model.limits.effort)
+        ks = (PANDA_GAINS.ks if model.name == 'panda' and model.dof == len(PANDA_GAINS.ks)
+              else default_arm_ks(model))
     adaptation = values['arm_adaptation_gain']
     return dataclasses.replace(
         PANDA_GAINS, ks=tuple(ks), kp=values['kp'],

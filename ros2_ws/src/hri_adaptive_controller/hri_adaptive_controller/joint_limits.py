@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule
-from hri_adaptive_controller.task_variable import _smoothstep
+from hri_adaptive_controller.task_variable import _SECH_LIMIT, _smoothstep
 
 GOAL_MARGIN = 0.5
 """The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
@@ -329,7 +329,10 @@ class _JointBlend:
             return (sigma, sigma_rate, tuple(df - k * ei for df, ei in zip(rate, e, strict=True)),
                     tuple(a - k * dei for a, dei in zip(acc, de, strict=True)))
         capped = speed_max * math.tanh(raw / speed_max)
-        slope = 1.0 / math.cosh(raw / speed_max) ** 2 * k  # d capped / d norm
+        # d capped / d norm; sech^2 is 0 in double precision long before cosh overflows (the
+        # xArm7's +-2 pi joints put a goal 15 rad away: OverflowError, no torque).
+        slope = (0.0 if raw > _SECH_LIMIT * speed_max
+                 else 1.0 / math.cosh(raw / speed_max) ** 2 * k)
         scale = capped / norm  # u = -scale e
         along = sum(ei * dei for ei, dei in zip(e, de, strict=True)) / norm  # d norm / dt
         dscale = (slope - scale) / norm * along

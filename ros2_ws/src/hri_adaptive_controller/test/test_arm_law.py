@@ -3,11 +3,13 @@ forward dynamics (RK4 at 1 kHz, a perturbed 'true' arm, theta_hat from a wrong s
 
 import dataclasses
 import math
+from importlib import metadata
 
 import numpy as np
 import pytest
 
 from hri_adaptive_controller.arm_law import (
+    KS_RATE,
     PANDA_GAINS,
     ActiveTask,
     ArmController,
@@ -15,6 +17,7 @@ from hri_adaptive_controller.arm_law import (
     HandState,
     barrier_energy_n,
     barrier_n,
+    default_arm_ks,
     gate_feed_forward_n,
     rk4_step,
     task_term_3d,
@@ -22,6 +25,8 @@ from hri_adaptive_controller.arm_law import (
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import (
     JointLimits,
+    ReachRoundSettings,
+    _JointBlend,
     barrier,
     barrier_energy,
     gate_feed_forward,
@@ -266,3 +271,52 @@ def test_a_joint_started_in_its_limit_band_is_pushed_out(panda):
     assert nears[0] > 0.0 and nears[-1] == 0.0
     assert panda.limits.upper[3] - q[3] > PANDA_GAINS.limit_band
     assert max(distances) <= FOLLOW.d2
+
+
+UR_URDFS = 'cmeel.prefix/share/example-robot-data/robots/ur_description/urdf'
+
+
+def example_robot(urdf: str):
+    """A UR arm of example-robot-data (requirements.lock), tool frame tool0."""
+    path = metadata.distribution('example-robot-data').locate_file(f'{UR_URDFS}/{urdf}')
+    return robot_model(urdf_file=str(path), tool_frame='tool0')
+
+
+@pytest.mark.parametrize('urdf', ['ur3_joint_limited_robot.urdf', 'ur10_robot.urdf'])
+def test_a_urdf_arm_without_gains_of_its_own_follows_a_still_hand(urdf):
+    # Ks from the effort limits alone gave the UR3's and UR10's wrists Ks dt / M = 3-47:
+    # the arm spun through its limits. default_arm_ks bounds Ks by the inertia each joint
+    # moves.
+    model = example_robot(urdf)
+    ks = np.array(default_arm_ks(model))
+    rng = np.random.default_rng(2)
+    for q in [model.home, *rng.uniform(model.limits.lower, model.limits.upper, (20, model.dof))]:
+        assert np.all(ks * DT / np.diag(model.mass_matrix(q)) <= KS_RATE * DT + 1e-12)
+    controller = ArmController(model, dataclasses.replace(PANDA_GAINS, ks=tuple(ks)))
+    q, dq = model.home.copy(), np.zeros(model.dof)
+    # 0.3 m from the tool, towards the shoulder (the home pose is stretched out).
+    inward = np.array([-0.2, 0.15, 0.15]) / np.linalg.norm([-0.2, 0.15, 0.15])
+    hand = HandState(model.tool_position(q) + 0.3 * inward, np.zeros(3), np.zeros(3))
+    distances = []
+    for i in range(4000):
+        out = controller.step(q, dq, hand, ActiveTask(FOLLOW, min(1.0, i / 1000)), DT)
+        assert not out.fault, out.fault_reason
+        assert np.all(np.abs(out.tau) <= model.limits.effort + 1e-9)
+        distances.append(out.distance)
+        q, dq = rk4_step(model, q, dq, out.tau, DT)
+    entered = int(np.argmax(np.array(distances) <= FOLLOW.d2))
+    assert distances[entered] <= FOLLOW.d2 and entered * DT <= 3.0, min(distances)
+    assert max(distances[entered:]) <= FOLLOW.d2 + 0.005
+    assert np.all((q > model.limits.lower) & (q < model.limits.upper))
+
+
+def test_the_reach_round_joint_motion_stays_finite_for_any_joint_error():
+    # 1000 rad between the joints and the filtered goal (a state no arm reaches, but a law
+    # must not raise on it): sech^2 of the capped motion underflows instead of cosh
+    # overflowing (an OverflowError left the arm without torque).
+    blend = _JointBlend(ReachRoundSettings())
+    q, dq = (0.1, 0.2, 0.3), (0.0, 0.0, 0.0)
+    blend._blend(True, None, q, dq, DT)
+    sigma, sigma_rate, u, u_rate = blend._blend(True, None, (1000.0, 0.2, 0.3), dq, DT)
+    assert all(math.isfinite(v) for v in (sigma, sigma_rate, *u, *u_rate))
+    assert math.hypot(*u) <= ReachRoundSettings().max_speed + 1e-9

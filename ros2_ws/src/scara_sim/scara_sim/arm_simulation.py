@@ -7,8 +7,14 @@ classical RK4 on pinocchio's forward dynamics (ABA),
 
 the drive torque tau and the human's wrench w (force in N, torque in N m, base-frame axes,
 at the tool point; J6 taken at the start of the step) held over the step (a drive's current
-loop). The drive torque is the commanded effort clipped at each joint's effort limit (the
-URDF's: 87 N m for the Panda's joints 1-4, 12 N m for 5-7), or zero when idle.
+loop). Where the viscous friction is stiff against the arm's inertia (F dt above half the
+least eigenvalue of M at the start), F dq is taken out of the RK4 and applied after it,
+implicitly: dq <- (M + dt F)^-1 M dq at the step's end. In the RK4 it diverged there: the
+xArm7's URDF has 2 N m s/rad on a wrist of 1.4e-4 kg m^2 (F dt 14 times the inertia; the
+RK4 is stable below about 2.8), and its state became non-finite within 8 steps. Other arms
+keep the friction in the RK4 (4th order; the SCARA's steps equal scara_sim's). The drive
+torque is the commanded effort clipped at each joint's effort limit (the URDF's: 87 N m for
+the Panda's joints 1-4, 12 N m for 5-7), or zero when idle.
 
 Joint position limits are rigid, inelastic stops (not stiff springs: no stiffness to tune
 and no 1 kHz oscillation against the stop). After each step a joint beyond a limit is clamped
@@ -109,6 +115,12 @@ class ArmSimulator:
             raise ValueError(f'teach_damping must be finite and >= 0 N m s/rad, got '
                              f'{self.teach_damping}')
         self.applied_effort = np.zeros(arm.dof)
+        # Stiff friction apart (module docstring): the RK4 then runs on the arm without it.
+        self._friction = np.asarray(arm.damping, dtype=float).copy()
+        least_inertia = float(np.linalg.eigvalsh(arm.mass_matrix(self.q)).min())
+        self._stiff = bool(np.max(self.dt * self._friction) > 0.5 * least_inertia)
+        self._rigid = (arm.with_inertias(np.ones(arm.dof), np.zeros(arm.dof)) if self._stiff
+                       else arm)
         self._lower, self._upper = limits.lower, limits.upper
         self._effort, self._least_effort = limits.effort, -limits.effort
 
@@ -129,10 +141,11 @@ class ArmSimulator:
         return np.minimum(np.maximum(total, self._least_effort), self._effort)
 
     def acceleration(self, q, dq, torque, stops=None) -> np.ndarray:
-        """ddq (n,) rad/s^2 of the true arm under the joint torque (n,) N m (friction and
-        gravity included), with the joints that `stops` (from _stops_holding) names held by
-        their stops; inputs unchecked (the 1 kHz path)."""
-        free = self.arm.forward_dynamics(q, dq, torque)
+        """ddq (n,) rad/s^2 of the true arm under the joint torque (n,) N m (gravity
+        included; the friction is applied after the step, `step`), with the joints that
+        `stops` (from _stops_holding) names held by their stops; inputs unchecked (the 1 kHz
+        path)."""
+        free = self._rigid.forward_dynamics(q, dq, torque)
         if stops is None:
             return free
         locked, coupling, block_inverse = stops
@@ -199,6 +212,9 @@ class ArmSimulator:
         # One sum: NaN or inf anywhere in the state makes it non-finite.
         if not math.isfinite(float(q_next.sum() + dq_next.sum())):
             raise ValueError(f'the simulated state became non-finite (torque {torque.tolist()})')
+        if self._stiff:
+            inertia = self._rigid.mass_matrix(q_next)
+            dq_next = np.linalg.solve(inertia + np.diag(dt * self._friction), inertia @ dq_next)
         lower, upper = self._lower, self._upper
         below, above = q_next <= lower, q_next >= upper
         if below.any() or above.any():

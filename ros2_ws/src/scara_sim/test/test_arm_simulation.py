@@ -1,6 +1,8 @@
 """scara_sim.arm_simulation on the Panda: energy and gravity, joint limits, effort clipping,
 the seeded perturbation and determinism."""
 
+from importlib import metadata
+
 import numpy as np
 import pytest
 
@@ -256,3 +258,21 @@ def test_brake_holds_the_arm_still_against_gravity_and_a_push(panda):
         q, dq, effort = sim.step('brake', None, (5.0, 0.0, -5.0))
     np.testing.assert_array_equal(np.array(q), start)
     assert not any(dq) and not any(effort)
+
+
+XARM7 = 'cmeel.prefix/share/example-robot-data/robots/xarm_description/urdf/xarm7.urdf'
+
+
+def test_friction_stiff_against_a_light_wrist_stays_finite():
+    # The xArm7's URDF (example-robot-data): 2 N m s/rad of friction on a wrist of
+    # 1.4e-4 kg m^2. In the RK4 it made the state non-finite within 8 steps; applied
+    # implicitly after the step it slows the falling arm, which comes to rest on its stops.
+    path = metadata.distribution('example-robot-data').locate_file(XARM7)
+    arm = true_arm(robot_model(urdf_file=str(path), tool_frame='link_eef'), 0.1, SEED)
+    assert np.max(DT * arm.damping / np.linalg.eigvalsh(arm.mass_matrix(arm.home)).min()) > 10
+    sim = simulator(arm, dq=np.full(arm.dof, 0.5))
+    for _ in range(2000):
+        sim.step('idle', None, ())
+        assert np.all(np.isfinite(sim.dq))
+        assert np.all(sim.q >= arm.limits.lower) and np.all(sim.q <= arm.limits.upper)
+    assert np.max(np.abs(sim.dq)) < 0.5

@@ -11,6 +11,7 @@ effort limits and at most 1 N m from the one before; no joint within 5 deg of a 
 import math
 import threading
 import time
+from importlib import metadata
 
 import numpy as np
 import pytest
@@ -68,11 +69,13 @@ def publish_hand(probe, position, started: dict, stop: threading.Event) -> threa
     return thread
 
 
-def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=None):
+def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=None,
+                   arm=None):
     """The loop with `task` (of `tasks_dir`; None: Table I's) faded in and the hand `hand` for
     `duration` s after the first joint state: (joint states, commands, controller states,
     controller). `hand`: a point or a function of time for the probe to publish (see
     publish_hand), or a dict of hand_sim parameters (hand_sim starts once the arm publishes).
+    `arm`: the arm parameters of arm_sim and the controller (default robot:=panda).
     The event_manager and the controller start first, so the arm is controlled from its first
     step (a Panda without torque sags)."""
     stop, started = threading.Event(), {}
@@ -84,12 +87,12 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=Non
         reports = probe.collect(topics.CONTROLLER_STATE.name, ControllerState, RELIABLE)
         manager = nodes('hri_adaptive_controller', 'event_manager', params={
             'tasks_dir': str(tasks_dir or paper_tasks_dir()), 'initial_task': task})
-        controller = nodes('hri_adaptive_controller', 'controller',
-                           params={'robot': 'panda'})
+        arm = arm or {'robot': 'panda'}
+        controller = nodes('hri_adaptive_controller', 'controller', params=arm)
         assert controller.wait_for_line('control on each /joint_states', START_TIMEOUT), \
             controller.log()
         assert manager.wait_for_line('task(s) loaded', START_TIMEOUT), manager.log()
-        sim = nodes('scara_sim', 'arm_sim', params={'robot': 'panda'})
+        sim = nodes('scara_sim', 'arm_sim', params=arm)
         assert wait_for(lambda: len(states) > 0, START_TIMEOUT), sim.log()
         hand_sim = nodes('scara_sim', 'hand_sim', params=hand) if isinstance(hand, dict) \
             else None
@@ -240,3 +243,27 @@ def test_the_panda_follows_a_hand_moving_in_3d(nodes, probe):
     hand_gap = float(np.diff(np.sort(hand_times)).max())
     assert farthest <= region, (f'{farthest:.3f} m at {worst:.2f} s; longest /target gap '
                                 f'{hand_gap:.3f} s', controller.log()[-2000:])
+
+
+XARM7 = 'cmeel.prefix/share/example-robot-data/robots/xarm_description/urdf/xarm7.urdf'
+
+
+@pytest.mark.slow
+def test_an_arm_given_by_its_urdf_file_follows_a_still_hand(nodes, probe):
+    """The xArm7 of example-robot-data through urdf_file and tool_frame alone (no gains of
+    its own; friction stiff against its wrist): the tool enters follow's region around a
+    still hand 0.3 m away within ENTER_TIME and stays; commands within its limits."""
+    path = str(metadata.distribution('example-robot-data').locate_file(XARM7))
+    model = robot_model(urdf_file=path, tool_frame='link_eef')
+    region = load_task_file(paper_tasks_dir() / 'follow.yaml').d2
+    inward = np.array([-0.2, 0.15, 0.15]) / np.linalg.norm([-0.2, 0.15, 0.15])
+    hand = model.tool_position(model.home) + 0.3 * inward
+    sample, efforts, _, controller = run_panda_loop(
+        nodes, probe, 'follow', hand, ENTER_TIME + 1.0,
+        arm={'urdf_file': path, 'tool_frame': 'link_eef'})
+    entered, _, q, held = enters_band_and_stays(model, sample, hand, (0.0, region),
+                                                ENTER_TIME, controller)
+    step, margin = check_commands_and_limits(model, q, efforts)
+    print(f'xArm7 follow: in the region {entered:.2f} s after the first state, farthest '
+          f'{held.max():.4f} m of {region} m; largest effort step {step:.3f} N m; nearest '
+          f'limit {np.degrees(margin):.1f} deg')

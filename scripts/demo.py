@@ -556,12 +556,20 @@ class Demo:
         self.recorded_person_report(bag)
 
     # -- stage 6 -----------------------------------------------------------------------
+    effort_topics: list[str] = []  # what effort_shares reads from a run's bag besides commands
+
+    def effort_shares(self, contents: dict, times, commands):
+        """The commands (N, n) N m at `times` (s) as fractions of each joint's effort limit,
+        for the recorded person's high-effort hold: the SCARA's (horizontal, no gravity)
+        over the controller's effort_limit."""
+        return commands / load_defaults('hri_adaptive_controller', 'controller')['effort_limit']
+
     def recorded_person_report(self, bag: Path) -> None:
         """Figures of the recorded person's run per task the controller ran
         (run_metrics.take_metrics), the detected events, and its figure: hand and arm paths,
         distance, effort."""
         topics = ['/target', '/ee_position', '/effort_controller/commands',
-                  '/hri/controller_state', '/hri/events']
+                  '/hri/controller_state', *self.effort_topics, '/hri/events']
         contents = read_bag(bag, topics=topics).topics
         for topic in topics[:-1]:
             if topic not in contents or not contents[topic].messages:
@@ -611,12 +619,14 @@ class Demo:
             if np.count_nonzero(inside) < 100:
                 continue
             record = load_task_file(self.tasks / f'{task}.yaml')
-            criteria = TakeCriteria(d1=record.d1, effort_limit=controller['effort_limit'],
+            # The commands as fractions of their joints' limits (effort_limit 1): take_metrics
+            # wants one per arm sample.
+            criteria = TakeCriteria(d1=record.d1, effort_limit=1.0,
                                     task_speed=controller['max_task_speed'], reach=reach)
-            # the commands as the effort: take_metrics wants one per arm sample
             nearest = np.clip(np.searchsorted(command_t, arm_t[inside]), 0, len(command_t) - 1)
             metrics = take_metrics(arm_t[inside], hand_at_arm[inside], arm_xy[inside],
-                                   commands[nearest], criteria)
+                                   self.effort_shares(contents, command_t[nearest],
+                                                      commands[nearest]), criteria)
             # Every command sent while the task ran, not only those nearest an arm sample:
             # steps between consecutive commands of each stretch of the task.
             edges = np.diff(np.concatenate(([0], inside.astype(np.int8), [0])))
@@ -631,7 +641,9 @@ class Demo:
                 'largest_effort_step': max(largest_effort_step(commands[stretch])
                                            for stretch in stretches),
                 'longest_high_effort_hold': longest_high_effort_hold(
-                    command_t[window], commands[window], 0.25 * controller['effort_limit'])}
+                    command_t[window], self.effort_shares(contents, command_t[window],
+                                                          commands[window]),
+                    criteria.high_effort_fraction)}
             m = summary[task]
             median = _or_dash(m['follow_median_distance'], '.3f')
             print(f'    {task}: median distance {median} m, closer '

@@ -158,7 +158,9 @@ PARAMETERS = {
     'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the robot\'s '
                                 'own; required with urdf_file)', read_only=True),
     'arm_ks': ParameterSpec(list, 'n-joint law: diagonal of Ks, one per joint (N m s/rad); '
-                            "unset: the robot's defaults (arm_law.PANDA_GAINS)", optional=True),
+                            "unset: the Panda's (arm_law.PANDA_GAINS), another arm's from its "
+                            'effort limits and inertias (arm_law.default_arm_ks)',
+                            optional=True),
     'arm_adaptation_gain': ParameterSpec(
         list, 'n-joint law: L for each kind of link parameter (m, mcx, mcy, mcz, Ixx, Ixy, '
         "Iyy, Ixz, Iyz, Izz, damping), every joint alike; unset: the robot's defaults",

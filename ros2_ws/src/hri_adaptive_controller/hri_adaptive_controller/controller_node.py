@@ -161,6 +161,10 @@ PARAMETERS = {
                             "unset: the Panda's (arm_law.PANDA_GAINS), another arm's from its "
                             'effort limits and inertias (arm_law.default_arm_ks)',
                             optional=True),
+    'home_position': ParameterSpec(
+        list, 'n-joint law: the joint posture the null space pulls towards (rad, one per '
+        "joint, within the limits); unset: the robot's home (the Panda's ready pose; a URDF "
+        "arm's: the middle of its joint limits)", optional=True, read_only=True),
     'arm_adaptation_gain': ParameterSpec(
         list, 'n-joint law: L for each kind of link parameter (m, mcx, mcy, mcz, Ixx, Ixy, '
         "Iyy, Ixz, Iyz, Izz, damping), every joint alike; unset: the robot's defaults",
@@ -276,12 +280,28 @@ def gains_from(values: dict) -> ControllerGains:
 
 def arm_model_from(values: dict) -> RobotModel | None:
     """The model of a robot the n-joint law drives (urdf_file, or robot other than the
-    SCARA), or None for the SCARA (its planar fast path). ValueError with the reason."""
+    SCARA; its home pose home_position if set), or None for the SCARA (its planar fast
+    path). ValueError with the reason."""
+    home = values.get('home_position')
     if values['urdf_file']:
-        return robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
-    if values['robot'] == 'scara':
+        model = robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
+    elif values['robot'] == 'scara':
+        if home is not None:
+            raise ValueError('home_position is for an arm of 3 or more joints (its null '
+                             'space); the SCARA has none')
         return None
-    return robot_model(values['robot'], tool_frame=values['tool_frame'])
+    else:
+        model = robot_model(values['robot'], tool_frame=values['tool_frame'])
+    if home is not None:
+        home = np.asarray(home, dtype=float)
+        if home.shape != (model.dof,) or not np.all(np.isfinite(home)):
+            raise ValueError(f'home_position must have {model.dof} finite values (rad) for '
+                             f'{model.name}, got {list(values["home_position"])}')
+        if np.any(home < model.limits.lower) or np.any(home > model.limits.upper):
+            raise ValueError(f'home_position {home.tolist()} is outside the joint limits '
+                             f'{model.limits.lower.tolist()} .. {model.limits.upper.tolist()}')
+        model.home = home
+    return model
 
 
 def arm_gains_from(values: dict, model: RobotModel) -> ArmGains:

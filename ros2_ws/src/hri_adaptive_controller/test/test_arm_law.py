@@ -241,6 +241,15 @@ def test_the_node_picks_the_law_by_robot(panda):
               'rest_gate': 0.03, 'max_effort_rate': 1000.0, 'joint_limit_band': 0.15,
               'barrier_torque': 3.0, 'reach_round': True, 'rest_position': None}
     assert arm_model_from(values) is None  # the SCARA keeps adaptive_law's fast path
+    with pytest.raises(ValueError, match='home_position is for an arm of 3 or more joints'):
+        arm_model_from({**values, 'home_position': [0.0, 1.0]})
+    bent = [0.3, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8]
+    assert arm_model_from({**values, 'robot': 'panda', 'home_position': bent}).home.tolist() \
+        == bent
+    with pytest.raises(ValueError, match='home_position must have 7 finite values'):
+        arm_model_from({**values, 'robot': 'panda', 'home_position': bent[:6]})
+    with pytest.raises(ValueError, match='outside the joint limits'):
+        arm_model_from({**values, 'robot': 'panda', 'home_position': [0.0] * 7})
     model = arm_model_from({**values, 'robot': 'panda'})
     assert model.joint_names == panda.joint_names
     assert arm_gains_from(values, model) == PANDA_GAINS

@@ -153,8 +153,8 @@ class PandaDemo(Demo):
 
     def effort_shares(self, contents: dict, times, commands):
         """The Panda's commands less its URDF's gravity torque at the nearest joint state,
-        over each joint's limit (87 / 12 N m): holding itself up takes 22 N m on joint 2,
-        a quarter of its limit, which is no effort the task asks for."""
+        over each joint's limit (87 / 12 N m): holding itself up takes 23-29 N m on joints
+        2 and 4, a quarter of their limit or more, which is no effort the task asks for."""
         model = robot_model('panda')
         states = contents['/joint_states'].messages
         state_t = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec

@@ -437,9 +437,13 @@ def test_a_burst_of_1000_events_in_one_second_under_the_closed_loop(live_loop, p
     # controller's joint_state_timeout now and then (the burst itself loads both cores: 55 of
     # 158 states were stale once in a fresh-clone run): zero torque for that long, as it
     # should, and control back once the burst is over.
+    # The same for the hand: once (a fresh-clone run) the controller reported target_lost for
+    # 18 of 311 states, no /target accepted within target_timeout (0.5 s) of the joint states'
+    # stamps while the burst loaded both cores; the task fades out then, as it should.
     statuses = [s.status for s in states[first_state:]]
     print(f'controller status during the burst: { {k: statuses.count(k) for k in set(statuses)} }')
-    assert set(statuses) <= {'ok', 'stale_joint_states'}, set(statuses)
+    assert set(statuses) <= {'ok', 'stale_joint_states', 'target_lost'}, \
+        (set(statuses), controller.log()[-3000:])
     settled = len(states)
     assert wait_for(lambda: len(states) > settled + 50, 10.0)
     after = [s.status for s in states[settled:]]

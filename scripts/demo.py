@@ -585,6 +585,7 @@ class Demo:
         command_t = contents['/effort_controller/commands'].times()
         commands = np.array([list(m.data) for m in contents['/effort_controller/commands']
                              .messages])
+        shares = self.effort_shares(contents, command_t, commands)
         states = contents['/hri/controller_state'].messages
         state_t = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in states])
         state_task = np.array([m.task for m in states])
@@ -625,8 +626,7 @@ class Demo:
                                     task_speed=controller['max_task_speed'], reach=reach)
             nearest = np.clip(np.searchsorted(command_t, arm_t[inside]), 0, len(command_t) - 1)
             metrics = take_metrics(arm_t[inside], hand_at_arm[inside], arm_xy[inside],
-                                   self.effort_shares(contents, command_t[nearest],
-                                                      commands[nearest]), criteria)
+                                   shares[nearest], criteria)
             # Every command sent while the task ran, not only those nearest an arm sample:
             # steps between consecutive commands of each stretch of the task.
             edges = np.diff(np.concatenate(([0], inside.astype(np.int8), [0])))
@@ -641,9 +641,7 @@ class Demo:
                 'largest_effort_step': max(largest_effort_step(commands[stretch])
                                            for stretch in stretches),
                 'longest_high_effort_hold': longest_high_effort_hold(
-                    command_t[window], self.effort_shares(contents, command_t[window],
-                                                          commands[window]),
-                    criteria.high_effort_fraction)}
+                    command_t[window], shares[window], criteria.high_effort_fraction)}
             m = summary[task]
             median = _or_dash(m['follow_median_distance'], '.3f')
             print(f'    {task}: median distance {median} m, closer '

@@ -166,6 +166,15 @@ PANDA_GAINS = ArmGains(
 )
 
 
+def sampled_configurations(model: RobotModel, samples: int) -> np.ndarray:
+    """`samples` joint configurations (samples, n) rad drawn uniformly within the model's
+    joint limits (+-pi where a limit is unbounded) from a generator seeded with 0: the same
+    configurations for every call with the same model."""
+    lower = np.where(np.isfinite(model.limits.lower), model.limits.lower, -math.pi)
+    upper = np.where(np.isfinite(model.limits.upper), model.limits.upper, math.pi)
+    return np.random.default_rng(0).uniform(lower, upper, (samples, model.dof))
+
+
 # A URDF arm's Ks: each joint's share of the Panda's (40 N m s/rad per 87 N m of effort limit),
 # at most KS_RATE times the least inertia that joint moves. Ks / M is how fast s decays (1/s);
 # the Panda's gains have 26-86 1/s. The effort share alone gave the UR3's and UR10's wrists
@@ -180,11 +189,8 @@ def default_arm_ks(model: RobotModel, samples: int = INERTIA_SAMPLES) -> tuple[f
     """Ks (n,) N m s/rad for an arm without gains of its own: min(KS_PER_EFFORT effort_i,
     KS_RATE min_q M_ii(q)) over the home pose and `samples` seeded configurations within the
     joint limits (the inertia a joint moves changes with the outer joints)."""
-    rng = np.random.default_rng(0)
-    lower = np.where(np.isfinite(model.limits.lower), model.limits.lower, -math.pi)
-    upper = np.where(np.isfinite(model.limits.upper), model.limits.upper, math.pi)
     least = np.diag(model.mass_matrix(model.home)).copy()
-    for q in rng.uniform(lower, upper, (samples, model.dof)):
+    for q in sampled_configurations(model, samples):
         least = np.minimum(least, np.diag(model.mass_matrix(q)))
     return tuple(float(v) for v in np.minimum(KS_PER_EFFORT * model.limits.effort,
                                               KS_RATE * least))
@@ -339,11 +345,8 @@ def attained_reach(model: RobotModel, samples: int = REACH_SAMPLES) -> float:
     model.reach is an upper bound (the chain's lengths added), for the Panda 1.09 m against
     0.95 m attained; with it, Table I's avoid row (d2 = 2.0 m) would not count as open
     outward (d2 >= 2 reach, task_variable.open_outward) and the arm would copy the hand."""
-    rng = np.random.default_rng(0)
-    lower = np.where(np.isfinite(model.limits.lower), model.limits.lower, -math.pi)
-    upper = np.where(np.isfinite(model.limits.upper), model.limits.upper, math.pi)
     farthest = 0.0
-    for q in rng.uniform(lower, upper, (samples, model.dof)):
+    for q in sampled_configurations(model, samples):
         farthest = max(farthest, float(np.linalg.norm(model.tool_position(q) - model.shoulder)))
     return farthest
 

@@ -293,14 +293,7 @@ def arm_model_from(values: dict) -> RobotModel | None:
     else:
         model = robot_model(values['robot'], tool_frame=values['tool_frame'])
     if home is not None:
-        home = np.asarray(home, dtype=float)
-        if home.shape != (model.dof,) or not np.all(np.isfinite(home)):
-            raise ValueError(f'home_position must have {model.dof} finite values (rad) for '
-                             f'{model.name}, got {list(values["home_position"])}')
-        if np.any(home < model.limits.lower) or np.any(home > model.limits.upper):
-            raise ValueError(f'home_position {home.tolist()} is outside the joint limits '
-                             f'{model.limits.lower.tolist()} .. {model.limits.upper.tolist()}')
-        model.home = home
+        model.home = model.joint_position(home, 'home_position')
     return model
 
 

@@ -329,8 +329,9 @@ class _JointBlend:
             return (sigma, sigma_rate, tuple(df - k * ei for df, ei in zip(rate, e, strict=True)),
                     tuple(a - k * dei for a, dei in zip(acc, de, strict=True)))
         capped = speed_max * math.tanh(raw / speed_max)
-        # d capped / d norm; sech^2 is 0 in double precision long before cosh overflows (the
-        # xArm7's +-2 pi joints put a goal 15 rad away: OverflowError, no torque).
+        # d capped / d norm; sech^2 is 0 in double precision long before cosh overflows (a
+        # state far from its filtered goal, as when a simulated xArm7 diverged, raised
+        # OverflowError: no torque).
         slope = (0.0 if raw > _SECH_LIMIT * speed_max
                  else 1.0 / math.cosh(raw / speed_max) ** 2 * k)
         scale = capped / norm  # u = -scale e

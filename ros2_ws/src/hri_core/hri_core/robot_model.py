@@ -139,6 +139,15 @@ class RobotModel(ABC):
             raise ValueError(f'{what} must be finite, got {array.tolist()}')
         return array
 
+    def joint_position(self, value, what: str) -> np.ndarray:
+        """joint_vector(value), also within the joint position limits (rad)."""
+        array = self.joint_vector(value, what)
+        limits = self.limits
+        if np.any(array < limits.lower) or np.any(array > limits.upper):
+            raise ValueError(f'{what} {array.tolist()} outside the joint limits '
+                             f'{limits.lower.tolist()} .. {limits.upper.tolist()}')
+        return array
+
     @abstractmethod
     def tool_position(self, q) -> np.ndarray:
         """Tool point x(q) in the base frame (3,), m."""

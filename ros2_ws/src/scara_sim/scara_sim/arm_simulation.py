@@ -100,12 +100,9 @@ class ArmSimulator:
 
     def __post_init__(self):
         arm = self.arm
-        self.q = arm.joint_vector(self.q, 'initial q')
+        self.q = arm.joint_position(self.q, 'initial q')
         self.dq = arm.joint_vector(self.dq, 'initial dq')
         limits = arm.limits
-        if np.any(self.q < limits.lower) or np.any(self.q > limits.upper):
-            raise ValueError(f'initial q {self.q.tolist()} outside the joint limits '
-                             f'{limits.lower.tolist()} .. {limits.upper.tolist()}')
         if not (np.all(np.isfinite(limits.effort)) and np.all(limits.effort > 0.0)):
             raise ValueError(f'effort limits must be finite and > 0, got '
                              f'{limits.effort.tolist()}')

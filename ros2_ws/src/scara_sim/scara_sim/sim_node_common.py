@@ -167,10 +167,11 @@ class SteppedSimNode(Node):
         self._stepper: RealTimeStepper | None = None
         self._stamp0 = 0
         # The stamps follow the system clock where it drifts from the monotonic one
-        # (StampSlew); None: the node runs on ROS time, which the stamps take as it is.
-        self._stamp_slew: StampSlew | None = None
-        self._clock_offset0 = 0
-        self._stamp_correction = 0  # ns
+        # (StampSlew), measured from the clocks' offset at the first tick (ns; None: not
+        # followed: the node runs on ROS time, which the stamps take as it is, or the clocks
+        # could not be read).
+        self._stamp_slew = StampSlew(round(sim.dt * 1e9))
+        self._clock_offset0: int | None = None
         self._reported = (0, 0, 0)
         self._last_report = time.monotonic()
 
@@ -319,14 +320,10 @@ class SteppedSimNode(Node):
             self._stepper = RealTimeStepper(self._sim, FixedStepClock(
                 self._sim.dt, self._max_catch_up, now))
             self._stamp0 = self.get_clock().now().nanoseconds
-            offset = None
             for _ in range(0 if self.get_clock().ros_time_is_active else 10):
-                offset = clock_offset()
-                if offset is not None:
+                self._clock_offset0 = clock_offset()
+                if self._clock_offset0 is not None:
                     break
-            if offset is not None:  # else the stamps stay start + simulated time
-                self._stamp_slew = StampSlew(round(self._sim.dt * 1e9))
-                self._clock_offset0 = offset
             sim = self._sim
             state = StepState(0.0, tuple(sim.q.tolist()), tuple(sim.dq.tolist()),
                               tuple(sim.applied_effort.tolist()))
@@ -335,10 +332,9 @@ class SteppedSimNode(Node):
             return
         self._take_commands()
         states = self._stepper.advance(now, self._inputs)
-        offset = None if self._stamp_slew is None else clock_offset()
+        offset = None if self._clock_offset0 is None else clock_offset()
         if offset is not None:
-            self._stamp_correction = self._stamp_slew.update(offset - self._clock_offset0,
-                                                             len(states))
+            self._stamp_slew.update(offset - self._clock_offset0, len(states))
         for state in states:
             self._publish_joint_state(state)
         if states:
@@ -348,8 +344,8 @@ class SteppedSimNode(Node):
 
     def _stamp(self, state: StepState) -> tuple[int, int]:
         """(sec, nanosec) of the time `state` stands for."""
-        return divmod(self._stamp0 + self._stamp_correction + round(state.sim_time * 1e9),
-                      10 ** 9)
+        return divmod(self._stamp0 + self._stamp_slew.correction
+                      + round(state.sim_time * 1e9), 10 ** 9)
 
     def _publish_joint_state(self, state: StepState) -> None:
         self._joint_pub.publish(self._joint_template.encode(

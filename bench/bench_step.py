@@ -15,7 +15,9 @@ the controller's default gains, `--calls` per task) as the controller calls it: 
 within home +- 0.6 rad (inside the joint limits), dq normal (0.5 rad/s), the hand from on the
 tool to 0.3 m away in 3-D with a velocity normal (0.1 m/s), a uniform in [0, 1]; on every
 10th call also V without its task term (ArmController.lyapunov), as the controller does for
-its 100 Hz ControllerState.
+its 100 Hz ControllerState. The compiled step (arm_kernels, the controller's) and numpy's
+(`compiled=False`, the reference) are timed interleaved, 100 calls each in turn; reported:
+both, and numpy's median over the compiled one's.
 
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_step.py`.
 `--json` prints the figures as one JSON object only.
@@ -121,23 +123,30 @@ def panda_states(count: int, rng: np.random.Generator, model) -> list:
 
 
 def time_panda_task(shape: TaskShape, k: float, states: list, model) -> dict:
-    """The Panda's step for one task, timed per call (spread_us), with its V every 10th."""
+    """The Panda's step for one task, timed per call (spread_us), with its V every 10th: the
+    compiled step (arm_kernels, the controller's) and numpy's (`compiled=False`), the two
+    interleaved in blocks of 100 calls so that both see the same machine."""
     from hri_adaptive_controller.arm_law import ActiveTask, ArmController
     from hri_adaptive_controller.controller_node import arm_gains_from
     from hri_core.node_common import load_defaults
 
     values = {'arm_ks': None, 'arm_adaptation_gain': None,
               **load_defaults('hri_adaptive_controller', 'controller')}
-    arm = ArmController(model, arm_gains_from(values, model))
-    step_ns = []
+    laws = {flag: ArmController(model, arm_gains_from(values, model), compiled=flag)
+            for flag in (True, False)}
+    step_ns = {True: [], False: []}
     clock = time.perf_counter_ns
-    for i, (q, dq, hand, weight) in enumerate(states):
-        start = clock()
-        output = arm.step(q, dq, hand, ActiveTask(shape, weight, 0.0, k), 1e-3)
-        if i % STATE_PERIOD == 0 and not output.fault:
-            arm.lyapunov(output, q, None)
-        step_ns.append(clock() - start)
-    return {'step': spread_us(step_ns)}
+    for block in range(0, len(states), 100):
+        for flag, arm in laws.items():
+            for i, (q, dq, hand, weight) in enumerate(states[block:block + 100], block):
+                start = clock()
+                output = arm.step(q, dq, hand, ActiveTask(shape, weight, 0.0, k), 1e-3)
+                if i % STATE_PERIOD == 0 and not output.fault:
+                    arm.lyapunov(output, q, None)
+                step_ns[flag].append(clock() - start)
+    step, numpy_step = spread_us(step_ns[True]), spread_us(step_ns[False])
+    return {'step': step, 'numpy_step': numpy_step,
+            'numpy_over_compiled': round(numpy_step['median_us'] / step['median_us'], 2)}
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -174,7 +183,8 @@ def main(argv=None) -> int:
     for name, r in result.get('panda', {}).items():
         step = r['step']
         print(f"{name}: panda step median {step['median_us']} / p99 {step['p99_us']} / max "
-              f"{step['max_us']} us")
+              f"{step['max_us']} us; numpy's median {r['numpy_step']['median_us']} us "
+              f"({r['numpy_over_compiled']} x)")
     return 0
 
 

@@ -355,10 +355,13 @@ class ArmController(TaskDrives):
     """The adaptive law for the arm `model` (a RobotModel; the SCARA through its URDF).
 
     gains: ArmGains (len(ks) = model.dof); theta_hat0 (p,): the initial estimate (default: the
-    model's nominal theta), projected onto the model's box.
+    model's nominal theta), projected onto the model's box. compiled: the per-cycle arithmetic
+    through arm_kernels (numba), else through numpy (the reference the kernels are tested
+    against; the same results to rounding).
     """
 
-    def __init__(self, model: RobotModel, gains: ArmGains, theta_hat0=None):
+    def __init__(self, model: RobotModel, gains: ArmGains, theta_hat0=None,
+                 compiled: bool = True):
         self.model: PinocchioModel = generic_model(model)
         n = self.model.dof
         if n < 3:
@@ -397,7 +400,29 @@ class ArmController(TaskDrives):
         self._last: tuple = (None, 0.0, None)
         self._reach = ReachRoundN(gains.reach_round, self.model, self._lower, self._upper,
                                   gains.limit_band, self._task_reach)
+        # The per-cycle arithmetic compiled (arm_kernels; numba, imported here so that the
+        # SCARA's controller does not load it), or numpy's (the reference).
+        self._compiled = compiled
+        self._zero_joints = np.zeros(n)
+        self._posture = (float(gains.posture_gain), float(gains.posture_speed))
+        if compiled:
+            from hri_adaptive_controller import arm_kernels
+            self._kernels = arm_kernels
+            self._load_kernels()
         self.reset(self.model.theta if theta_hat0 is None else theta_hat0)
+
+    def _load_kernels(self) -> None:
+        """Call each kernel once with the argument types `command` gives them, so that numba
+        compiles them (or loads them from its cache) now and not at the first cycle."""
+        n, kernels = self.model.dof, self._kernels
+        zeros3, zeros_n = np.zeros(3), self._zero_joints
+        jac = np.zeros((3, n))
+        pinv, pinv_rate, *_ = kernels.damped_pseudo_inverse(jac, jac, 1.0, 0.0)
+        kernels.joint_reference(zeros_n, zeros_n, jac, jac, pinv, pinv_rate, zeros3, zeros3,
+                                (0.0, 0.0, 0.0), zeros_n, zeros_n, zeros_n, *self._posture,
+                                True)
+        kernels.torque(np.zeros((n, 1)), np.zeros(1 + n), zeros_n, zeros_n, zeros_n, zeros_n,
+                       jac, zeros3, zeros_n, zeros_n)
 
     @property
     def gains(self) -> ArmGains:
@@ -456,7 +481,7 @@ class ArmController(TaskDrives):
         else from the nominal model."""
         q = np.asarray(q, dtype=float)
         model = self.model if true_model is None else true_model
-        value = 0.5 * float(output.s @ model.mass_matrix(q) @ output.s)
+        value = model.kinetic_energy(q, output.s)  # 1/2 s^T M s
         drive = None if task is None else self.drive(task.shape, task.k)
         if drive is not None and output.distance is not None:
             value += self._gains.kp * task.weight * task_potential(output.distance, drive)
@@ -538,6 +563,47 @@ class ArmController(TaskDrives):
         pinv_rate = (rate.T - pinv @ gram_rate) @ inverse
         return pinv, pinv_rate, lam2
 
+    def _joint_reference(self, joints, jacobians, feed, task, blend, barrier):
+        """qdot_r, qddot_r (n,) and the barrier's task-space velocity (3,) or None, in numpy:
+        the reference of arm_kernels.joint_reference and the path within a barrier band.
+        joints (q, dq); jacobians (J, Jdot, J+, dJ+/dt); feed (ff, dff/dt) and task (v, dv/dt)
+        (3,) each; blend (sigma, dsigma/dt, a u, d(a u)/dt) or None; barrier (near, g_B,
+        dg_B/dt), g_B None outside every band."""
+        (q, dq), (jac, jac_rate, pinv, pinv_rate) = joints, jacobians
+        (ff, ff_rate), (velocity, rate), (near, g_b, g_b_rate) = feed, task, barrier
+        gains = self._gains
+        if near == 0.0:
+            # J+ (ff + v) and its rate in two products each (the usual case).
+            both = ff + velocity
+            qdot_r = pinv @ both
+            qddot_r = pinv_rate @ both + pinv @ (ff_rate + rate)
+        else:
+            joint_ff, joint_ff_rate = gate_feed_forward_n(
+                q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
+                self._upper, gains.limit_band)
+            qdot_r = joint_ff + pinv @ velocity
+            qddot_r = joint_ff_rate + pinv_rate @ velocity + pinv @ rate
+        if blend is not None:
+            sigma, sigma_rate, u, u_rate = blend
+            qddot_r = ((1.0 - sigma) * qddot_r + sigma_rate * (u - qdot_r) + sigma * u_rate)
+            qdot_r = (1.0 - sigma) * qdot_r + sigma * u
+            blend = (sigma, sigma_rate)
+        barrier_task = None
+        if near != 0.0:
+            # The barrier's task-space velocity J+^T g_B / Kp and its rate.
+            barrier_task = (pinv.T @ g_b) / gains.kp
+            barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
+            qdot_r = qdot_r - pinv @ barrier_task
+            qddot_r = qddot_r - pinv_rate @ barrier_task - pinv @ barrier_task_rate
+        if self.model.dof > 3:
+            z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate, blend)
+            # N z = z - J+ (J z), dN/dt z + N dz/dt as products with vectors: no n x n
+            # matrix is formed.
+            jz = jac @ z
+            qdot_r = qdot_r + (z - pinv @ jz)
+            qddot_r = qddot_r + (z_rate - pinv_rate @ jz - pinv @ (jac_rate @ z + jac @ z_rate))
+        return qdot_r, qddot_r, barrier_task
+
     def _null_velocity(self, q, dq, barrier_gradient, barrier_rate, blend):
         """z (n,) rad/s and dz/dt: towards home (each joint capped at posture_speed; weighted
         1 - sigma while the reach-round blend moves the joints, blend = (sigma, dsigma/dt))
@@ -602,7 +668,13 @@ class ArmController(TaskDrives):
         # checks below, which turn them into a fault.
         try:
             x, jac, jac_rate = self._kinematics(q, dq)
-            pinv, pinv_rate, lam2 = self._pseudo_inverse(jac, jac_rate)
+            if self._compiled:
+                pinv, pinv_rate, lam2, singular = self._kernels.damped_pseudo_inverse(
+                    jac, jac_rate, self._threshold2, self._max_damping2)
+                if singular:
+                    raise ValueError('singular Jacobian and no damping (max_damping = 0)')
+            else:
+                pinv, pinv_rate, lam2 = self._pseudo_inverse(jac, jac_rate)
             xdot = jac @ dq
             hand_velocity, hand_acceleration = hand.velocity, hand.acceleration
             dx = x - hand.position
@@ -627,55 +699,48 @@ class ArmController(TaskDrives):
             else:
                 g_b, g_b_rate, near = barrier_n(q, dq, self._lower, self._upper,
                                                 gains.limit_band, gains.barrier_torque)
-            if near == 0.0:
-                # J+ (ff + v) and its rate in two products each (the usual case).
-                both = ff + task_velocity[0]
-                qdot_r = pinv @ both
-                qddot_r = pinv_rate @ both + pinv @ (ff_rate + task_rate)
-            else:
-                joint_ff, joint_ff_rate = gate_feed_forward_n(
-                    q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
-                    self._upper, gains.limit_band)
-                qdot_r = joint_ff + pinv @ task_velocity[0]
-                qddot_r = joint_ff_rate + pinv_rate @ task_velocity[0] + pinv @ task_rate
             region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
             blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
             scale = 1.0
             if blend is not None:
                 # eq. 14 blended with the joint motion a u, weighted as the task's pull.
                 sigma, sigma_rate, u, u_rate = blend
-                u, u_rate = a * u, da * u + a * u_rate
+                blend = (sigma, sigma_rate, a * u, da * u + a * u_rate)
                 scale = 1.0 - sigma
-                qddot_r = (scale * qddot_r + sigma_rate * (u - qdot_r) + sigma * u_rate)
-                qdot_r = scale * qdot_r + sigma * u
-                blend = (sigma, sigma_rate)
             barrier_task = None
-            if near != 0.0:
-                # The barrier's task-space velocity J+^T g_B / Kp and its rate.
-                barrier_task = (pinv.T @ g_b) / gains.kp
-                barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
-                qdot_r = qdot_r - pinv @ barrier_task
-                qddot_r = qddot_r - pinv_rate @ barrier_task - pinv @ barrier_task_rate
-            if self.model.dof > 3:
-                z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate, blend)
-                # N z = z - J+ (J z), dN/dt z + N dz/dt as products with vectors: no
-                # n x n matrix is formed.
-                jz = jac @ z
-                qdot_r = qdot_r + (z - pinv @ jz)
-                qddot_r = qddot_r + (z_rate - pinv_rate @ jz
-                                     - pinv @ (jac_rate @ z + jac @ z_rate))
-            s = dq - qdot_r
+            if near == 0.0 and self._compiled:
+                # The usual case, compiled: J+ (ff + v), the blend and N z in one call.
+                if blend is None:
+                    on, u, u_rate = (0.0, 0.0, 0.0), self._zero_joints, self._zero_joints
+                else:
+                    on, u, u_rate = (blend[0], blend[1], 1.0), blend[2], blend[3]
+                qdot_r, qddot_r, s = self._kernels.joint_reference(
+                    q, dq, jac, jac_rate, pinv, pinv_rate, ff + task_velocity[0],
+                    ff_rate + task_rate, on, u, u_rate, self._home, *self._posture,
+                    self.model.dof > 3)
+            else:
+                qdot_r, qddot_r, barrier_task = self._joint_reference(
+                    (q, dq), (jac, jac_rate, pinv, pinv_rate), (ff, ff_rate),
+                    (task_velocity[0], task_rate), blend, (near, g_b, g_b_rate))
+                s = dq - qdot_r
             # Y theta = Y_rigid theta_rigid + diag(qdot_r) theta_friction (eq. 18).
             rigid = self.model.rigid_regressor_unchecked(q, dq, qdot_r, qddot_r)
-            split = rigid.shape[1]
-            tau_requested = (rigid @ theta[:split] + qdot_r * theta[split:] - self._ks * s
-                             - jac.T @ ((gains.kp * scale) * weighted))
-            if g_b is not None:
-                tau_requested -= g_b
+            task_force = (gains.kp * scale) * weighted
+            if self._compiled:
+                tau_requested, peak = self._kernels.torque(
+                    rigid, theta, qdot_r, qddot_r, s, self._ks, jac, task_force,
+                    self._zero_joints if g_b is None else g_b, self._inverse_effort)
+            else:
+                split = rigid.shape[1]
+                tau_requested = (rigid @ theta[:split] + qdot_r * theta[split:] - self._ks * s
+                                 - jac.T @ task_force)
+                if g_b is not None:
+                    tau_requested -= g_b
+                peak = float((np.abs(tau_requested) * self._inverse_effort).max())
+                peak += 0.0 * float(qddot_r.sum())  # NaN or inf in either: not finite
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as error:
             return self._fault(f'step failed: {error!r}')
-        peak = float((np.abs(tau_requested) * self._inverse_effort).max())
-        if not math.isfinite(peak + float(qddot_r.sum())):  # NaN or inf in either
+        if not math.isfinite(peak):
             return self._fault('non-finite torque or parameter update')
         limited = peak > 1.0
         tau = tau_requested / peak if limited else tau_requested.copy()

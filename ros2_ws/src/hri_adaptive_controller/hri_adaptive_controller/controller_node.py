@@ -64,6 +64,7 @@ import dataclasses
 import math
 import sys
 import time
+from array import array
 
 import numpy as np
 from geometry_msgs.msg import PointStamped
@@ -925,10 +926,13 @@ class Controller(Node):
         if now - started >= 1.0:
             self._rate = (self._cycles - ticks) / (now - started)
             self._window = (now, self._cycles)
+        # The arrays as array('d') from their bytes: rosidl's setters check a list element by
+        # element (77 values of the Panda's theta_hat), an array('d') not at all.
         msg = ControllerState(deadline_misses=self._misses, rate_hz=self._rate,
                               input_age=self._input_age, target_glitches=self._hand.glitches,
-                              status=self._status, effort=[float(v) for v in command],
-                              theta_hat=[float(v) for v in self._law.theta_hat])
+                              status=self._status,
+                              effort=array('d', np.asarray(command, dtype=float).tobytes()),
+                              theta_hat=array('d', self._law.theta_hat.tobytes()))
         msg.header.stamp = Time(nanoseconds=published).to_msg()
         if self._task_state is not None:
             msg.task = self._task_state.task.name

@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule
-from hri_adaptive_controller.task_variable import _SECH_LIMIT, _smoothstep
+from hri_adaptive_controller.task_variable import SECH_LIMIT, _smoothstep
 
 GOAL_MARGIN = 0.5
 """The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
@@ -332,7 +332,7 @@ class _JointBlend:
         # d capped / d norm; sech^2 is 0 in double precision long before cosh overflows (a
         # state far from its filtered goal, as when a simulated xArm7 diverged, raised
         # OverflowError: no torque).
-        slope = (0.0 if raw > _SECH_LIMIT * speed_max
+        slope = (0.0 if raw > SECH_LIMIT * speed_max
                  else 1.0 / math.cosh(raw / speed_max) ** 2 * k)
         scale = capped / norm  # u = -scale e
         along = sum(ei * dei for ei, dei in zip(e, de, strict=True)) / norm  # d norm / dt

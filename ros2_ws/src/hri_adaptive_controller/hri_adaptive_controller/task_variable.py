@@ -119,7 +119,7 @@ direction (an inner boundary d1 > 0 pushes the arm out from there)."""
 # exp() argument above which a speed counts as infinite (the cap saturates long before).
 _LOG_SPEED_LIMIT = 700.0
 # tanh argument above which sech^2 underflows to 0 in double precision.
-_SECH_LIMIT = 350.0
+SECH_LIMIT = 350.0
 
 # Radial integral that gives Q (monitoring only): Gauss-Legendre with 12 nodes on each of 14
 # panels whose widths halve towards both ends, where dQ/dr changes steeply.
@@ -323,7 +323,7 @@ def speed_cap(speed: float, v_max: float) -> tuple[float, float]:
     band = CAP_BAND * v_max
     x = (magnitude - v_max) / band
     capped = v_max + band * math.tanh(x)
-    slope = 0.0 if x > _SECH_LIMIT else 1.0 / math.cosh(x) ** 2
+    slope = 0.0 if x > SECH_LIMIT else 1.0 / math.cosh(x) ** 2
     return (capped if speed > 0.0 else -capped), slope
 
 

@@ -95,6 +95,14 @@ def test_panda_coriolis_makes_mdot_minus_2c_skew(panda):
         assert_close(n + n.T, np.zeros_like(n), f'Mdot - 2C at q={q}', DIFFERENCE_TOLERANCE)
 
 
+def test_panda_kinetic_energy_is_half_dq_m_dq(panda):
+    for q, dq, _, _ in random_states(panda, count=10):
+        assert panda.kinetic_energy(q, dq) == pytest.approx(
+            0.5 * dq @ panda.mass_matrix(q) @ dq, rel=1e-12)
+    with pytest.raises(ValueError, match='dq'):
+        panda.kinetic_energy(panda.home, np.full(7, np.nan))
+
+
 @pytest.mark.parametrize('name', ['panda', 'scara'])
 def test_jacobian_matches_finite_differences(name, panda):
     model = panda if name == 'panda' else ScaraModel()

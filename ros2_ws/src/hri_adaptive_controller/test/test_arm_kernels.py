@@ -1,0 +1,164 @@
+"""Unit tests of arm_kernels: the n-joint law's compiled arithmetic gives arm_law's numpy
+results (the reference, `ArmController(..., compiled=False)`) to rounding, in the usual case,
+within the barrier bands, through the reach-round blend and in a closed loop."""
+
+import dataclasses
+import math
+from importlib import metadata
+
+import numpy as np
+import pytest
+
+from hri_adaptive_controller import arm_kernels
+from hri_adaptive_controller.arm_law import (
+    PANDA_GAINS,
+    ActiveTask,
+    ArmController,
+    HandState,
+    default_arm_ks,
+    rk4_step,
+)
+from hri_adaptive_controller.task_variable import SECH_LIMIT, speed_cap
+from hri_core.potential import TaskShape
+from hri_core.robot_model import robot_model
+
+FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)  # Table I's rows
+AVOID = TaskShape(-1, 119.3, 4.071, 0.299, 1.0)
+FOLLOW_SAFE = TaskShape(1, 17.36, 8.014, 0.189, 0.262)
+DT = 1e-3
+OUTPUTS = ('tau', 'tau_requested', 's', 'qdot_r', 'qddot_r', 'near', 'blend', 'damping',
+           'barrier_gradient', 'reference_offset')
+
+
+@pytest.fixture(scope='module')
+def panda():
+    return robot_model('panda')
+
+
+def close(compiled, reference, what):
+    """compiled equals reference within rounding: 1e-10 of the reference's scale."""
+    compiled, reference = np.asarray(compiled, float), np.asarray(reference, float)
+    scale = max(1.0, float(np.max(np.abs(reference))))
+    assert np.allclose(compiled, reference, rtol=0.0, atol=1e-10 * scale), (
+        f'{what}: {compiled} != {reference}')
+
+
+def assert_same(compiled, reference):
+    assert compiled.fault == reference.fault, (compiled.fault_reason, reference.fault_reason)
+    for name in OUTPUTS:
+        close(getattr(compiled, name), getattr(reference, name), name)
+    assert compiled.torque_limited == reference.torque_limited
+
+
+def random_states(model, rng, count):
+    """(q, dq, hand, task) anywhere within the joint limits (the barrier bands included),
+    hands from on the tool to 1.5 m away (out of reach: the reach-round), any task weight."""
+    shapes = (FOLLOW, AVOID, FOLLOW_SAFE, None)
+    for _ in range(count):
+        q = rng.uniform(model.limits.lower + 0.01, model.limits.upper - 0.01)
+        dq = rng.normal(0.0, 0.8, model.dof)
+        offset = rng.normal(size=3)
+        offset *= rng.uniform(0.0, 1.5) / np.linalg.norm(offset)
+        hand = HandState(model.tool_position(q) + offset, rng.normal(0.0, 0.3, 3),
+                         rng.normal(0.0, 1.0, 3))
+        shape = shapes[rng.integers(len(shapes))]
+        task = None if shape is None else ActiveTask(shape, float(rng.uniform()),
+                                                     float(rng.normal()), 0.0)
+        yield q, dq, hand, task
+
+
+def test_speed_cap_is_task_variables(panda):
+    for speed in (0.0, 0.1, -0.29, 0.3, 0.31, -0.5, 3.0, -1e3, 1e300):
+        for v_max in (0.0, 0.3, 1.0):
+            assert arm_kernels.speed_cap(speed, v_max) == pytest.approx(speed_cap(speed, v_max),
+                                                                        rel=1e-15, abs=0.0)
+    # Beyond SECH_LIMIT sech^2 is 0, no overflow.
+    assert arm_kernels.speed_cap(1e6, 0.3)[1] == 0.0
+    assert SECH_LIMIT * 0.06 < 1e6
+
+
+@pytest.mark.parametrize('max_damping', [0.05, 0.0])
+def test_the_pseudo_inverse_is_the_numpy_one_near_and_far_from_singular(panda, max_damping):
+    gains = dataclasses.replace(
+        PANDA_GAINS, damping=dataclasses.replace(PANDA_GAINS.damping, max_damping=max_damping))
+    reference = ArmController(panda, gains, compiled=False)
+    rng = np.random.default_rng(3)
+    stretched = panda.home.copy()
+    stretched[1], stretched[3] = 0.0, -0.07  # near the elbow's singularity: damped
+    damped = 0
+    for q in [stretched, *rng.uniform(panda.limits.lower, panda.limits.upper, (200, 7))]:
+        _, jac, rate = reference._kinematics(q, rng.normal(0.0, 1.0, 7))
+        pinv, pinv_rate, lam2, singular = arm_kernels.damped_pseudo_inverse(
+            jac, rate, reference._threshold2, reference._max_damping2)
+        assert not singular
+        expected = reference._pseudo_inverse(jac, rate)
+        close(pinv, expected[0], 'J+')
+        close(pinv_rate, expected[1], 'dJ+/dt')
+        assert lam2 == pytest.approx(expected[2], rel=1e-12, abs=1e-300)
+        damped += lam2 > 0.0
+    assert damped >= 1 or max_damping == 0.0
+
+
+def test_a_singular_jacobian_without_damping_is_a_fault(panda, monkeypatch):
+    gains = dataclasses.replace(
+        PANDA_GAINS, damping=dataclasses.replace(PANDA_GAINS.damping, max_damping=0.0))
+    jac = np.zeros((3, 7))
+    jac[0, 0] = 1.0  # rank 1: J J^T has no inverse and nothing damps it
+    *_, singular = arm_kernels.damped_pseudo_inverse(jac, np.zeros((3, 7)), 1e-4, 0.0)
+    assert singular
+    hand = HandState(np.zeros(3), np.zeros(3), np.zeros(3))
+    for compiled in (True, False):
+        controller = ArmController(panda, gains, compiled=compiled)
+        monkeypatch.setattr(controller, '_kinematics',
+                            lambda q, dq: (np.ones(3), jac, np.zeros((3, 7))))
+        out = controller.command(panda.home, np.zeros(7), hand, ActiveTask(FOLLOW, 1.0), DT)
+        assert out.fault and 'singular Jacobian' in out.fault_reason
+        assert np.all(out.tau == 0.0)
+
+
+def test_commands_equal_numpys_on_random_states(panda):
+    rng = np.random.default_rng(0)
+    compiled = ArmController(panda, PANDA_GAINS, theta_hat0=0.7 * panda.theta)
+    reference = ArmController(panda, PANDA_GAINS, theta_hat0=0.7 * panda.theta, compiled=False)
+    seen = {'near': 0, 'blend': 0, 'limited': 0}
+    for q, dq, hand, task in random_states(panda, rng, 600):
+        # Both stateful parts (the reach-round and the hand filter) see the same sequence.
+        out = compiled.step(q, dq, hand, task, DT)
+        expected = reference.step(q, dq, hand, task, DT)
+        assert_same(out, expected)
+        close(compiled.theta_hat, reference.theta_hat, 'theta_hat')
+        seen['near'] += out.near > 0.0
+        seen['blend'] += out.blend > 0.0
+        seen['limited'] += out.torque_limited
+    assert min(seen.values()) >= 10, seen  # every branch taken
+
+
+@pytest.mark.parametrize(('arm', 'hand_at'), [('panda', (-0.3, 0.0, 0.2)),
+                                              ('ur5', (0.0, 0.0, 1.3))])
+def test_a_closed_loop_follows_the_same_path_compiled(panda, arm, hand_at):
+    # The hand low behind the Panda's base (its joints reach their barrier bands) or above
+    # the UR5, out of reach: the reach-round blends in, the null space acts, and the two laws
+    # drive the same arm along the same path.
+    if arm == 'panda':
+        model, gains = panda, PANDA_GAINS
+    else:
+        path = metadata.distribution('example-robot-data').locate_file(
+            'cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf')
+        model = robot_model(urdf_file=str(path), tool_frame='tool0')
+        gains = dataclasses.replace(PANDA_GAINS, ks=default_arm_ks(model))
+    laws = [ArmController(model, gains, theta_hat0=0.7 * model.theta, compiled=flag)
+            for flag in (True, False)]
+    states = [(model.home.copy(), np.zeros(model.dof)) for _ in laws]
+    hand = HandState(np.array(hand_at), np.zeros(3), np.zeros(3))
+    blended = near = 0
+    for i in range(1500):
+        task = ActiveTask(FOLLOW, min(1.0, i / 300))
+        outs = [law.step(q, dq, hand, task, DT) for law, (q, dq) in zip(laws, states, strict=True)]
+        assert_same(*outs)
+        blended, near = blended + (outs[0].blend > 0.0), near + (outs[0].near > 0.0)
+        states = [rk4_step(model, q, dq, out.tau, DT)
+                  for (q, dq), out in zip(states, outs, strict=True)]
+        assert math.isfinite(outs[0].distance)
+    close(states[0][0], states[1][0], 'q after 1.5 s')
+    assert blended > 100, blended  # the reach-round blend took part
+    assert near > 100 or arm != 'panda', near  # and the Panda's barrier

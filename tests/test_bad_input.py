@@ -34,6 +34,7 @@ from std_msgs.msg import Float64MultiArray
 from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
+from hri_core.robot_model import robot_model
 from hri_core.topics import LEARNED_TASKS_QOS, MONITOR_QOS, TASK_STATE_QOS
 from tests.common import PAPER_TASKS, REPO_ROOT, call_service, set_parameter
 from tests.fault_tools import REALTIME_PRIORITY, RELIABLE, RawListener, assert_all_finite
@@ -198,6 +199,43 @@ def test_bad_joint_states_give_zero_torque_without_crash(nodes, probe):
     assert states[-1].status in ('stale_joint_states', 'no_task_state')
     assert wait_for(lambda: states[-1].status == 'stale_joint_states', 5.0)
     assert all(list(c.data) == [0.0, 0.0] for c in commands[-50:])
+
+
+def test_the_panda_is_held_against_gravity_while_its_joint_states_are_stale(nodes, probe):
+    """An arm under gravity is not dropped when its joint states stop: after
+    joint_state_timeout the controller commands the gravity torque at the last joint state
+    with its theta_hat (eq. 18 at rest), reached at most 1 N m a command, never zero."""
+    model = robot_model('panda')
+    states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
+    commands = probe.collect('/effort_controller/commands', Float64MultiArray, RELIABLE)
+    controller = nodes('hri_adaptive_controller', 'controller',
+                       params={'robot': 'panda', 'joint_state_timeout': 0.05})
+    joints = probe.publisher('/joint_states', JointState, 10)
+    assert wait_for(lambda: joints.get_subscription_count() > 0, 20.0), controller.log()
+    q = model.home + np.array([0.3, -0.2, 0.1, 0.4, -0.3, 0.2, 0.1])
+    for _ in range(40):  # 0.2 s of a still arm at 200 Hz: no target, the arm is held
+        msg = JointState(name=list(model.joint_names), position=q.tolist(),
+                         velocity=[0.0] * model.dof)
+        msg.header.stamp = probe.now()
+        joints.publish(msg)
+        time.sleep(0.005)
+    held_from = len(commands)
+    assert wait_for(lambda: len(states) > 0 and states[-1].status == 'stale_joint_states',
+                    5.0), controller.log()
+    # theta_hat adapted while the states came (the null space pulled towards home): the
+    # hold is the gravity of the estimate the controller reports, not the URDF's.
+    zero = np.zeros(model.dof)
+    gravity = model.regressor(q, zero, zero, zero) @ np.array(states[-1].theta_hat)
+    assert np.abs(gravity).max() > 5.0  # a hold worth keeping
+    assert wait_for(lambda: np.allclose(commands[-1].data, gravity, atol=1e-6), 5.0), (
+        list(commands[-1].data), gravity.tolist())
+    assert np.allclose(states[-1].effort, gravity, atol=1e-6)
+    held = np.array([c.data for c in list(commands)[held_from:]])
+    assert np.all(np.isfinite(held)) and np.all(np.abs(held) <= model.limits.effort + 1e-9)
+    assert not np.any(np.all(held == 0.0, axis=1))  # never zero torque on the way
+    assert np.abs(np.diff(held, axis=0)).max() <= 1.0 + 1e-9
+    assert 'holding against gravity: stale joint states' in controller.log()
+    assert 'Traceback' not in controller.log()
 
 
 def test_controller_maps_joints_by_name_and_drops_bad_joint_states(nodes, probe, arm):

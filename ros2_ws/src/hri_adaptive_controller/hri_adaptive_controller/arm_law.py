@@ -758,6 +758,23 @@ class ArmController(TaskDrives):
                          blend=0.0 if blend is None else blend[0],
                          barrier_task_velocity=barrier_task, reference_offset=offset)
 
+    def gravity_hold(self, q) -> np.ndarray:
+        """The torque (n,) N m that holds the arm at q (n,) rad against gravity with theta_hat:
+        Y(q, 0, 0, 0) theta_hat (eq. 18 at rest), scaled as a whole into the effort limits;
+        zeros if not finite. What a controller sends while its joint states are stale: zero
+        torque would drop an arm under gravity (the Panda's joint 2 holds about 29 N m)."""
+        zero = self._zero_joints
+        try:
+            rigid = self.model.rigid_regressor_unchecked(np.asarray(q, dtype=float), zero,
+                                                         zero, zero)
+        except (ValueError, ArithmeticError):
+            return zero.copy()
+        tau = rigid @ self._theta[:rigid.shape[1]]
+        peak = float((np.abs(tau) * self._inverse_effort).max())
+        if not math.isfinite(peak):
+            return zero.copy()
+        return tau / peak if peak > 1.0 else tau
+
     def adapt(self) -> bool:
         """Advance theta_hat by the last `command`'s update, eq. 19 (once; none after a fault,
         a clamped torque or within a barrier band): theta - pace L Y^T s projected onto the

@@ -761,11 +761,19 @@ class Controller(Node):
             self._zero_timer.cancel()  # joint states are back: they pace the cycles
             return
         status = 'no_joint_states' if self._q is None else 'stale_joint_states'
+        # An arm under gravity is held where its last joint state put it (gravity with
+        # theta_hat, reached at the effort rate): zero torque dropped the Panda's 29 N m on
+        # joint 2 at once, and it fell into its joint limits while a loaded machine held the
+        # sim back for 0.1 s. The SCARA (horizontal) and velocity commands get zero.
+        hold = None
+        if self._arm is not None and self._q is not None and not self._velocity_mode:
+            hold = tuple(self._arm.gravity_hold(self._q).tolist())
         if status != self._status:  # once per outage, as scara_sim's command timeout
-            self.get_logger().warning(f'zero torque: {status.replace("_", " ")}')
+            action = 'zero torque' if hold is None else 'holding against gravity'
+            self.get_logger().warning(f'{action}: {status.replace("_", " ")}')
         self._status = status
         self._weight = 0.0
-        self._publish_command(now, None, None)
+        self._publish_command(now, None, None, hold=hold)
 
     def _cycle(self, now: float, dt: float, stamp: float) -> None:
         """One control cycle on the joint state just received (stamp in s)."""
@@ -778,10 +786,16 @@ class Controller(Node):
             self._warn('adaptation', 'parameter update dropped: not finite')
 
     def _publish_command(self, now: float, output, stamp: float | None,
-                         dt: float = 0.0) -> None:
+                         dt: float = 0.0, hold: tuple | None = None) -> None:
+        """Send the law's `output` (None: no law torque; `hold` (n,) N m if given, else zero
+        torque) and, when due, the ControllerState."""
         self._cycles += 1
         self._rate_limited = False
-        if output is None:
+        if output is None and hold is not None:
+            # From the last command at the effort rate (the drive's reported effort is as
+            # stale as the joint state).
+            command, self._rate_limited = self._limiter.limit(hold, self._period)
+        elif output is None:
             command = (0.0,) * self._dof
             self._limiter.reset()  # zero torque at once (safety), the next change from zero
         elif self._velocity_mode:

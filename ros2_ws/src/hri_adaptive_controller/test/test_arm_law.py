@@ -329,3 +329,15 @@ def test_the_reach_round_joint_motion_stays_finite_for_any_joint_error():
     sigma, sigma_rate, u, u_rate = blend._blend(True, None, (1000.0, 0.2, 0.3), dq, DT)
     assert all(math.isfinite(v) for v in (sigma, sigma_rate, *u, *u_rate))
     assert math.hypot(*u) <= ReachRoundSettings().max_speed + 1e-9
+
+
+def test_the_gravity_hold_is_the_estimates_gravity_within_the_limits(panda):
+    # What the controller sends while its joint states are stale (controller_node).
+    q = panda.home + 0.2
+    hold = ArmController(panda, PANDA_GAINS).gravity_hold(q)
+    np.testing.assert_allclose(hold, panda.gravity_torque(q), atol=1e-9)
+    assert np.abs(hold).max() > 5.0
+    heavy = ArmController(panda, PANDA_GAINS, theta_hat0=5.0 * panda.theta)
+    hold = heavy.gravity_hold(q)
+    assert np.all(np.abs(hold) <= heavy.effort_limits + 1e-9)
+    assert np.all(ArmController(panda, PANDA_GAINS).gravity_hold(np.full(7, np.nan)) == 0.0)

@@ -19,14 +19,17 @@ state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone
 the task's term kp a Q of it (0.3-0.4 ms) once the cycle's command is out.
 
 A watchdog timer (every joint_state_timeout / 4) notices missing or stale joint states; while
-they are, a timer at `rate_hz` publishes zero torque (and ControllerState) in place of the
-cycles that do not come. With `realtime_priority` > 0 the process asks for SCHED_FIFO at that
-priority (hri_core.realtime) and logs once whether it got it; with `cpu_wakeup_latency` >= 0 it
-holds a PM QoS request that idle CPUs wake within that many microseconds (0: they poll).
+they are, a timer at `rate_hz` publishes zero torque (an n-joint arm: the gravity hold at its
+last joint state) and ControllerState in place of the cycles that do not come. With
+`realtime_priority` > 0 the process asks for SCHED_FIFO at that priority (hri_core.realtime)
+and logs once whether it got it; with `cpu_wakeup_latency` >= 0 it holds a PM QoS request that
+idle CPUs wake within that many microseconds (0: they poll).
 
 Safety (the choices are argued in docs/design.md):
 - zero torque while joint states are missing or older than `joint_state_timeout` (one
-  warning per outage, one info line when they resume), or invalid (throttled warning:
+  warning per outage, one info line when they resume; an n-joint arm that had joint states
+  is held against gravity instead: Y(q, 0, 0, 0) theta_hat at the last one, reached at the
+  effort rate, as zero torque would drop it), or invalid (throttled warning:
   non-finite, wrong length, unknown joint names: joints are mapped by name; stamps going
   backwards are dropped), and while there is no valid target yet (non-finite targets, or
   farther than `max_target_distance` from the base, are dropped);
@@ -212,7 +215,8 @@ PARAMETERS = {
                                            'the torque it applies; a measured torque is left '
                                            'alone), whichever command of a late burst the '
                                            'drive takes; 0: off', low=0, high=100),
-    'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque (s)',
+    'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque; '
+                                         'an n-joint arm held against gravity (s)',
                                          low=0.002, high=10.0),
     'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: the task fades '
                                         'out over task_fade_time (s)', low=0.1, high=3600.0),
@@ -741,7 +745,8 @@ class Controller(Node):
 
     # -- control cycles ----------------------------------------------------------------------
     def _watchdog(self) -> None:
-        """Start the zero-torque cycles once joint states are missing or stale."""
+        """Start the zero-torque (gravity-hold) cycles once joint states are missing or
+        stale."""
         now = time.monotonic()
         previous, self._watchdog_time = self._watchdog_time, now
         if now - previous > 2.0 * self._watchdog_period:

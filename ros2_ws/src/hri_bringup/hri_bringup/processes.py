@@ -57,6 +57,7 @@ LIVE_LOOP = ('scara_sim', 'event_manager', 'controller', 'hand_sim')
 # What `ros2 run hri_bringup system` starts by default: the live loop, the events coming from
 # the event_detector's rules.
 SYSTEM_NODES = ('scara_sim', 'event_manager', 'controller', 'event_detector', 'hand_sim')
+STACK_DUMP_TIME = 0.5  # s a process that outlived its stop signal gets to write its stacks
 # A line each executable logs once it is up (its parameters are read, its loop is running).
 READY_LINES: dict[str, str] = {
     'scara_sim': 'simulating at',
@@ -220,9 +221,14 @@ class NodeProcess:
             return None
 
     def wait_or_kill(self, timeout: float) -> int:
-        """Wait up to `timeout` s for the exit, then SIGKILL; close the log; the exit code."""
+        """Wait up to `timeout` s for the exit, then SIGKILL; close the log; the exit code.
+        Before the SIGKILL, SIGUSR1: a node of this project (node_common.run_node) then
+        writes every thread's Python stack to its log, where why it did not stop can be read
+        (a hand_sim once outlived its SIGTERM by 5 s in a fresh-clone run, no trace left)."""
         if self.wait(timeout) is None:
-            self.send(signal.SIGKILL)
+            self.send(signal.SIGUSR1)
+            if self.wait(STACK_DUMP_TIME) is None:
+                self.send(signal.SIGKILL)
             self.process.wait(timeout=5.0)
         self._log_file.close()
         return self.process.returncode

@@ -36,8 +36,9 @@ POLITE = ("import signal, sys, time\n"
           "signal.signal(signal.SIGINT, lambda *_: (print('bye', flush=True), sys.exit(0)))\n"
           "print('up', flush=True)\n"
           "while True: time.sleep(0.05)\n")
-# Ignores SIGINT: only SIGKILL ends it.
-STUBBORN = ("import signal, time\n"
+# Ignores SIGINT: only SIGKILL ends it. Writes its stack on SIGUSR1, as run_node's nodes do.
+STUBBORN = ("import faulthandler, signal, time\n"
+            "faulthandler.register(signal.SIGUSR1, all_threads=True)\n"
             "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
             "print('up', flush=True)\n"
             "while True: time.sleep(0.05)\n")
@@ -148,6 +149,8 @@ def test_stop_all_ends_the_polite_with_sigint_and_the_stubborn_with_sigkill(tmp_
         stop_all([polite, stubborn], timeout=0.0)
     assert codes == {polite: 0, stubborn: -signal.SIGKILL}
     assert 'bye' in polite.log()
+    # Why the stubborn one did not stop, in its log: its stack when SIGUSR1 came.
+    assert 'most recent call first' in stubborn.log() and 'Current thread' not in polite.log()
     assert polite.log_path.parent == tmp_path and polite.log_path.name.startswith('polite-')
 
 

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from hri_adaptive_controller.task_variable import CAP_BAND, SECH_LIMIT
+from hri_adaptive_controller import task_variable
 
 
 @njit(cache=True, nogil=True)
@@ -94,20 +94,9 @@ def damped_pseudo_inverse(jac, rate, threshold2, max_damping2):
     return pinv, pinv_rate, lam2, False
 
 
-@njit(cache=True, nogil=True)
-def speed_cap(speed, v_max):
-    """task_variable.speed_cap compiled: the smooth cap (value, d/d speed) of a signed speed
-    (m/s) at v_max (m/s)."""
-    magnitude = abs(speed)
-    if magnitude <= v_max:
-        return speed, 1.0
-    if v_max <= 0.0:
-        return 0.0, 0.0
-    band = CAP_BAND * v_max
-    x = (magnitude - v_max) / band
-    capped = v_max + band * math.tanh(x)
-    slope = 0.0 if x > SECH_LIMIT else 1.0 / math.cosh(x) ** 2
-    return (capped if speed > 0.0 else -capped), slope
+# task_variable.speed_cap itself, compiled: the smooth cap (value, d/d speed) of a signed speed
+# (m/s) at v_max (m/s), one source for the SCARA's path and this one.
+speed_cap = njit(cache=True, nogil=True)(task_variable.speed_cap)
 
 
 @njit(cache=True, nogil=True)

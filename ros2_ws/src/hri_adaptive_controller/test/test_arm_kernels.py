@@ -26,6 +26,24 @@ FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)  # Table I's rows
 AVOID = TaskShape(-1, 119.3, 4.071, 0.299, 1.0)
 FOLLOW_SAFE = TaskShape(1, 17.36, 8.014, 0.189, 0.262)
 DT = 1e-3
+# A 3-joint arm (yaw, shoulder and elbow pitch): no null space, the kernels' other branch.
+LINK = """<link name="{name}"><inertial><origin xyz="0 0 {com}"/><mass value="{mass}"/>
+<inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial></link>"""
+JOINT = """<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>
+<origin xyz="0 0 {z}"/><axis xyz="{axis}"/>
+<limit lower="-2.6" upper="2.6" effort="{effort}" velocity="2.0"/></joint>"""
+THREE_JOINT_URDF = '<robot name="rrr">' + ''.join([
+    LINK.format(name='base', com=0.05, mass=2.0, i=0.01),
+    LINK.format(name='turret', com=0.1, mass=1.5, i=0.01),
+    LINK.format(name='upper', com=0.15, mass=1.2, i=0.01),
+    LINK.format(name='fore', com=0.12, mass=0.8, i=0.005),
+    '<link name="tool"/>',
+    JOINT.format(name='yaw', parent='base', child='turret', z=0.1, axis='0 0 1', effort=40),
+    JOINT.format(name='shoulder', parent='turret', child='upper', z=0.2, axis='0 1 0',
+                 effort=40),
+    JOINT.format(name='elbow', parent='upper', child='fore', z=0.3, axis='0 1 0', effort=20),
+    '<joint name="tool_joint" type="fixed"><parent link="fore"/><child link="tool"/>'
+    '<origin xyz="0 0 0.25"/></joint>']) + '</robot>'
 OUTPUTS = ('tau', 'tau_requested', 's', 'qdot_r', 'qddot_r', 'near', 'blend', 'damping',
            'barrier_gradient', 'reference_offset')
 
@@ -162,3 +180,25 @@ def test_a_closed_loop_follows_the_same_path_compiled(panda, arm, hand_at):
     close(states[0][0], states[1][0], 'q after 1.5 s')
     assert blended > 100, blended  # the reach-round blend took part
     assert near > 100 or arm != 'panda', near  # and the Panda's barrier
+
+
+def test_a_three_joint_arm_has_no_null_space_and_the_same_path(tmp_path):
+    urdf = tmp_path / 'rrr.urdf'
+    urdf.write_text(THREE_JOINT_URDF)
+    model = robot_model(urdf_file=str(urdf), tool_frame='tool')
+    model.home = np.array([0.0, 0.6, 0.9])  # bent: off the stretched singularity
+    gains = dataclasses.replace(PANDA_GAINS, ks=default_arm_ks(model))
+    laws = [ArmController(model, gains, theta_hat0=0.7 * model.theta, compiled=flag)
+            for flag in (True, False)]
+    states = [(model.home.copy(), np.zeros(3)) for _ in laws]
+    hand = HandState(model.tool_position(model.home) + np.array([0.1, 0.15, -0.1]),
+                     np.zeros(3), np.zeros(3))
+    for i in range(1500):
+        task = ActiveTask(FOLLOW, min(1.0, i / 300))
+        outs = [law.step(q, dq, hand, task, DT) for law, (q, dq) in zip(laws, states,
+                                                                         strict=True)]
+        assert_same(*outs)
+        states = [rk4_step(model, q, dq, out.tau, DT)
+                  for (q, dq), out in zip(states, outs, strict=True)]
+    close(states[0][0], states[1][0], 'q after 1.5 s')
+    assert outs[0].distance < 0.1  # it followed the hand (0.21 m away at the start)

@@ -417,6 +417,7 @@ class Controller(Node):
         self._rate_limited = False  # whether max_effort_rate acted on the last command
         self._rest = self._fixed_rest
         self._rest_array = None  # (rest, the same as an array): built once per rest position
+        self._hold = None  # the torque of a stale-joint-state outage (_zero_cycle), N m
         self._rest_key = None
         self._cycles = 0
         self._misses = 0
@@ -766,19 +767,20 @@ class Controller(Node):
             self._zero_timer.cancel()  # joint states are back: they pace the cycles
             return
         status = 'no_joint_states' if self._q is None else 'stale_joint_states'
-        # An arm under gravity is held where its last joint state put it (gravity with
-        # theta_hat, reached at the effort rate): zero torque dropped the Panda's 29 N m on
-        # joint 2 at once, and it fell into its joint limits while a loaded machine held the
-        # sim back for 0.1 s. The SCARA (horizontal) and velocity commands get zero.
-        hold = None
-        if self._arm is not None and self._q is not None and not self._velocity_mode:
-            hold = tuple(self._arm.gravity_hold(self._q).tolist())
         if status != self._status:  # once per outage, as scara_sim's command timeout
-            action = 'zero torque' if hold is None else 'holding against gravity'
+            # An arm under gravity is held where its last joint state put it (gravity with
+            # theta_hat, reached at the effort rate): zero torque dropped the Panda's 29 N m
+            # on joint 2 at once, and it fell into its joint limits while a loaded machine
+            # held the sim back for 0.1 s. The SCARA (horizontal) and velocity commands get
+            # zero. Worked out once: q and theta_hat stand still until a joint state comes.
+            self._hold = None
+            if self._arm is not None and self._q is not None and not self._velocity_mode:
+                self._hold = tuple(self._arm.gravity_hold(self._q).tolist())
+            action = 'zero torque' if self._hold is None else 'holding against gravity'
             self.get_logger().warning(f'{action}: {status.replace("_", " ")}')
         self._status = status
         self._weight = 0.0
-        self._publish_command(now, None, None, hold=hold)
+        self._publish_command(now, None, None, hold=self._hold)
 
     def _cycle(self, now: float, dt: float, stamp: float) -> None:
         """One control cycle on the joint state just received (stamp in s)."""
@@ -920,8 +922,7 @@ class Controller(Node):
         """arm_law's command for the n-joint arm: hand (x_d, xdot_d) tuples of 3 or None
         (held where the tool is), task (shape, k) or None. The ArmOutput, or None on a fault.
         What the torque does not need waits until it is sent: theta_hat's update (_cycle) and
-        V (_publish_state: the mass matrix and the barrier's energy, 30 us on the Panda every
-        10th cycle)."""
+        V (_publish_state: 1/2 s^T M s and the barrier's energy, every 10th cycle)."""
         arm = self._arm
         q, dq = np.array(self._q), np.array(self._dq)
         try:

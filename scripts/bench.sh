@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Benchmarks (measurements, not tests): sets the project up if needed, then runs, one after
 # another so that they do not disturb each other,
-#   step      bench/bench_step.py       one control step in-process: step_lean and the numpy
-#                                       reference step on seeded random states, per task
+#   step      bench/bench_step.py       one control step in-process: the compiled step and the
+#                                       numpy reference on seeded random states, per task
 #   learning  bench/bench_learning.py   fits on the fixtures (Gauss-Newton vs trf), fit time vs
 #                                       samples, learning from a replayed 1M-message bag
 #   loop      bench/bench_loop.py       the trivial rclpy echo floor, then scara_sim +
@@ -17,7 +17,7 @@
 # table on stdout. `scripts/bench.sh --quick` shortens every piece (a smoke run); `--load N`
 # adds the loop_load piece.
 # `--robot panda` runs the robot's pieces only, the Panda beside the SCARA in one run: step
-# (step_lean and the Panda's ArmController.step), loop (the SCARA's, as above) and loop_panda
+# (the law's step on both arms), loop (the SCARA's, as above) and loop_panda
 # (arm_sim robot:=panda + event_manager + controller robot:=panda + hand_sim in 3-D), and
 # prints both robots' figures against the Panda's bars (/joint_states >= 995 Hz, step median
 # <= 100 us, state -> command p99 <= 1.5 x the echo's, controller and sim <= 40 % of a core);
@@ -226,16 +226,13 @@ for name in PIECES:
     if piece['exit_code'] != 0:
         row(name, 'exit code', str(piece['exit_code']))
     if name == 'step':
-        for task, r in piece['tasks'].items():
-            lean, ref = r['lean'], r['reference']
-            row(name, f'{task}: step_lean', f"median {lean['median_us']} / p99 "
-                f"{lean['p99_us']} / max {lean['max_us']} us ({piece['calls']:,} calls)")
-            row(name, f'{task}: reference step', f"median {ref['median_us']} us "
-                f"({r['reference_over_lean']} x the lean step's)")
-        for task, r in piece.get('panda', {}).items():
-            step = r['step']
-            row(name, f'{task}: panda step', f"median {step['median_us']} / p99 "
-                f"{step['p99_us']} / max {step['max_us']} us ({piece['calls']:,} calls)")
+        for robot, tasks in piece['robots'].items():
+            for task, r in tasks.items():
+                step, numpy_step = r['step'], r['numpy_step']
+                row(name, f'{robot} {task}: step', f"median {step['median_us']} / p99 "
+                    f"{step['p99_us']} / max {step['max_us']} us ({piece['calls']:,} calls)")
+                row(name, f'{robot} {task}: numpy step', f"median {numpy_step['median_us']} "
+                    f"us ({r['numpy_over_compiled']} x the compiled step's)")
     elif name == 'learning':
         row(name, 'rounds', f"{piece['repeats']} (times min / median)")
         for task, by_method in piece['fixtures'].items():
@@ -324,10 +321,7 @@ def robot_figures(loop, step, robot):
     if not loop or 'error' in loop or 'skipped' in loop:
         return None
     sim = 'arm_sim' if robot == 'panda' else 'scara_sim'
-    if robot == 'panda':
-        steps = [r['step']['median_us'] for r in step.get('panda', {}).values()]
-    else:
-        steps = [r['lean']['median_us'] for r in step.get('tasks', {}).values()]
+    steps = [r['step']['median_us'] for r in step.get('robots', {}).get(robot, {}).values()]
     return {'rate_hz': loop['joint_states']['achieved_rate_hz'],
             'step_median_us': max(steps) if steps else None,
             'p99_ratio': loop.get('latency_p99_ratio'),

@@ -43,7 +43,7 @@ pytestmark = pytest.mark.integration
 
 FOLLOW_BAG = REPO_ROOT / 'bags/fixtures/follow'
 CONTROLLER_DEFAULTS = load_defaults('hri_adaptive_controller', 'controller')
-EFFORT_LIMIT = CONTROLLER_DEFAULTS['effort_limit']  # N m
+EFFORT_LIMIT = float(robot_model('scara').limits.effort.max())  # N m, the SCARA's
 Q_ARM = [0.3, 1.2]  # rad: the stand-in arm's pose
 Q_WRONG = [1.2, 0.3]  # rad: where a message read in the wrong order would put it
 HAND_OFFSET = np.array([0.1, 0.0])  # m from the end-effector
@@ -603,7 +603,7 @@ def test_out_of_range_parameters_are_refused_at_run_time(nodes, probe):
     values = call_service(getter, GetParameters.Request(
         names=['kp', 'effort_limit', 'ks'])).values
     assert [values[0].double_value, values[1].double_value, list(values[2].double_array_value)] \
-        == [10.0, 20.0, [20.0, 4.0]]
+        == [10.0, 0.0, []]  # no cap on the robot's limits; ks unset: the robot's
     # Valid values still go through.
     assert set_parameter(clients['controller'], 'kp', 5.0).successful
     assert set_parameter(clients['controller'], 'effort_limit', 10.0).successful

@@ -6,15 +6,17 @@ declare (ROS would ignore it without a word) is caught here rather than at a rob
 Imports the node modules for their parameter tables; rclpy is imported, never initialised.
 """
 
+import dataclasses
 import math
 
 import pytest
 
 from hri_adaptive_controller import controller_node, event_detector_node, event_manager_node
-from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
+from hri_adaptive_controller.arm_law import default_gains
 from hri_bringup import live_view_node
 from hri_core import topics
 from hri_core.node_common import PARAMETER_TYPES, load_defaults
+from hri_core.robot_model import robot_model
 from hri_demo_learning import learner_node, recorder_node
 from scara_sim import arm_sim_node, demonstrator_node, hand_sim_node, scara_sim_node
 
@@ -65,9 +67,9 @@ def test_value_problem_catches_what_ros_would_refuse():
     assert 'outside' in value_problem(spec, -1.0)
     mode = controller_node.PARAMETERS['mode']
     assert 'is not one of' in value_problem(mode, 'torque')
-    ks = controller_node.PARAMETERS['ks']
-    assert 'expected 2 values' in value_problem(ks, [1.0])
-    assert 'finite' in value_problem(ks, [1.0, math.nan])
+    limits = scara_sim_node.PARAMETERS['joint_lower_limits']
+    assert 'expected 2 values' in value_problem(limits, [1.0])
+    assert 'finite' in value_problem(controller_node.PARAMETERS['ks'], [1.0, math.nan])
     assert 'list of str' in value_problem(recorder_node.PARAMETERS['topics'], ['/a', 1.0])
 
 
@@ -77,6 +79,10 @@ def test_the_recorder_records_the_demonstration_topics_by_default():
 
 
 def test_controller_yaml_runs_the_gains_the_closed_loop_tests_check():
-    """The unit tests of the pure closed loop use DEFAULT_GAINS; the node must run them."""
+    """The unit tests of the pure closed loop use each robot's own gains
+    (arm_law.default_gains); the node must run them."""
     values = load_defaults('hri_adaptive_controller', 'controller')
-    assert controller_node.gains_from(values) == DEFAULT_GAINS
+    for robot in ('scara', 'panda'):
+        model = robot_model(robot)
+        assert controller_node.gains_from({**values, 'robot': robot}, model) == \
+            dataclasses.replace(default_gains(model), limit_band=values['joint_limit_band'])

@@ -46,7 +46,7 @@ MAX_EFFORT_STEP = 1.0 + 1e-9
 RAMP = 0.3  # s, event_manager ramp_time
 REACH_IN_SPEED = 0.5  # m/s
 CONTROLLER = load_defaults('hri_adaptive_controller', 'controller')
-EFFORT_LIMIT = CONTROLLER['effort_limit']  # N m
+EFFORT_LIMIT = load_defaults('scara_sim', 'scara_sim')['effort_limit']  # N m
 # Largest change of a between two ControllerStates: per second, eq. 13's ramp (15/8 per
 # ramp_time) plus the controller's blend of a TaskState that comes after a gap (at most
 # 15/8 per task_fade_time: signal_hold); and once, what the first-order hold between

@@ -1,8 +1,9 @@
-"""The adaptive law of eq. 12-19 for an arm of n joints in 3-D task space (any RobotModel).
+"""The adaptive law of eq. 12-19 for every arm: one law over hri_core's RobotModel.
 
-adaptive_law.step_lean is the SCARA's 1 kHz path (2 joints, plane); this module is the same
-law for any serial arm whose model hri_core.robot_model gives (the Panda's 7 joints, a URDF).
-Shapes: q, qdot (n,) rad, rad/s; x, x_d (3,) m; J (3, n) m/rad; theta (p,); tau (n,) N m.
+The law works on the model's task axes (RobotModel.task_axes, k): x, y for a planar arm (the
+SCARA: its 2 x 2 Jacobian is exact and square, so eq. 20-22 keep their exact form and theta
+keeps the paper's 7 parameters), x, y, z otherwise (the Panda's 7 joints, any URDF arm).
+Shapes: q, qdot (n,) rad, rad/s; x, x_d (k,) m; J (k, n) m/rad; theta (p,); tau (n,) N m.
 
     delta_eps = Q'(r) e,  r = |x - x_d|, e = (x - x_d) / r                           (eq. 12')
     v_task = f xdot_d - a delta_eps + a (v_rest + v_away)               (eq. 14, task space)
@@ -18,13 +19,18 @@ Shapes: q, qdot (n,) rad, rad/s; x, x_d (3,) m; J (3, n) m/rad; theta (p,); tau 
 Q'(r), Q''(r): task_variable.radial_drive, the SCARA's own radial task term (speed cap
 max_task_speed, approach floor, Hessian bound), in 3-D: H_Q = Q'' e e^T + Q'/r (I - e e^T)
 (the analytic Hessian of Q, so qddot_r is exact). The drive is task_variable.task_drive
-with the model's reach. f = 1 for follow tasks, 1 - a for avoid tasks (open outward: the
+with the model's attained reach. f = 1 for follow tasks, 1 - a for avoid tasks (open outward: the
 hand's velocity is not fed forward); the feed-forward is capped at FEED_FORWARD_RATIO v_max
-with task_variable.speed_cap, as adaptive_law does. Y is the model's eq. 18 regressor with
-gravity and viscous friction (Y theta = M qddot_r + C qdot_r + F qdot_r + g): theta_hat
-adapts the gravity too, from whatever start.
+with task_variable.speed_cap. Y is the model's eq. 18 regressor with gravity and viscous
+friction (Y theta = M qddot_r + C qdot_r + F qdot_r + g): theta_hat adapts the gravity too,
+from whatever start.
 
-Null space (redundant arms, n > 3): z = cap(-k_n (q - q_home)) - v_B g_B / kb moves the
+Two deliberate differences from the paper's text, both needed for eq. 22 to follow from eq.
+16-21: eq. 16 prints -Kp a delta_eps, where the closed loop eq. 20 (and the units: delta_eps
+is a task-space velocity, tau a joint torque) needs -J^T Kp a delta_eps; and with a scalar
+Kp (N s/m) the potential term of V is Kp a Q (eq. 21 prints a P, right only for Kp = 1).
+
+Null space (redundant arms, n > k): z = cap(-k_n (q - q_home)) - v_B g_B / kb moves the
 joints towards the model's home pose and away from the joint limits. J N = J - J J+ J = 0
 wherever J+ is the exact inverse (manipulability above the damping threshold), so the tool's
 velocity and eq. 20-22 do not see z: with V = 1/2 s^T M s + Kp a Q + B + 1/2 dtheta^T L^-1
@@ -36,47 +42,50 @@ dtheta (B the barrier's energy),
 
 the posture term g_B^T N z_post is non-zero only within a barrier band (g_B = 0 elsewhere),
 and the last one is <= 0 (N symmetric, idempotent). Joint-limit barrier: joint_limits'
-barrier for every joint (the same quintic smoothstep; `barrier_n`): near a limit the torque
+barrier for every joint: near a limit the torque
 gets -g_B and the reference the task-space share of it, the feed-forward towards the limit
 is gated, and eq. 19 pauses by 1 - near. Per-joint effort limits: tau is scaled as a whole so
 that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is. A non-finite
 result gives zero torque and fault=True, theta_hat unchanged.
 
-Avoid tasks (open outward; task_variable's module docstring, the SCARA's terms in 3-D):
-the reference drops the hand's velocity (f = 1 - a), reads it through the SCARA's filter
-(adaptive_law.filter_hand_velocity, HAND_RATE), and adds the return to the rest position
-v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the caller's, by default
+Avoid tasks (open outward; task_variable's module docstring): the reference drops the hand's
+velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds
+the return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the caller's, by default
 where the tool is) and the retreat from an approaching hand v_away = g(r) p(e . xdot_d) e
 (retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e =
 (1 - sigma) a delta_eps + J+^T g_B / Kp and w = f xdot_f + a (v_rest + v_away) - xdot_d
-(ArmOutput.reference_offset; `lyapunov_rate` is the prediction, as adaptive_law's monitor).
+(ArmOutput.reference_offset; `lyapunov_rate` is the prediction, the monitor's).
 
 Reach-round (follow tasks): where a joint sits in its barrier band while the goal is far
 (the straight descent stalls: the Panda leaning back to a hand behind its base stopped 14 cm
-short) or the region lies beyond the reach, joint_limits.ReachRoundN blends in the joint
-motion u towards an inverse-kinematics pose with sigma (the SCARA's ramp, slewed goal filter
-and capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
+short) or the region lies beyond the reach (for a planar arm also: the straight path
+crosses the hole round its base), joint_limits.reach_round's blend brings in the joint
+motion u towards an inverse-kinematics pose with sigma (a C2 ramp, slewed goal filter and
+capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
 so is the posture pull of the null space (the barrier's push is not).
 No ROS import.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
-from hri_adaptive_controller.adaptive_law import (
-    FEED_FORWARD_RATIO,
-    filter_hand_velocity,
-    predicted_lyapunov_rate,
+from hri_adaptive_controller.joint_limits import (
+    ReachRoundSettings,
+    barrier,
+    barrier_energy,
+    gate_feed_forward,
+    reach_round,
 )
-from hri_adaptive_controller.joint_limits import FEED_SPEED, ReachRoundN, ReachRoundSettings
 from hri_adaptive_controller.task_variable import (
     MAX_TASK_HESSIAN,
     DampingSettings,
     TaskDrive,
     TaskDrives,
+    damped_pseudo_inverse,
     radial_drive,
     rest_term_n,
     retreat_term_n,
@@ -84,13 +93,16 @@ from hri_adaptive_controller.task_variable import (
     task_potential,
 )
 from hri_core.potential import TaskShape
-from hri_core.robot_model import INERTIA_NAMES, PinocchioModel, RobotModel, generic_model
+from hri_core.robot_model import RobotModel
 
-_EYE3 = np.eye(3)
-_DIAGONAL3 = np.diag_indices(3)
+FEED_FORWARD_RATIO = 2.0
+"""The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
+HAND_RATE = 40.0
+"""1/s: the hand-velocity filter of an avoid task's retreat (lag 2 / HAND_RATE = 50 ms)."""
+# The hand-velocity filter's omega^2 (1/s^2) and 2 omega (1/s).
+_HAND_STIFFNESS, _HAND_DAMPING = HAND_RATE * HAND_RATE, 2.0 * HAND_RATE
 
-ADAPTATION_KINDS = (*INERTIA_NAMES, 'damping')
-"""The kinds of parameters `ArmGains.adaptation` gives one rate each, for every joint."""
+
 
 
 @dataclass(frozen=True)
@@ -98,11 +110,16 @@ class ArmGains:
     """Gains of the n-joint law (module docstring).
 
     ks: diagonal of Ks (n values, N m s/rad, > 0); kp: Kp (N s/m, > 0); adaptation: L's rate
-    for each kind of parameter (ADAPTATION_KINDS: m, mcx, ..., Izz, damping; >= 0), the same
-    for every joint; task_gain, approach_speed, region_margin, max_task_speed, rest_gain,
-    rest_gate: as adaptive_law.ControllerGains; effort_scale (0, 1]: the fraction of the
+    for each kind of parameter the model names (RobotModel.adaptation_kinds: the SCARA's 7
+    parameters; a URDF arm's m, mcx, ..., Izz, damping, the same for every joint; >= 0;
+    units of theta^2 per N m s); task_gain: K (m^2/s) for every task, or None for each
+    task's own K (0 = default_task_gain); approach_speed, region_margin, max_task_speed, rest_gain,
+    rest_gate: the approach floor, the speed cap and an avoid task's return to rest
+    (task_variable.task_drive); effort_scale (0, 1]: the fraction of the
     model's per-joint effort limits the law may use; max_effort_rate (N m/s): the callers'
-    rate limit (effort_rate); damping: J+ damping (threshold w0 in m^3 for a 3-row J);
+    rate limit (effort_rate); effort_limit (N m) or None: a cap on every joint's effort limit
+    besides the model's; initial_estimate (> 0): the share of the model's nominal theta a
+    controller node starts its estimate from when given none; damping: J+ damping (threshold w0: m^2 for a 2-row J, m^3 for 3);
     posture_gain k_n (1/s, >= 0) and posture_speed (rad/s, > 0): the null-space pull towards
     home, each joint's speed capped smoothly; limit_band (rad, > 0), barrier_torque kb (N m,
     >= 0): the barrier; limit_speed v_B (rad/s, >= 0): the null-space push off a limit.
@@ -127,21 +144,25 @@ class ArmGains:
     barrier_torque: float = 3.0
     limit_speed: float = 0.3
     reach_round: ReachRoundSettings = field(default_factory=ReachRoundSettings)
+    effort_limit: float | None = None
+    initial_estimate: float = 1.0
 
     def __post_init__(self):
         ks = np.asarray(self.ks, dtype=float)
         if ks.ndim != 1 or ks.size == 0 or not np.all(np.isfinite(ks)) or np.any(ks <= 0.0):
             raise ValueError(f'ks must be finite values > 0 N m s/rad, got {self.ks}')
         rates = np.asarray(self.adaptation, dtype=float)
-        if (rates.shape != (len(ADAPTATION_KINDS),) or not np.all(np.isfinite(rates))
-                or np.any(rates < 0.0)):
-            raise ValueError(f'adaptation must be {len(ADAPTATION_KINDS)} finite values >= 0 '
-                             f'({", ".join(ADAPTATION_KINDS)}), got {self.adaptation}')
+        if rates.ndim != 1 or not np.all(np.isfinite(rates)) or np.any(rates < 0.0):
+            raise ValueError(f'adaptation must be finite values >= 0, got {self.adaptation}')
+        if self.effort_limit is not None and not (
+                math.isfinite(self.effort_limit) and self.effort_limit > 0.0):
+            raise ValueError(f'effort_limit must be None or finite and > 0 N m, '
+                             f'got {self.effort_limit}')
         if self.task_gain is not None and not (
                 math.isfinite(self.task_gain) and self.task_gain > 0.0):
             raise ValueError(f'task_gain must be None or finite and > 0, got {self.task_gain}')
         for name in ('kp', 'max_task_speed', 'rest_gate', 'max_effort_rate', 'posture_speed',
-                     'limit_band', 'effort_scale'):
+                     'limit_band', 'effort_scale', 'initial_estimate'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
@@ -154,6 +175,36 @@ class ArmGains:
                 raise ValueError(f'{name} must be finite and >= 0, got {value}')
 
 
+# The SCARA's gains (robot_model('scara'): l1 = 0.35 m, l2 = 0.30 m, 4 kg + 3 kg, M(q) about
+# [[0.66, 0.13], [0.13, 0.13]] kg m^2 at q2 = 90 deg), tuned in the pure closed loop
+# (closed_loop.simulate) on Table I's three tasks. The paper's Ks = 0.01 I, Kp = 5 I were for
+# its own robot (and its own scaling of P) and do not transfer.
+SCARA_GAINS = ArmGains(
+    # Ks: ks1 / M11 ~ ks2 / M22 ~ 30 1/s: s decays in ~35 ms, fast against the task motion
+    # (hundreds of ms), slow against the 1 kHz loop.
+    ks=(20.0, 4.0),
+    # Kp (N s/m): weight of the task term J^T Kp a delta_eps: Kp v_max = 2.5 N at full speed
+    # (<= 1.6 N m). The arm runs faster than the reference by about Kp |J|^2 / ks; with this
+    # Kp at most 1.25 v_max (a still target).
+    kp=10.0,
+    # L, scaled to each column of Y (accelerations ~ 1-10 rad/s^2 for the inertias,
+    # velocities ~ 1 rad/s for the friction): following a hand that circles (0.1 m, 3 s)
+    # from a 30-100 % wrong theta_hat(0), the inertias and frictions come within 16 % in 20
+    # s, with no torque peak above the start-up one; 10x smaller rates leave them 40-100 % off
+    # after 20 s. The gravity moments (zero columns for the horizontal arm) keep a small rate.
+    adaptation=(5.0, 2.0, 1.0, 20.0, 10.0, 0.1, 0.1),
+    # J+ damping from 28 deg of the stretched arm on, up to lambda = 0.15 m: joint speeds stay
+    # below 3 rad/s and torques below 10 N m when the target is out of reach.
+    damping=DampingSettings(threshold=0.05, max_damping=0.15),
+    # The barrier acts 0.1 rad from a limit with 3 N m there: above the largest task torque
+    # J^T Kp (1 + CAP_BAND) v_max (1.95 N m on joint 1, 0.9 N m on joint 2).
+    limit_band=0.1,
+    barrier_torque=3.0,
+    # The node's estimate starts at 0.6 of the nominal theta: scara_sim runs the nominal arm,
+    # and a start at the truth would show nothing of eq. 19.
+    initial_estimate=0.6,
+)
+
 # The Panda's gains (robot_model('panda'): M's diagonal at home 0.53, 1.55, 0.98, 0.96, 0.04,
 # 0.05, 0.007 kg m^2; gravity up to 22 N m on joint 4). Ks / M ~ 30-60 1/s on the big joints
 # (s decays in 20-35 ms) and below 2 / dt on the wrist (1 kHz Euler-stable); kp as the SCARA's.
@@ -164,6 +215,9 @@ PANDA_GAINS = ArmGains(
     kp=10.0,
     adaptation=(2.0, 2.0, 2.0, 2.0, 0.05, 0.05, 0.05, 0.05, 0.05, 0.05, 0.5),
 )
+
+ROBOT_GAINS = {'scara': SCARA_GAINS, 'panda': PANDA_GAINS}
+"""Gains tuned for a named robot (RobotModel.name); any other arm: default_gains."""
 
 
 def sampled_configurations(model: RobotModel, samples: int) -> np.ndarray:
@@ -196,8 +250,19 @@ def default_arm_ks(model: RobotModel, samples: int = INERTIA_SAMPLES) -> tuple[f
                                               KS_RATE * least))
 
 
+def default_gains(model: RobotModel) -> ArmGains:
+    """The gains for `model`: its own (ROBOT_GAINS) where tuned for it, else PANDA_GAINS'
+    with Ks from its effort limits and link inertias (default_arm_ks)."""
+    gains = ROBOT_GAINS.get(model.name)
+    if gains is not None and len(gains.ks) == model.dof and len(gains.adaptation) == len(
+            model.adaptation_kinds):
+        return gains
+    return dataclasses.replace(PANDA_GAINS, ks=default_arm_ks(model))
+
+
 class HandState(NamedTuple):
-    """The hand (target) x_d (3,) m, xdot_d (3,) m/s, xddot_d (3,) m/s^2."""
+    """The hand (target) on the model's task axes: x_d (k,) m, xdot_d (k,) m/s, xddot_d (k,)
+    m/s^2."""
 
     position: np.ndarray
     velocity: np.ndarray
@@ -218,13 +283,13 @@ class ArmOutput(NamedTuple):
     """One step of `ArmController.step`.
 
     tau (n,) N m, the command (zeros on a fault); tau_requested (n,) before the effort limit;
-    s (n,) rad/s; qdot_r, qddot_r (n,); position x (3,) m; distance |x - x_d| (m, None on a
+    s (n,) rad/s; qdot_r, qddot_r (n,); position x (k,) m; distance |x - x_d| (m, None on a
     fault); task_gain K (m^2/s); theta_hat (p,) used for this step; torque_limited, fault;
     fault_reason; damping lambda^2; near: the barrier's proximity in [0, 1]; barrier_gradient
-    g_B (n,) N m; weighted_task_variable a delta_eps (3,) m/s; lyapunov: V (J) or part of it,
+    g_B (n,) N m; weighted_task_variable a delta_eps (k,) m/s; lyapunov: V (J) or part of it,
     where a caller fills it in (None from step); blend: the reach-round weight sigma in
-    [0, 1]; barrier_task_velocity J+^T g_B / Kp (3,) m/s (None off the bands), which with
-    (1 - sigma) a delta_eps makes eq. 22's v_e; reference_offset w (3,) m/s: what the
+    [0, 1]; barrier_task_velocity J+^T g_B / Kp (k,) m/s (None off the bands), which with
+    (1 - sigma) a delta_eps makes eq. 22's v_e; reference_offset w (k,) m/s: what the
     reference adds to the hand's velocity besides the task term (eq. 22's avoid term).
     """
 
@@ -250,89 +315,80 @@ class ArmOutput(NamedTuple):
     reference_offset: np.ndarray | None = None
 
 
-def _smoothstep_arrays(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The quintic smoothstep of joint_limits / task_variable (C2) and its derivative, per
-    element of u."""
-    u = np.clip(u, 0.0, 1.0)
-    v = 1.0 - u
-    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
-
-
-def barrier_n(q, dq, lower, upper, band: float, barrier_torque: float):
-    """joint_limits.barrier for n joints: (g, gd, near) with g = dB/dq (n,) N m, gd its time
-    derivative (n,) N m/s and near = max_i w(u_i) in [0, 1]. q, dq, lower, upper (n,)."""
-    if (q >= lower + band).all() and (q <= upper - band).all():
-        zero = np.zeros(q.shape)
-        return zero, zero, 0.0  # outside every band (the usual case)
-    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
-    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
-    g = barrier_torque * (up - down)
-    gd = barrier_torque * (dup + ddown) / band * dq
-    return g, gd, float(max(up.max(), down.max()))
-
-
-def barrier_energy_n(q, lower, upper, band: float, barrier_torque: float) -> float:
-    """B(q) (J) of barrier_n: kb band times the smoothstep's integral over each overlap."""
-    total = 0.0
-    for u in np.concatenate([(q - (upper - band)) / band, ((lower + band) - q) / band]):
-        if u > 0.0:
-            v = min(u, 1.0)
-            total += barrier_torque * band * (2.5 * v ** 4 - 3.0 * v ** 5 + v ** 6
-                                              + max(u - 1.0, 0.0))
-    return total
-
-
-def gate_feed_forward_n(q, dq, v, rate, lower, upper, band: float):
-    """joint_limits.gate_feed_forward for n joints: the joint feed-forward v (n,) rad/s and
-    its rate (n,) with each component towards a near limit faded out."""
-    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
-    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
-    towards_up, dtu = _smoothstep_arrays(v / FEED_SPEED)
-    towards_down, dtd = _smoothstep_arrays(-v / FEED_SPEED)
-    factor = 1.0 - up * towards_up - down * towards_down
-    factor_rate = (-(dup / band * dq) * towards_up - up * dtu / FEED_SPEED * rate
-                   + (ddown / band * dq) * towards_down + down * dtd / FEED_SPEED * rate)
-    return v * factor, rate * factor + v * factor_rate
-
-
-def task_term_3d(dx: np.ndarray, drive: TaskDrive) -> tuple[np.ndarray, np.ndarray]:
-    """delta_eps = Q'(r) e (3,) m/s and its Hessian H_Q (3, 3) 1/s at dx = x - x_d (3,) m,
+def task_term(dx: np.ndarray, drive: TaskDrive) -> tuple[np.ndarray, np.ndarray]:
+    """delta_eps = Q'(r) e (k,) m/s and its Hessian H_Q (k, k) 1/s at dx = x - x_d (k,) m,
     from task_variable.radial_drive (eq. 12'); entries bounded by MAX_TASK_HESSIAN."""
     r = math.sqrt(float(dx @ dx))
     slope, curvature = radial_drive(r, drive)
     if r == 0.0:
-        return np.zeros(3), curvature * _EYE3
+        return np.zeros(dx.size), curvature * np.eye(dx.size)
     e = dx / r
     tangential = slope / r
     hessian = (curvature - tangential) * np.outer(e, e)
-    hessian[_DIAGONAL3] += tangential
+    hessian[np.diag_indices(dx.size)] += tangential
     if curvature > MAX_TASK_HESSIAN or tangential > MAX_TASK_HESSIAN or (
             curvature < -MAX_TASK_HESSIAN or tangential < -MAX_TASK_HESSIAN):
         hessian = np.clip(hessian, -MAX_TASK_HESSIAN, MAX_TASK_HESSIAN)
     return slope * e, hessian
 
 
-def task_term_3d_along(dx: np.ndarray, u: np.ndarray,
-                       drive: TaskDrive) -> tuple[np.ndarray, np.ndarray]:
-    """task_term_3d's delta_eps (3,) m/s and H_Q u (3,) m/s^2 for u (3,) m/s: the control
+def task_term_along(dx: np.ndarray, u: np.ndarray,
+                    drive: TaskDrive) -> tuple[np.ndarray, np.ndarray]:
+    """task_term's delta_eps (k,) m/s and H_Q u (k,) m/s^2 for u (k,) m/s: the control
     step's path, in plain floats where no entry of H_Q needs its bound (|Q''|, |Q'/r| <=
     MAX_TASK_HESSIAN: then every entry is, H_Q being a blend of the two), else through
-    task_term_3d's bounded matrix."""
-    (d0, d1, d2), (u0, u1, u2) = dx.tolist(), u.tolist()
-    r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    task_term's bounded matrix."""
+    d, v = dx.tolist(), u.tolist()
+    r = math.sqrt(sum(value * value for value in d))
     slope, curvature = radial_drive(r, drive)
     if r == 0.0:
-        return np.zeros(3), curvature * u
+        return np.zeros(len(d)), curvature * u
     tangential = slope / r
     if not (-MAX_TASK_HESSIAN <= curvature <= MAX_TASK_HESSIAN
             and -MAX_TASK_HESSIAN <= tangential <= MAX_TASK_HESSIAN):
-        gradient, hessian = task_term_3d(dx, drive)
+        gradient, hessian = task_term(dx, drive)
         return gradient, hessian @ u
-    e0, e1, e2 = d0 / r, d1 / r, d2 / r
-    along = (curvature - tangential) * (e0 * u0 + e1 * u1 + e2 * u2)
-    return (np.array((slope * e0, slope * e1, slope * e2)),
-            np.array((along * e0 + tangential * u0, along * e1 + tangential * u1,
-                      along * e2 + tangential * u2)))
+    e = [value / r for value in d]
+    along = (curvature - tangential) * sum(a * b for a, b in zip(e, v, strict=True))
+    return (np.array([slope * value for value in e]),
+            np.array([along * value + tangential * rate for value, rate in zip(e, v,
+                                                                               strict=True)]))
+
+
+def predicted_lyapunov_rate(s, weighted_task_variable, weight_rate: float,
+                            task_potential_value: float, ks, kp: float, friction,
+                            reference_offset) -> float:
+    """dV/dt (W) of eq. 22 with the avoid task's term (module docstring):
+
+        -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w.
+
+    s (n,) rad/s; weighted_task_variable v_e (k,) m/s; weight_rate da/dt (1/s);
+    task_potential_value Q (m^2/s); ks (n,) N m s/rad; kp N s/m; friction diag F (n,);
+    reference_offset w (k,) m/s: what the reference adds to the hand's velocity besides the
+    task term (0 for follow tasks and without a task)."""
+    s = np.asarray(s, dtype=float)
+    damping = np.asarray(ks, dtype=float) + np.asarray(friction, dtype=float)
+    task = np.asarray(weighted_task_variable, dtype=float)
+    offset = np.asarray(reference_offset, dtype=float)
+    return float(-np.sum(damping * s * s) - kp * (task @ task)
+                 + kp * weight_rate * task_potential_value + kp * (task @ offset))
+
+
+def filter_hand_velocity(state: tuple, xdot_d, dt: float) -> tuple:
+    """The hand's velocity through a critically damped second-order filter (HAND_RATE),
+    advanced by dt (s): state and result (v_1 .. v_k, dv_1/dt .. dv_k/dt) m/s, m/s^2
+    (floats), xdot_d (k,) m/s. The estimate steps at each /target; an avoid task's retreat
+    acts on this one, whose rate is continuous, so the torque does not step with the
+    messages. A non-finite result restarts the filter at zero."""
+    m = len(state) // 2
+    out = list(state)
+    for i in range(m):  # a plain loop: 1.3 us, against 5.8 us for tuples built from zips
+        v, a = state[i], state[m + i]
+        a = a + dt * (_HAND_STIFFNESS * (xdot_d[i] - v) - _HAND_DAMPING * a)
+        out[i], out[m + i] = v + dt * a, a
+    if not all(map(math.isfinite, out)):
+        return (0.0,) * (2 * m)
+    return tuple(out)
 
 
 REACH_SAMPLES = 2000
@@ -340,11 +396,14 @@ REACH_SAMPLES = 2000
 
 
 def attained_reach(model: RobotModel, samples: int = REACH_SAMPLES) -> float:
-    """The farthest the tool point gets from the model's shoulder (m) over `samples` seeded
-    random configurations within the joint limits: the reach the task drive works with.
+    """The farthest the tool point gets from the model's shoulder (m): the model's own
+    attained_reach where it knows it, else the farthest over `samples` seeded random
+    configurations within the joint limits: the reach the task drive works with.
     model.reach is an upper bound (the chain's lengths added), for the Panda 1.09 m against
     0.95 m attained; with it, Table I's avoid row (d2 = 2.0 m) would not count as open
     outward (d2 >= 2 reach, task_variable.open_outward) and the arm would copy the hand."""
+    if model.attained_reach is not None:
+        return float(model.attained_reach)
     farthest = 0.0
     for q in sampled_configurations(model, samples):
         farthest = max(farthest, float(np.linalg.norm(model.tool_position(q) - model.shoulder)))
@@ -352,77 +411,78 @@ def attained_reach(model: RobotModel, samples: int = REACH_SAMPLES) -> float:
 
 
 class ArmController(TaskDrives):
-    """The adaptive law for the arm `model` (a RobotModel; the SCARA through its URDF).
+    """The adaptive law for the arm `model` (any RobotModel: the SCARA, the Panda, a URDF).
 
-    gains: ArmGains (len(ks) = model.dof); theta_hat0 (p,): the initial estimate (default: the
-    model's nominal theta), projected onto the model's box. compiled: the per-cycle arithmetic
-    through arm_kernels (numba), else through numpy (the reference the kernels are tested
-    against; the same results to rounding).
+    gains: ArmGains (len(ks) = model.dof, one adaptation rate per model.adaptation_kinds;
+    default_gains(model) has them); theta_hat0 (p,): the initial estimate (default: the
+    model's nominal theta), projected onto the model's box. compiled: the per-cycle
+    arithmetic through arm_kernels (numba), else through numpy (the reference the kernels are
+    tested against; the same results to rounding).
     """
 
-    def __init__(self, model: RobotModel, gains: ArmGains, theta_hat0=None,
+    def __init__(self, model: RobotModel, gains: ArmGains | None = None, theta_hat0=None,
                  compiled: bool = True):
-        self.model: PinocchioModel = generic_model(model)
-        n = self.model.dof
-        if n < 3:
-            raise ValueError(f'{self.model.name} has {n} joints: the 3-D law needs at least 3 '
-                             '(the planar SCARA runs adaptive_law)')
+        self.model = model
+        gains = default_gains(model) if gains is None else gains
+        n, axes = model.dof, model.task_axes
+        if n < axes:
+            raise ValueError(f'{model.name} has {n} joints: a law on {axes} task axes needs at '
+                             f'least {axes}')
         if len(gains.ks) != n:
-            raise ValueError(f'ks must have {n} values for {self.model.name}, got {gains.ks}')
-        super().__init__(gains, attained_reach(self.model))
-        import pinocchio as pin  # the model already imported it
-
-        self._pin = pin
-        self._frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        limits = self.model.limits
+            raise ValueError(f'ks must have {n} values for {model.name}, got {gains.ks}')
+        super().__init__(gains, attained_reach(model))
+        self._rates = model.adaptation_rates(gains.adaptation)
+        self._axes = axes
+        limits = model.limits
         self._lower = np.where(np.isfinite(limits.lower), limits.lower, -1e9)
         self._upper = np.where(np.isfinite(limits.upper), limits.upper, 1e9)
         if np.any(self._upper - self._lower <= 2.0 * gains.limit_band):
-            raise ValueError(f'every joint range of {self.model.name} must be wider than '
+            raise ValueError(f'every joint range of {model.name} must be wider than '
                              f'2 limit_band ({gains.limit_band} rad)')
         self._effort = gains.effort_scale * limits.effort
+        if gains.effort_limit is not None:
+            self._effort = np.minimum(self._effort, gains.effort_limit)
         if not np.all(self._effort > 0.0):
-            raise ValueError(f'{self.model.name} has a joint without an effort limit > 0: '
+            raise ValueError(f'{model.name} has a joint without an effort limit > 0: '
                              f'{limits.effort.tolist()}')
         self._inverse_effort = 1.0 / self._effort
-        # Where no barrier acts (barrier_n's bands start here): checked first each step.
+        # Where no barrier acts (the barrier's bands start here): checked first each step.
         self._inner_lower = self._lower + gains.limit_band
         self._inner_upper = self._upper - gains.limit_band
         self._ks = np.asarray(gains.ks, dtype=float)
-        per_joint = len(INERTIA_NAMES)
-        self._rates = np.concatenate([np.tile(gains.adaptation[:per_joint], n),
-                                      np.full(n, gains.adaptation[per_joint])])
-        self._home = np.clip(self.model.home, self._lower + gains.limit_band,
+        self._home = np.clip(model.home, self._lower + gains.limit_band,
                              self._upper - gains.limit_band)
         self._threshold2 = gains.damping.threshold ** 2
         self._max_damping2 = gains.damping.max_damping ** 2
         self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._last: tuple = (None, 0.0, None)
-        self._reach = ReachRoundN(gains.reach_round, self.model, self._lower, self._upper,
+        self._reach = reach_round(gains.reach_round, model, self._lower, self._upper,
                                   gains.limit_band, self._task_reach)
-        # The per-cycle arithmetic compiled (arm_kernels; numba, imported here so that the
-        # SCARA's controller does not load it), or numpy's (the reference).
+        # The per-cycle arithmetic compiled (arm_kernels; numba, imported here so that a
+        # reference-only user does not load it), or numpy's (the reference).
         self._compiled = compiled
         self._zero_joints = np.zeros(n)
+        self._zero_task = np.zeros(axes)
+        self._null_space = n > axes
         self._posture = (float(gains.posture_gain), float(gains.posture_speed))
         if compiled:
             from hri_adaptive_controller import arm_kernels
             self._kernels = arm_kernels
             self._load_kernels()
-        self.reset(self.model.theta if theta_hat0 is None else theta_hat0)
+        self.reset(model.theta if theta_hat0 is None else theta_hat0)
 
     def _load_kernels(self) -> None:
         """Call each kernel once with the argument types `command` gives them, so that numba
         compiles them (or loads them from its cache) now and not at the first cycle."""
         n, kernels = self.model.dof, self._kernels
-        zeros3, zeros_n = np.zeros(3), self._zero_joints
-        jac = np.zeros((3, n))
+        zeros_k, zeros_n = self._zero_task, self._zero_joints
+        jac = np.zeros((self._axes, n))
         pinv, pinv_rate, *_ = kernels.damped_pseudo_inverse(jac, jac, 1.0, 0.0)
-        kernels.joint_reference(zeros_n, zeros_n, jac, jac, pinv, pinv_rate, zeros3, zeros3,
+        kernels.joint_reference(zeros_n, zeros_n, jac, jac, pinv, pinv_rate, zeros_k, zeros_k,
                                 (0.0, 0.0, 0.0), zeros_n, zeros_n, zeros_n, *self._posture,
                                 True)
-        kernels.torque(np.zeros((n, 1)), np.zeros(1 + n), zeros_n, zeros_n, zeros_n, zeros_n,
-                       jac, zeros3, zeros_n, zeros_n)
+        kernels.torque(np.zeros((n, self.model.theta.size)), np.zeros(self.model.theta.size),
+                       zeros_n, zeros_n, zeros_n, jac, zeros_k, zeros_n, zeros_n)
 
     @property
     def gains(self) -> ArmGains:
@@ -444,6 +504,11 @@ class ArmController(TaskDrives):
         """The per-joint effort limits the law keeps to (n,) N m."""
         return self._effort.copy()
 
+    @property
+    def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """The joint position limits the law keeps off (lower, upper) (n,) rad, copies."""
+        return self._lower.copy(), self._upper.copy()
+
     def reset(self, theta_hat0) -> None:
         """Restart the estimate at theta_hat0 (p,), projected onto the model's box."""
         theta = np.asarray(theta_hat0, dtype=float)
@@ -453,7 +518,7 @@ class ArmController(TaskDrives):
         self._theta = np.clip(theta, self.model.theta_lower, self.model.theta_upper)
         self._pending = None  # theta_hat's update from the last `command`, for `adapt`
         self._reach.reset()
-        self._hand_velocity = (0.0,) * 6
+        self._hand_velocity = (0.0,) * (2 * self._axes)
 
     @property
     def reaching_round(self) -> bool:
@@ -475,18 +540,20 @@ class ArmController(TaskDrives):
             self._last = (shape, k, drive)
         return drive
 
-    def lyapunov(self, output: ArmOutput, q, task: ActiveTask | None, true_model=None) -> float:
+    def lyapunov(self, output: ArmOutput, q, task: ActiveTask | None, true_model=None,
+                 with_task: bool = True) -> float:
         """V of eq. 21 with the barrier (J): 1/2 s^T M s + Kp a Q + B (+ 1/2 dtheta^T L^-1
         dtheta with the true model's theta, in simulation). M from true_model if given,
-        else from the nominal model."""
+        else from the nominal model. with_task=False leaves out Kp a Q (for a caller that
+        adds it later, for many steps at once)."""
         q = np.asarray(q, dtype=float)
         model = self.model if true_model is None else true_model
         value = model.kinetic_energy(q, output.s)  # 1/2 s^T M s
-        drive = None if task is None else self.drive(task.shape, task.k)
+        drive = None if task is None or not with_task else self.drive(task.shape, task.k)
         if drive is not None and output.distance is not None:
             value += self._gains.kp * task.weight * task_potential(output.distance, drive)
-        value += barrier_energy_n(q, self._lower, self._upper, self._gains.limit_band,
-                                  self._gains.barrier_torque)
+        value += barrier_energy(q, self._lower, self._upper, self._gains.limit_band,
+                                self._gains.barrier_torque)
         if true_model is not None:
             active = self._rates > 0.0
             error = true_model.theta - output.theta_hat
@@ -494,18 +561,17 @@ class ArmController(TaskDrives):
         return value
 
     def lyapunov_rate(self, output: ArmOutput, task: ActiveTask | None,
-                      friction=None) -> float:
-        """dV/dt of eq. 22 predicted from a step's output (W; not a fault's), as
-        adaptive_law's monitor:
+                      friction=None, with_task: bool = True) -> float:
+        """dV/dt of eq. 22 predicted from a step's output (W; not a fault's), the monitor:
 
             -s^T (Ks + F) s - Kp |v_e|^2 + Kp (da/dt) Q + Kp v_e^T w,
 
         v_e = (1 - sigma) a delta_eps + J+^T g_B / Kp, w the output's reference_offset (the
-        avoid task's term); friction F (n,) N m s/rad (simulation; default none). Not in it:
-        the barrier band's and the feed-forward gate's terms, and the reach-round blend's
-        sigma-rate terms (module docstring); exact where J+ is (damping 0), off the bands
-        and the blend."""
-        drive = None if task is None else self.drive(task.shape, task.k)
+        avoid task's term); friction F (n,) N m s/rad (simulation; default none);
+        with_task=False leaves out Kp (da/dt) Q. Not in it: the barrier band's and the
+        feed-forward gate's terms, and the reach-round blend's sigma-rate terms (module
+        docstring); exact where J+ is (damping 0), off the bands and the blend."""
+        drive = None if task is None or not with_task else self.drive(task.shape, task.k)
         potential = (0.0 if drive is None or output.distance is None
                      else task_potential(output.distance, drive))
         effective = (1.0 - output.blend) * output.weighted_task_variable
@@ -514,63 +580,16 @@ class ArmController(TaskDrives):
         return predicted_lyapunov_rate(
             output.s, effective,
             0.0 if task is None else task.weight_rate, potential, self._ks, self._gains.kp,
-            np.zeros(self.model.dof) if friction is None else friction,
-            output.reference_offset)
+            self._zero_joints if friction is None else friction, output.reference_offset)
 
-    def _kinematics(self, q, dq):
-        """x (3,), J (3, n), Jdot (3, n) at (q, dq), base-frame axes."""
-        pin, model = self._pin, self.model
-        pin.computeJointJacobiansTimeVariation(model.model, model.data, q, dq)
-        x = pin.updateFramePlacement(model.model, model.data,
-                                     model.tool_frame_id).translation.copy()
-        jac = pin.getFrameJacobian(model.model, model.data, model.tool_frame_id,
-                                   self._frame)[:3]
-        rate = pin.getFrameJacobianTimeVariation(model.model, model.data,
-                                                 model.tool_frame_id, self._frame)[:3]
-        return x, jac, rate
-
-    def _pseudo_inverse(self, jac, rate):
-        """Damped J+ (n, 3), dJ+/dt (n, 3) and lambda^2 (task_variable's damping law with
-        w = sqrt(det(J J^T))). The 3x3 algebra in plain floats (numpy's small-matrix calls
-        cost more than the arithmetic)."""
-        (g00, g01, g02), (_, g11, g12), (_, _, g22) = (jac @ jac.T).tolist()
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (rate @ jac.T).tolist()
-        # dG/dt = Jdot J^T + J Jdot^T, symmetric.
-        e00, e01, e02, e11, e12, e22 = (2.0 * r00, r01 + r10, r02 + r20, 2.0 * r11, r12 + r21,
-                                        2.0 * r22)
-        # The adjugate of the symmetric G; det(G) = g0 . adj0.
-        c00, c01, c02 = g11 * g22 - g12 * g12, g02 * g12 - g01 * g22, g01 * g12 - g02 * g11
-        c11, c12, c22 = g00 * g22 - g02 * g02, g01 * g02 - g00 * g12, g00 * g11 - g01 * g01
-        ratio = (g00 * c00 + g01 * c01 + g02 * c02) / self._threshold2
-        if ratio >= 1.0:
-            lam2 = lam2_rate = 0.0
-        else:
-            lam2 = self._max_damping2 * (1.0 - ratio) ** 2
-            trace = (c00 * e00 + c11 * e11 + c22 * e22
-                     + 2.0 * (c01 * e01 + c02 * e02 + c12 * e12))  # d det(G)/dt
-            lam2_rate = -2.0 * self._max_damping2 * (1.0 - ratio) * trace / self._threshold2
-            g00, g11, g22 = g00 + lam2, g11 + lam2, g22 + lam2
-            c00, c01, c02 = g11 * g22 - g12 * g12, g02 * g12 - g01 * g22, g01 * g12 - g02 * g11
-            c11, c12 = g00 * g22 - g02 * g02, g01 * g02 - g00 * g12
-            c22 = g00 * g11 - g01 * g01
-        det = g00 * c00 + g01 * c01 + g02 * c02
-        if abs(det) <= 1e-300:
-            raise ValueError('singular Jacobian and no damping (max_damping = 0)')
-        inverse = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
-        pinv = jac.T @ inverse
-        e00, e11, e22 = e00 + lam2_rate, e11 + lam2_rate, e22 + lam2_rate  # d(lambda^2 I)/dt
-        gram_rate = np.array([[e00, e01, e02], [e01, e11, e12], [e02, e12, e22]])
-        pinv_rate = (rate.T - pinv @ gram_rate) @ inverse
-        return pinv, pinv_rate, lam2
-
-    def _joint_reference(self, joints, jacobians, feed, task, blend, barrier):
-        """qdot_r, qddot_r (n,) and the barrier's task-space velocity (3,) or None, in numpy:
+    def _joint_reference(self, joints, jacobians, feed, task, blend, barrier_state):
+        """qdot_r, qddot_r (n,) and the barrier's task-space velocity (k,) or None, in numpy:
         the reference of arm_kernels.joint_reference and the path within a barrier band.
         joints (q, dq); jacobians (J, Jdot, J+, dJ+/dt); feed (ff, dff/dt) and task (v, dv/dt)
-        (3,) each; blend (sigma, dsigma/dt, a u, d(a u)/dt) or None; barrier (near, g_B,
-        dg_B/dt), g_B None outside every band."""
+        (k,) each; blend (sigma, dsigma/dt, a u, d(a u)/dt) or None; barrier_state (near,
+        g_B, dg_B/dt), g_B None outside every band."""
         (q, dq), (jac, jac_rate, pinv, pinv_rate) = joints, jacobians
-        (ff, ff_rate), (velocity, rate), (near, g_b, g_b_rate) = feed, task, barrier
+        (ff, ff_rate), (velocity, rate), (near, g_b, g_b_rate) = feed, task, barrier_state
         gains = self._gains
         if near == 0.0:
             # J+ (ff + v) and its rate in two products each (the usual case).
@@ -578,7 +597,7 @@ class ArmController(TaskDrives):
             qdot_r = pinv @ both
             qddot_r = pinv_rate @ both + pinv @ (ff_rate + rate)
         else:
-            joint_ff, joint_ff_rate = gate_feed_forward_n(
+            joint_ff, joint_ff_rate = gate_feed_forward(
                 q, dq, pinv @ ff, pinv_rate @ ff + pinv @ ff_rate, self._lower,
                 self._upper, gains.limit_band)
             qdot_r = joint_ff + pinv @ velocity
@@ -595,7 +614,7 @@ class ArmController(TaskDrives):
             barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
             qdot_r = qdot_r - pinv @ barrier_task
             qddot_r = qddot_r - pinv_rate @ barrier_task - pinv @ barrier_task_rate
-        if self.model.dof > 3:
+        if self._null_space:
             z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate, blend)
             # N z = z - J+ (J z), dN/dt z + N dz/dt as products with vectors: no n x n
             # matrix is formed.
@@ -626,8 +645,9 @@ class ArmController(TaskDrives):
         return z, z_rate
 
     def _feed_forward(self, velocity, acceleration):
-        """The hand's velocity fed forward, capped at FEED_FORWARD_RATIO v_max (as
-        adaptive_law._limited_reference), and its rate (3,) each."""
+        """The hand's velocity fed forward, capped at FEED_FORWARD_RATIO v_max (the smooth cap
+        of task_variable, C2: the arm is not asked to keep up with a hand faster than it may
+        move; a toss at 3 m/s saturated the drives for 0.4 s), and its rate (k,) each."""
         speed = math.sqrt(float(velocity @ velocity))
         if speed <= self._feed_speed:
             return velocity, acceleration
@@ -641,7 +661,7 @@ class ArmController(TaskDrives):
              rest=None) -> ArmOutput:
         """The torque at (q, dq) (n,) for the hand and task, and theta_hat advanced by dt (s).
 
-        rest (3,) m: an avoid task's rest position (None: where the tool is, so no return).
+        rest (k,) m: an avoid task's rest position (None: where the tool is, so no return).
         Inputs are finite and of the right shapes (the caller checks them where they enter);
         a non-finite result still gives zero torque and fault=True, theta_hat unchanged.
         `command` then `adapt`, in one call.
@@ -667,14 +687,15 @@ class ArmController(TaskDrives):
         # No np.errstate here (4 us a cycle): overflow and invalid values end in the finite
         # checks below, which turn them into a fault.
         try:
-            x, jac, jac_rate = self._kinematics(q, dq)
+            x, jac, jac_rate = self.model.task_kinematics(q, dq)
             if self._compiled:
                 pinv, pinv_rate, lam2, singular = self._kernels.damped_pseudo_inverse(
                     jac, jac_rate, self._threshold2, self._max_damping2)
                 if singular:
                     raise ValueError('singular Jacobian and no damping (max_damping = 0)')
             else:
-                pinv, pinv_rate, lam2 = self._pseudo_inverse(jac, jac_rate)
+                pinv, pinv_rate, lam2 = damped_pseudo_inverse(jac, jac_rate, self._threshold2,
+                                                              self._max_damping2)
             xdot = jac @ dq
             hand_velocity, hand_acceleration = hand.velocity, hand.acceleration
             dx = x - hand.position
@@ -682,10 +703,11 @@ class ArmController(TaskDrives):
             a, da = (0.0, 0.0) if drive is None else (task.weight, task.weight_rate)
             avoid = drive is not None and drive.open_outward
             if avoid:
-                # As step_lean: an avoid task reads the hand's velocity through the
-                # filter (its rate is continuous, the estimate steps at each /target).
-                hand_velocity = np.array(self._hand_velocity[:3])
-                hand_acceleration = np.array(self._hand_velocity[3:])
+                # An avoid task reads the hand's velocity through the filter (its rate is
+                # continuous; the estimate steps at each /target).
+                axes = self._axes
+                hand_velocity = np.array(self._hand_velocity[:axes])
+                hand_acceleration = np.array(self._hand_velocity[axes:])
             task_velocity, task_rate = self._task_velocity(
                 drive, (a, da), (x, dx, xdot), (hand_velocity, hand_acceleration),
                 x if rest is None else rest)
@@ -697,8 +719,8 @@ class ArmController(TaskDrives):
                 g_b = g_b_rate = None  # outside every band (the usual case)
                 near = 0.0
             else:
-                g_b, g_b_rate, near = barrier_n(q, dq, self._lower, self._upper,
-                                                gains.limit_band, gains.barrier_torque)
+                g_b, g_b_rate, near = barrier(q, dq, self._lower, self._upper,
+                                              gains.limit_band, gains.barrier_torque)
             region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
             blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
             scale = 1.0
@@ -717,23 +739,20 @@ class ArmController(TaskDrives):
                 qdot_r, qddot_r, s = self._kernels.joint_reference(
                     q, dq, jac, jac_rate, pinv, pinv_rate, ff + task_velocity[0],
                     ff_rate + task_rate, on, u, u_rate, self._home, *self._posture,
-                    self.model.dof > 3)
+                    self._null_space)
             else:
                 qdot_r, qddot_r, barrier_task = self._joint_reference(
                     (q, dq), (jac, jac_rate, pinv, pinv_rate), (ff, ff_rate),
                     (task_velocity[0], task_rate), blend, (near, g_b, g_b_rate))
                 s = dq - qdot_r
-            # Y theta = Y_rigid theta_rigid + diag(qdot_r) theta_friction (eq. 18).
-            rigid = self.model.rigid_regressor_unchecked(q, dq, qdot_r, qddot_r)
+            regressor = self.model.regressor_unchecked(q, dq, qdot_r, qddot_r)  # eq. 18
             task_force = (gains.kp * scale) * weighted
             if self._compiled:
                 tau_requested, peak = self._kernels.torque(
-                    rigid, theta, qdot_r, qddot_r, s, self._ks, jac, task_force,
+                    regressor, theta, qddot_r, s, self._ks, jac, task_force,
                     self._zero_joints if g_b is None else g_b, self._inverse_effort)
             else:
-                split = rigid.shape[1]
-                tau_requested = (rigid @ theta[:split] + qdot_r * theta[split:] - self._ks * s
-                                 - jac.T @ task_force)
+                tau_requested = regressor @ theta - self._ks * s - jac.T @ task_force
                 if g_b is not None:
                     tau_requested -= g_b
                 peak = float((np.abs(tau_requested) * self._inverse_effort).max())
@@ -744,15 +763,16 @@ class ArmController(TaskDrives):
             return self._fault('non-finite torque or parameter update')
         limited = peak > 1.0
         tau = tau_requested / peak if limited else tau_requested.copy()
-        # eq. 19, paused near a limit and while the torque is clamped (as step_lean).
+        # eq. 19, paused where its premise fails: near a limit (the stop's force is outside
+        # the model) and while the torque is clamped (the arm does not get the law's torque).
         pace = 0.0 if limited else dt * (1.0 - near)
         if pace > 0.0:
-            self._pending = (rigid, s, qdot_r, pace)
+            self._pending = (regressor, s, pace)
         # eq. 22's avoid term: w = f xdot_f + a (v_rest + v_away) - xdot_d (the feed-forward
         # as the reference has it, capped; xdot_f the filtered hand velocity of an avoid task).
         offset = ff + task_velocity[1] - hand.velocity
         if g_b is None:
-            g_b = np.zeros(self.model.dof)
+            g_b = self._zero_joints
         return ArmOutput(tau, tau_requested, s, qdot_r, qddot_r, x, distance, k, theta,
                          limited, False, '', lam2, near, g_b, weighted,
                          blend=0.0 if blend is None else blend[0],
@@ -761,15 +781,16 @@ class ArmController(TaskDrives):
     def gravity_hold(self, q) -> np.ndarray:
         """The torque (n,) N m that holds the arm at q (n,) rad against gravity with theta_hat:
         Y(q, 0, 0, 0) theta_hat (eq. 18 at rest), scaled as a whole into the effort limits;
-        zeros if not finite. What a controller sends while its joint states are stale: zero
-        torque would drop an arm under gravity (the Panda's joint 2 holds about 29 N m)."""
+        zeros if not finite (and for an arm without gravity, the horizontal SCARA). What a
+        controller sends while its joint states are stale: zero torque would drop an arm
+        under gravity (the Panda's joint 2 holds about 29 N m)."""
         zero = self._zero_joints
         try:
-            rigid = self.model.rigid_regressor_unchecked(np.asarray(q, dtype=float), zero,
-                                                         zero, zero)
+            regressor = self.model.regressor_unchecked(np.asarray(q, dtype=float), zero, zero,
+                                                       zero)
         except (ValueError, ArithmeticError):
             return zero.copy()
-        tau = rigid @ self._theta[:rigid.shape[1]]
+        tau = regressor @ self._theta
         peak = float((np.abs(tau) * self._inverse_effort).max())
         if not math.isfinite(peak):
             return zero.copy()
@@ -781,11 +802,11 @@ class ArmController(TaskDrives):
         model's box. False, theta_hat unchanged, if the update is not finite."""
         if self._pending is None:
             return True
-        rigid, s, qdot_r, pace = self._pending
+        regressor, s, pace = self._pending
         self._pending = None
         # In place in one new array (np.clip costs 3 us more than the two ufuncs; NaN passes
         # both, caught by the sum).
-        theta_next = np.concatenate((rigid.T @ s, qdot_r * s))  # Y^T s
+        theta_next = regressor.T @ s  # Y^T s
         theta_next *= self._rates
         theta_next *= -pace
         theta_next += self._theta
@@ -796,27 +817,26 @@ class ArmController(TaskDrives):
         self._theta = theta_next
         return True
 
-    @staticmethod
-    def _task_velocity(drive, weight, motion, hand, rest):
+    def _task_velocity(self, drive, weight, motion, hand, rest):
         """The task's share of v_r, -a delta_eps + a (v_rest + v_away), and its rate (eq.
         12', 14, 18; task_variable.rest_term_n and retreat_term_n for avoid tasks).
 
-        weight (a, da/dt); motion (x, dx = x - x_d, xdot) (3,) each; hand (xdot_d, xddot_d) as
-        the reference reads them; rest (3,) m. Returns ((v, a (v_rest + v_away), a delta_eps),
-        dv/dt), each (3,)."""
+        weight (a, da/dt); motion (x, dx = x - x_d, xdot) (k,) each; hand (xdot_d, xddot_d) as
+        the reference reads them; rest (k,) m. Returns ((v, a (v_rest + v_away), a delta_eps),
+        dv/dt), each (k,)."""
         if drive is None:
-            zero = np.zeros(3)
+            zero = self._zero_task
             return (zero, zero, zero), zero
         (a, da), (x, dx, xdot), (hand_velocity, hand_acceleration) = weight, motion, hand
         u = xdot - hand_velocity
-        slope, hessian_u = task_term_3d_along(dx, u, drive)
+        slope, hessian_u = task_term_along(dx, u, drive)
         weighted = a * slope
         velocity, rate = -weighted, -(da * slope + a * hessian_u)
-        away = np.zeros(3)
+        away = self._zero_task
         if drive.open_outward:
             floats = [v.tolist() for v in (dx, x - rest, u, xdot, hand_velocity,
                                             hand_acceleration)]
-            term, term_rate = np.zeros(3), np.zeros(3)
+            term, term_rate = np.zeros(self._axes), np.zeros(self._axes)
             for part in (rest_term_n(*floats[:4], drive),
                          retreat_term_n(floats[0], floats[2], *floats[4:], drive)):
                 if part is not None:
@@ -831,20 +851,12 @@ class ArmController(TaskDrives):
                          0.0, self._theta.copy(), False, True, reason)
 
 
-def forward_dynamics(model: RobotModel, q, dq, tau) -> np.ndarray:
-    """qddot = M^-1 (tau - C qdot - F qdot - g) (n,) of `model` (pinocchio's ABA when it is a
-    PinocchioModel)."""
-    if isinstance(model, PinocchioModel):
-        return model.forward_dynamics(q, dq, tau)
-    bias = model.coriolis_matrix(q, dq) @ dq + model.friction_torque(dq) + model.gravity_torque(q)
-    return np.linalg.solve(model.mass_matrix(q), tau - bias)
-
-
 def rk4_step(model: RobotModel, q, dq, tau, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """(q, qdot) after dt (s) under the constant torque tau (n,): one classical Runge-Kutta
-    step of the model's forward dynamics (for tests and pure closed loops)."""
+    step of the model's forward dynamics (RobotModel.forward_dynamics; for tests and pure
+    closed loops)."""
     def derivative(position, velocity):
-        return velocity, forward_dynamics(model, position, velocity, tau)
+        return velocity, model.forward_dynamics(position, velocity, tau)
 
     k1q, k1v = derivative(q, dq)
     k2q, k2v = derivative(q + 0.5 * dt * k1q, dq + 0.5 * dt * k1v)

@@ -1,35 +1,36 @@
 """The `controller` node: the adaptive HRI controller of paper eq. 14-19 on topics.
 
 Event-driven: each /joint_states message that arrives is the start of a control cycle. In its
-callback the node runs `AdaptiveController.step_lean` (eq. 16-19, which also adapts theta_hat)
-on that state with the latest /target (the hand: the centre x_d of the desired region) and
-/hri/task_state (active task, a(E, t), da/dt), and publishes the torque, limited to
-`effort_limit` with its direction kept, on /effort_controller/commands (the interface of
-ros2_control's JointGroupEffortController): one wake-up per cycle, the command computed from
-the newest state; its change since the last command is limited to `max_effort_rate` times
-the time between their joint states, at most one period (effort_rate; after the clamp), and
-it stays within `applied_effort_cycles` periods' worth of the effort the joint state reports
-when that effort is a command it sent (effort_rate.CommandEcho: a simulator's applied
-torque), so a late burst of commands cannot step the drive by more.
-With `mode: velocity` it publishes the joint-velocity reference qdot_r of eq. 14 on
-/velocity_controller/commands instead. theta_hat advances by the time between the joint
-states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort, deadline
-misses: commands published later than 1.5 periods of `rate_hz` after the stamp of their joint
-state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone computes V,
-the task's term kp a Q of it (0.3-0.4 ms) once the cycle's command is out.
+callback the node runs the law (arm_law.ArmController: eq. 16-18, then eq. 19's update once
+the command is out) for its arm (`robot` or `urdf_file`: hri_core.robot_model) on that state
+with the latest /target (the hand: the centre x_d of the desired region) and /hri/task_state
+(active task, a(E, t), da/dt), and publishes the torque, limited to the arm's effort limits
+(and `effort_limit` if set) with its direction kept, on /effort_controller/commands (the
+interface of ros2_control's JointGroupEffortController): one wake-up per cycle, the command
+computed from the newest state; its change since the last command is limited to
+`max_effort_rate` times the time between their joint states, at most one period
+(effort_rate; after the clamp), and it stays within `applied_effort_cycles` periods' worth of
+the effort the joint state reports when that effort is a command it sent
+(effort_rate.CommandEcho: a simulator's applied torque), so a late burst of commands cannot
+step the drive by more. With `mode: velocity` it publishes the joint-velocity reference
+qdot_r of eq. 14 on /velocity_controller/commands instead. theta_hat advances by the time
+between the joint states' stamps. ControllerState (distance, V, |s|, a, theta_hat, effort,
+deadline misses: commands published later than 1.5 periods of `rate_hz` after the stamp of
+their joint state) goes out with the first cycle after each 1/`state_rate_hz` s, which alone
+computes V once the cycle's command is out.
 
 A watchdog timer (every joint_state_timeout / 4) notices missing or stale joint states; while
-they are, a timer at `rate_hz` publishes zero torque (an n-joint arm: the gravity hold at its
-last joint state) and ControllerState in place of the cycles that do not come. With
-`realtime_priority` > 0 the process asks for SCHED_FIFO at that priority (hri_core.realtime)
-and logs once whether it got it; with `cpu_wakeup_latency` >= 0 it holds a PM QoS request that
-idle CPUs wake within that many microseconds (0: they poll).
+they are, a timer at `rate_hz` publishes the gravity hold at the last joint state (zero for
+an arm without gravity, the horizontal SCARA) and ControllerState in place of the cycles that
+do not come. With `realtime_priority` > 0 the process asks for SCHED_FIFO at that priority
+(hri_core.realtime) and logs once whether it got it; with `cpu_wakeup_latency` >= 0 it holds
+a PM QoS request that idle CPUs wake within that many microseconds (0: they poll).
 
 Safety (the choices are argued in docs/design.md):
-- zero torque while joint states are missing or older than `joint_state_timeout` (one
-  warning per outage, one info line when they resume; an n-joint arm that had joint states
-  is held against gravity instead: Y(q, 0, 0, 0) theta_hat at the last one, reached at the
-  effort rate, as zero torque would drop it), or invalid (throttled warning:
+- zero torque while joint states are missing; older than `joint_state_timeout` (one
+  warning per outage, one info line when they resume) the arm is held against gravity at
+  the last one, Y(q, 0, 0, 0) theta_hat reached at the effort rate (zero torque would drop
+  an arm under gravity; the horizontal SCARA's is zero); invalid joint states (throttled warning:
   non-finite, wrong length, unknown joint names: joints are mapped by name; stamps going
   backwards are dropped), and while there is no valid target yet (non-finite targets, or
   farther than `max_target_distance` from the base, are dropped);
@@ -75,25 +76,17 @@ from hri_interfaces.msg import ControllerState, SeparationState, TaskState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.parameter_client import AsyncParameterClient
 from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from hri_adaptive_controller.adaptive_law import (
-    DEFAULT_GAINS,
-    PARAMETER_NAMES,
-    AdaptiveController,
-    ControllerGains,
-)
 from hri_adaptive_controller.arm_law import (
-    PANDA_GAINS,
     ActiveTask,
     ArmController,
     ArmGains,
     HandState,
-    default_arm_ks,
+    default_gains,
 )
 from hri_adaptive_controller.effort_rate import CommandEcho, EffortRateLimiter
 from hri_adaptive_controller.event_weight import (
@@ -104,7 +97,6 @@ from hri_adaptive_controller.event_weight import (
     EventWeightSchedule,
     WeightState,
 )
-from hri_adaptive_controller.joint_limits import JointLimits
 from hri_adaptive_controller.separation_cap import SeparationCap
 from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
@@ -120,7 +112,6 @@ from hri_core.cdr import (
     point_stamped_layout,
     read_stamp,
 )
-from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import (
     CPU_WAKEUP_LATENCY,
     REALTIME_PRIORITY,
@@ -141,7 +132,6 @@ from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
 
 PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'controller'
-JOINT_NAMES = ('joint1', 'joint2')
 WARNING_THROTTLE = 2.0  # s between repeats of one warning
 LATE_FACTOR = 1.5  # a command later than 1.5 periods after its joint state is a deadline miss
 WATCHDOG_CHECKS = 4  # watchdog checks per joint_state_timeout
@@ -154,25 +144,28 @@ LINK = 'task_states'  # the link weight's one task: TaskStates arriving
 LINK_DOWN = WeightState(0.0, 0.0, 0.0, PHASE_IDLE, None, None)
 
 PARAMETERS = {
-    'robot': ParameterSpec(str, 'the arm: scara (the planar fast path, adaptive_law) or panda '
-                           '(the n-joint law, arm_law); ignored when urdf_file is given',
+    'robot': ParameterSpec(str, 'the arm (hri_core.robot_model); ignored when urdf_file is given',
                            choices=ROBOT_NAMES, read_only=True),
-    'urdf_file': ParameterSpec(str, 'URDF of an arm for the n-joint law ("": the robot '
-                               'parameter)', read_only=True),
+    'urdf_file': ParameterSpec(str, 'URDF of another arm ("": the robot parameter)',
+                               read_only=True),
     'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the robot\'s '
                                 'own; required with urdf_file)', read_only=True),
-    'arm_ks': ParameterSpec(list, 'n-joint law: diagonal of Ks, one per joint (N m s/rad); '
-                            "unset: the Panda's (arm_law.PANDA_GAINS), another arm's from its "
-                            'effort limits and inertias (arm_law.default_arm_ks)',
-                            optional=True),
     'home_position': ParameterSpec(
-        list, 'n-joint law: the joint posture the null space pulls towards (rad, one per '
-        "joint, within the limits); unset: the robot's home (the Panda's ready pose; a URDF "
-        "arm's: the middle of its joint limits)", optional=True, read_only=True),
-    'arm_adaptation_gain': ParameterSpec(
-        list, 'n-joint law: L for each kind of link parameter (m, mcx, mcy, mcz, Ixx, Ixy, '
-        "Iyy, Ixz, Iyz, Izz, damping), every joint alike; unset: the robot's defaults",
-        size=11, optional=True),
+        list, 'the joint posture the null space of a redundant arm pulls towards (rad, one '
+        "per joint, within the limits); unset: the robot's home (the Panda's ready pose; a "
+        "URDF arm's: the middle of its joint limits)", optional=True, read_only=True),
+    'ks': ParameterSpec(list, 'diagonal of Ks, one per joint (N m s/rad); unset: the '
+                        "robot's (arm_law.ROBOT_GAINS; another arm's from its effort limits "
+                        'and inertias, arm_law.default_arm_ks)', optional=True),
+    'adaptation_gain': ParameterSpec(
+        list, "diagonal of L (eq. 19), one rate per kind of the robot's parameters (the "
+        "SCARA's 7: pi1, pi2, pi3, b1, b2, mlc1, mlc2; a URDF arm's m, mcx, mcy, mcz, Ixx, "
+        "Ixy, Iyy, Ixz, Iyz, Izz, damping, every joint alike); unset: the robot's",
+        optional=True),
+    'theta_hat0': ParameterSpec(list, "initial theta_hat, one per parameter of the robot's "
+                                "model; unset: the robot's initial_estimate share of its "
+                                'nominal values (arm_law.ArmGains)', optional=True,
+                                read_only=True),
     'rate_hz': ParameterSpec(float, 'expected /joint_states rate, which paces control; '
                              'deadlines and the zero-torque rate (Hz)', low=10.0, high=2000.0,
                              read_only=True),
@@ -182,12 +175,7 @@ PARAMETERS = {
                                    read_only=True),
     'mode': ParameterSpec(str, 'effort: torques (eq. 16); velocity: qdot_r (eq. 14)',
                           choices=('effort', 'velocity'), read_only=True),
-    'ks': ParameterSpec(list, 'diagonal of Ks (N m s/rad)', size=2),
-    'kp': ParameterSpec(float, 'task gain Kp (N s/m)', low=0.0, high=1000.0),
-    'adaptation_gain': ParameterSpec(list,
-                                     'diagonal of L, one per theta (eq. 19)', size=7),
-    'theta_hat0': ParameterSpec(list, 'initial theta_hat: '
-                                + ', '.join(PARAMETER_NAMES), size=7, read_only=True),
+    'kp': ParameterSpec(float, 'task gain Kp (N s/m)', low=0.001, high=1000.0),
     'max_task_speed': ParameterSpec(float,
                                     'largest task-space reference speed (m/s)',
                                     low=0.01, high=2.0),
@@ -200,11 +188,12 @@ PARAMETERS = {
                                '(1/s)', low=0.0, high=100.0),
     'rest_gate': ParameterSpec(float, "avoid tasks: the return fades in over this distance "
                                "outside the region's edge (m)", low=0.001, high=1.0),
-    'rest_position': ParameterSpec(list, 'avoid tasks: rest position [x, y] (m) for the '
-                                   'SCARA, [x, y, z] for an n-joint arm; unset: where the arm '
-                                   'was when the task became active', optional=True),
-    'effort_limit': ParameterSpec(float, 'torque limit per joint (N m)',
-                                  low=0.1, high=500.0),
+    'rest_position': ParameterSpec(list, 'avoid tasks: rest position on the task axes (m: '
+                                   '[x, y] for a planar arm, [x, y, z] otherwise); unset: '
+                                   'where the arm was when the task became active',
+                                   optional=True),
+    'effort_limit': ParameterSpec(float, "a cap on every joint's torque limit (N m; 0: the "
+                                  "robot's own limits alone)", low=0.0, high=500.0),
     'max_effort_rate': ParameterSpec(float, 'largest torque change per joint, per second of '
                                      'the joint states\' clock (N m/s; 1000: 1 N m per 1 ms '
                                      'cycle)', low=1.0, high=1e6),
@@ -215,8 +204,8 @@ PARAMETERS = {
                                            'the torque it applies; a measured torque is left '
                                            'alone), whichever command of a late burst the '
                                            'drive takes; 0: off', low=0, high=100),
-    'joint_state_timeout': ParameterSpec(float, 'joint states older than this: zero torque; '
-                                         'an n-joint arm held against gravity (s)',
+    'joint_state_timeout': ParameterSpec(float, 'joint states older than this: the arm is '
+                                         'held against gravity (s)',
                                          low=0.002, high=10.0),
     'task_state_timeout': ParameterSpec(float, 'no TaskState for this long: the task fades '
                                         'out over task_fade_time (s)', low=0.1, high=3600.0),
@@ -230,10 +219,6 @@ PARAMETERS = {
                                         low=0.001, high=5.0, read_only=True),
     'max_target_distance': ParameterSpec(float, 'targets farther than this from the base are '
                                          'dropped (m)', low=0.1, high=100.0),
-    'joint_lower_limits': ParameterSpec(list, 'lower joint limits (rad); checked against '
-                                        "scara_sim's when it runs", size=2, read_only=True),
-    'joint_upper_limits': ParameterSpec(list, 'upper joint limits (rad)', size=2,
-                                        read_only=True),
     'joint_limit_band': ParameterSpec(float, 'the barrier and the feed-forward gate act this '
                                       'near a joint limit (rad)', low=0.01, high=1.0),
     'barrier_torque': ParameterSpec(float, "the barrier's torque at a joint limit (N m; above "
@@ -252,107 +237,72 @@ PARAMETERS = {
     'target_timeout': ParameterSpec(float, 'no /target accepted for this long: the task fades '
                                     'out over task_fade_time (s)', low=0.01, high=3600.0,
                                     read_only=True),
-    'l1': ParameterSpec(float, 'link 1 length (m)', low=0.01, high=5.0, read_only=True),
-    'l2': ParameterSpec(float, 'link 2 length (m)', low=0.01, high=5.0, read_only=True),
-    'gravity': ParameterSpec(float, 'gravity in the arm plane (m/s^2; 0 horizontal)',
-                             low=0.0, high=20.0, read_only=True),
 }
 GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
                    'region_margin', 'effort_limit', 'max_effort_rate', 'applied_effort_cycles',
-                   'rest_gain', 'rest_gate', 'joint_limit_band', 'barrier_torque', 'reach_round',
-                   'arm_ks', 'arm_adaptation_gain')
-SIM_NODE = 'scara_sim'  # whose joint limits the controller's are checked against
-SIM_LIMITS = ('joint_lower_limits', 'joint_upper_limits')
-SIM_CHECK_PERIOD = 1.0  # s between looks for the sim's parameter service
-SIM_CHECK_TRIES = 30  # looks before the check is given up (no sim: a real arm)
+                   'rest_gain', 'rest_gate', 'joint_limit_band', 'barrier_torque', 'reach_round')
 
 
-def gains_from(values: dict) -> ControllerGains:
-    """ControllerGains from parameter values; ValueError with the reason if invalid."""
-    return ControllerGains(
-        ks=tuple(values['ks']), kp=values['kp'], adaptation=tuple(values['adaptation_gain']),
-        task_gain=None, approach_speed=values['approach_speed'],
-        region_margin=values['region_margin'], max_task_speed=values['max_task_speed'],
-        effort_limit=values['effort_limit'], rest_gain=values['rest_gain'],
-        rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
-        damping=DEFAULT_GAINS.damping,
-        joint_limits=JointLimits(tuple(values['joint_lower_limits']),
-                                 tuple(values['joint_upper_limits']),
-                                 values['joint_limit_band'], values['barrier_torque']),
-        reach_round=dataclasses.replace(DEFAULT_GAINS.reach_round,
-                                        enabled=values['reach_round']))
-
-
-def arm_model_from(values: dict) -> RobotModel | None:
-    """The model of a robot the n-joint law drives (urdf_file, or robot other than the
-    SCARA; its home pose home_position if set), or None for the SCARA (its planar fast
-    path). ValueError with the reason."""
-    home = values.get('home_position')
+def model_from(values: dict) -> RobotModel:
+    """The arm's model: urdf_file with tool_frame, else robot; its home pose home_position if
+    set. ValueError with the reason."""
     if values['urdf_file']:
         model = robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
-    elif values['robot'] == 'scara':
-        if home is not None:
-            raise ValueError('home_position is for an arm of 3 or more joints (its null '
-                             'space); the SCARA has none')
-        return None
     else:
         model = robot_model(values['robot'], tool_frame=values['tool_frame'])
-    if home is not None:
-        model.home = model.joint_position(home, 'home_position')
+    if values.get('home_position') is not None:
+        model.home = model.joint_position(values['home_position'], 'home_position')
     return model
 
 
-def arm_gains_from(values: dict, model: RobotModel) -> ArmGains:
-    """ArmGains for `model` from parameter values: arm_ks and arm_adaptation_gain if set,
-    else PANDA_GAINS' (for another arm: Ks from its effort limits and link inertias,
-    arm_law.default_arm_ks); the task, speed, rate-limit and barrier parameters shared with
-    the SCARA's. ValueError with the reason if invalid."""
-    ks = values['arm_ks']
-    if ks is None:
-        ks = (PANDA_GAINS.ks if model.name == 'panda' and model.dof == len(PANDA_GAINS.ks)
-              else default_arm_ks(model))
-    adaptation = values['arm_adaptation_gain']
+def gains_from(values: dict, model: RobotModel) -> ArmGains:
+    """The law's gains for `model` from parameter values: ks and adaptation_gain if set, else
+    the robot's (arm_law.default_gains); the task, speed, rate-limit and barrier parameters
+    from the values. ValueError with the reason if invalid."""
+    robot = default_gains(model)
+    ks, adaptation = values['ks'], values['adaptation_gain']
+    if ks is not None and len(ks) != model.dof:
+        raise ValueError(f'ks must have {model.dof} values for {model.name}, got {len(ks)}')
+    if adaptation is not None and len(adaptation) != len(model.adaptation_kinds):
+        raise ValueError(f'adaptation_gain must have {len(model.adaptation_kinds)} values for '
+                         f'{model.name} ({", ".join(model.adaptation_kinds)}), got '
+                         f'{len(adaptation)}')
     return dataclasses.replace(
-        PANDA_GAINS, ks=tuple(ks), kp=values['kp'],
-        adaptation=PANDA_GAINS.adaptation if adaptation is None else tuple(adaptation),
+        robot, ks=robot.ks if ks is None else tuple(ks), kp=values['kp'],
+        adaptation=robot.adaptation if adaptation is None else tuple(adaptation),
         approach_speed=values['approach_speed'], region_margin=values['region_margin'],
         max_task_speed=values['max_task_speed'], rest_gain=values['rest_gain'],
         rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
-        limit_band=values['joint_limit_band'], barrier_torque=values['barrier_torque'],
-        reach_round=dataclasses.replace(PANDA_GAINS.reach_round,
-                                        enabled=values['reach_round']))
+        effort_limit=values['effort_limit'] or None, limit_band=values['joint_limit_band'],
+        barrier_torque=values['barrier_torque'],
+        reach_round=dataclasses.replace(robot.reach_round, enabled=values['reach_round']))
 
 
-def rest_position_from(values: dict, arm: str | None) -> tuple[float, ...] | None:
-    """The fixed rest position of avoid tasks (m): rest_position's 2 values for the SCARA
-    (arm None), 3 for the n-joint arm named `arm`, or None when unset. ValueError with the
-    reason."""
+def initial_estimate(values: dict, model: RobotModel, gains: ArmGains):
+    """theta_hat(0) (p,): theta_hat0 if set, else the gains' initial_estimate share of the
+    model's nominal theta. ValueError with the reason."""
+    theta = values['theta_hat0']
+    if theta is None:
+        return gains.initial_estimate * model.theta
+    if len(theta) != model.theta.size:
+        raise ValueError(f'theta_hat0 must have {model.theta.size} values for {model.name} '
+                         f'({", ".join(model.parameter_names[:8])}'
+                         f'{" ..." if model.theta.size > 8 else ""}), got {len(theta)}')
+    return np.array(theta, dtype=float)
+
+
+def rest_position_from(values: dict, model: RobotModel) -> tuple[float, ...] | None:
+    """The fixed rest position of avoid tasks (m, one per task axis of `model`), or None when
+    unset. ValueError with the reason."""
     fixed = values['rest_position']
     if fixed is None:
         return None
-    size, axes = (2, '[x, y]') if arm is None else (3, '[x, y, z]')
-    if len(fixed) != size:
-        raise ValueError(f'rest_position must have {size} values {axes} (m) for '
-                         f'{"the SCARA" if arm is None else arm}, got {len(fixed)}')
+    axes = model.task_axes
+    if len(fixed) != axes:
+        raise ValueError(f'rest_position must have {axes} values '
+                         f'{["[x, y]", "[x, y, z]"][axes - 2]} (m) for {model.name}, got '
+                         f'{len(fixed)}')
     return tuple(float(v) for v in fixed)
-
-
-def limits_mismatch(ours, theirs) -> str:
-    """'' when the joint limits `ours` and `theirs` ((lower (2,), upper (2,)) rad) agree to
-    1e-9 rad, else a one-line description of the difference."""
-    (low, high), (sim_low, sim_high) = ours, theirs
-    if all(abs(a - b) <= 1e-9 for a, b in zip((*low, *high), (*sim_low, *sim_high),
-                                               strict=True)):
-        return ''
-    return (f'joint limits {list(low)} .. {list(high)} rad differ from {SIM_NODE}\'s '
-            f'{list(sim_low)} .. {list(sim_high)} rad')
-
-
-def narrower_limits(ours, theirs):
-    """The joint range both allow: (lower (2,), upper (2,)) rad."""
-    (low, high), (sim_low, sim_high) = ours, theirs
-    return (tuple(max(a, b) for a, b in zip(low, sim_low, strict=True)),
-            tuple(min(a, b) for a, b in zip(high, sim_high, strict=True)))
 
 
 class Controller(Node):
@@ -363,20 +313,13 @@ class Controller(Node):
         self._values = declare_parameters(self, PARAMETERS, load_defaults(PACKAGE, NODE_NAME))
         values = self._values
         try:
-            # The SCARA: adaptive_law's planar fast path (step_lean); any other arm: arm_law.
-            model = arm_model_from(values)
-            if model is None:
-                self._arm = None
-                self._law = AdaptiveController(gains_from(values), values['theta_hat0'],
-                                               values['l1'], values['l2'], values['gravity'])
-                self._joint_names = JOINT_NAMES
-            else:
-                self._arm = self._law = ArmController(model, arm_gains_from(values, model))
-                self._joint_names = model.joint_names
+            model = model_from(values)
+            gains = gains_from(values, model)
+            self._law = ArmController(model, gains, initial_estimate(values, model, gains))
+            self._joint_names = model.joint_names
             # An avoid task's rest position: the parameter, or where the arm was when the
             # task (its name and shape) became active; _rest_key is the task it was taken for.
-            self._fixed_rest = rest_position_from(
-                values, None if self._arm is None else self._arm.model.name)
+            self._fixed_rest = rest_position_from(values, model)
         except ValueError as error:
             raise StartupError(f'bad controller parameters: {error}') from None
         self._dof = len(self._joint_names)
@@ -385,20 +328,20 @@ class Controller(Node):
         self._state_period = 1.0 / values['state_rate_hz']
         self._next_state = -math.inf  # monotonic time the next ControllerState is due
         self._velocity_mode = values['mode'] == 'velocity'
-        self._q = self._dq = None  # (2,) tuples of floats, checked finite on arrival
+        self._q = self._dq = None  # (n,) tuples of floats, checked finite on arrival
         self._joint_index = (None, None)  # (names of the last joint state, indices of ours)
         self._joint_time = -math.inf  # monotonic receive time of the latest joint state
         self._joint_stamp = -math.inf
         self._joint_gate = StampGate(values['restart_jump'], values['restart_confirm'],
                                      strict=False)
-        self._target = None  # the latest hand position (x, y), m
+        self._target = None  # the latest hand position on the task axes, m
         self._target_gate = StampGate(values['restart_jump'], values['restart_confirm'])
         self._hand = FilteredHand(TargetFilterSettings(
             max_speed=values['target_max_speed'],
             max_acceleration=values['target_max_acceleration'],
             filter_time=values['target_filter_time'],
             max_extrapolation=MAX_TARGET_EXTRAPOLATION, timeout=values['target_timeout'],
-            fade_time=values['task_fade_time']), 2 if self._arm is None else 3)
+            fade_time=values['task_fade_time']), model.task_axes)
         self._task_state: TaskState | None = None
         self._task_time = -math.inf
         # a(E, t) of the task in force; its payload: (shape or None, k).
@@ -436,8 +379,8 @@ class Controller(Node):
             or joint_state_layout(data, self._joint_names, (POSITION, VELOCITY),
                                   one_value_per_name=True))
         self._command_template = float64_array_template(self._dof)
-        # The SCARA reads the hand's x, y (its plane); the n-joint law x, y, z.
-        self._target_reader = LayoutReader(point_stamped_layout if self._arm is None
+        # The hand's coordinates on the task axes: x, y for a planar arm; x, y, z otherwise.
+        self._target_reader = LayoutReader(point_stamped_layout if model.task_axes == 2
                                            else point3_layout)
 
         command = topics.VELOCITY_COMMANDS if self._velocity_mode else topics.EFFORT_COMMANDS
@@ -471,63 +414,15 @@ class Controller(Node):
         # Zero torque at the control rate while joint states are missing or stale; running
         # from the start, since none has arrived yet.
         self._zero_timer = self.create_timer(self._period, self._zero_cycle)
-        if self._arm is None:
-            gains = (f'ks={values["ks"]} kp={values["kp"]:g} effort_limit='
-                     f'{values["effort_limit"]:g} N m; theta_hat0={values["theta_hat0"]}')
-        else:
-            arm = self._arm
-            gains = (f'{arm.model.name} ({self._dof} joints, tool {arm.model.tool_frame!r}), '
-                     f'n-joint law: ks={list(arm.gains.ks)} kp={arm.gains.kp:g} effort limits '
-                     f'{arm.effort_limits.tolist()} N m; theta_hat0: the URDF\'s')
+        law = self._law
+        gains = (f'{model.name} ({self._dof} joints, tool {model.tool_frame!r}): '
+                 f'ks={list(law.gains.ks)} kp={law.gains.kp:g} effort limits '
+                 f'{law.effort_limits.tolist()} N m')
         self.get_logger().info(
             f'{values["mode"]} control on each /joint_states (expected at '
             f'{values["rate_hz"]:g} Hz) on {topic}; {gains}')
         request_realtime(self, values['realtime_priority'])
         self._wakeup_latency = hold_wakeup_latency(self, values['cpu_wakeup_latency'])
-        # The joint limits are checked against the sim's once its parameter service is up.
-        if self._arm is None:  # an n-joint arm's limits are its model's (and /robot_description's)
-            self._sim_client = AsyncParameterClient(self, SIM_NODE)
-            self._sim_tries = 0
-            self._sim_timer = self.create_timer(SIM_CHECK_PERIOD, self._look_for_sim)
-
-    # -- the sim's joint limits ---------------------------------------------------------------
-    def _look_for_sim(self) -> None:
-        self._sim_tries += 1
-        if self._sim_client.services_are_ready():
-            self._sim_timer.cancel()
-            self._sim_client.get_parameters(list(SIM_LIMITS), callback=self._on_sim_limits)
-        elif self._sim_tries >= SIM_CHECK_TRIES:
-            self._sim_timer.cancel()
-            self.get_logger().info(f'no {SIM_NODE}: joint limits not checked against a sim')
-
-    def _on_sim_limits(self, future) -> None:
-        try:
-            values = [list(v.double_array_value) for v in future.result().values]
-        except Exception as error:  # noqa: BLE001 a failed request must not stop control
-            self.get_logger().warning(f'{SIM_NODE}\'s joint limits unreadable: {error!r}')
-            return
-        if len(values) != 2 or any(len(v) != 2 for v in values):
-            self.get_logger().warning(f'{SIM_NODE}\'s joint limits unreadable: {values}')
-            return
-        ours = (tuple(self._values['joint_lower_limits']),
-                tuple(self._values['joint_upper_limits']))
-        problem = limits_mismatch(ours, tuple(map(tuple, values)))
-        if not problem:
-            self.get_logger().info(f'joint limits agree with {SIM_NODE}\'s')
-            return
-        low, high = narrower_limits(ours, tuple(map(tuple, values)))
-        merged = {**self._values, 'joint_lower_limits': list(low),
-                  'joint_upper_limits': list(high)}
-        try:
-            self._law = AdaptiveController(gains_from(merged), self._law.theta_hat,
-                                           merged['l1'], merged['l2'], merged['gravity'])
-        except ValueError as error:
-            self.get_logger().error(f'{problem}; the range both allow is unusable '
-                                    f'({error}): keeping ours')
-            return
-        self._values = merged
-        self.get_logger().error(f'{problem}: using the range both allow, {list(low)} .. '
-                                f'{list(high)} rad')
 
     def _on_robot_description(self, msg: String) -> None:
         """One line when the published arm lacks a joint the controller drives."""
@@ -639,15 +534,14 @@ class Controller(Node):
             msg = self._deserialize(data, PointStamped, 'target')
             if msg is not None:
                 point = msg.point
-                self._accept_target((point.x, point.y) if self._arm is None
-                                    else (point.x, point.y, point.z),
+                self._accept_target((point.x, point.y, point.z)[:self._law.model.task_axes],
                                     stamp_seconds(msg.header.stamp))
             return
         sec, nanosec = read_stamp(data)
         self._accept_target(values, sec + 1e-9 * nanosec)
 
     def _accept_target(self, position: tuple, stamp: float) -> None:
-        """A hand position (x, y) for the SCARA, (x, y, z) for the n-joint law (m), stamped
+        """A hand position on the task axes ((x, y) for a planar arm, else (x, y, z); m), stamped
         `stamp` (s), checked before it is used."""
         if not math.isfinite(sum(position)):
             self._warn('target_non_finite', 'target dropped: non-finite position')
@@ -719,17 +613,11 @@ class Controller(Node):
             return SetParametersResult(successful=True)
         values = {**self._values, **changed}
         try:
-            if self._arm is None:
-                law = AdaptiveController(gains_from(values), self._law.theta_hat, values['l1'],
-                                         values['l2'], values['gravity'])
-            else:
-                law = ArmController(self._arm.model, arm_gains_from(values, self._arm.model),
-                                    self._arm.theta_hat)
+            model = self._law.model
+            law = ArmController(model, gains_from(values, model), self._law.theta_hat)
         except (ValueError, TypeError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         self._values, self._law = values, law
-        if self._arm is not None:
-            self._arm = law
         self._limiter.max_rate = values['max_effort_rate']
         self._set_applied_band(values)
         if self._separation_cap is not None:
@@ -741,8 +629,7 @@ class Controller(Node):
         """The applied-effort band (N m, 0: off) and the effort box it is centred in."""
         self._applied_band = (values['max_effort_rate'] * values['applied_effort_cycles']
                               / values['rate_hz'])
-        self._effort_box = ((values['effort_limit'],) * self._dof if self._arm is None
-                            else tuple(self._arm.effort_limits.tolist()))
+        self._effort_box = tuple(self._law.effort_limits.tolist())
 
     # -- control cycles ----------------------------------------------------------------------
     def _watchdog(self) -> None:
@@ -771,11 +658,12 @@ class Controller(Node):
             # An arm under gravity is held where its last joint state put it (gravity with
             # theta_hat, reached at the effort rate): zero torque dropped the Panda's 29 N m
             # on joint 2 at once, and it fell into its joint limits while a loaded machine
-            # held the sim back for 0.1 s. The SCARA (horizontal) and velocity commands get
-            # zero. Worked out once: q and theta_hat stand still until a joint state comes.
+            # held the sim back for 0.1 s. Velocity commands get zero. Worked out once: q and
+            # theta_hat stand still until a joint state comes.
             self._hold = None
-            if self._arm is not None and self._q is not None and not self._velocity_mode:
-                self._hold = tuple(self._arm.gravity_hold(self._q).tolist())
+            if self._q is not None and not self._velocity_mode:
+                hold = self._law.gravity_hold(np.array(self._q))
+                self._hold = tuple(hold.tolist()) if np.any(hold) else None
             action = 'zero torque' if self._hold is None else 'holding against gravity'
             self.get_logger().warning(f'{action}: {status.replace("_", " ")}')
         self._status = status
@@ -788,7 +676,7 @@ class Controller(Node):
             self.get_logger().info('joint states resumed')
         output = self._step(now, dt, monitor=now >= self._next_state)
         self._publish_command(now, output, stamp, dt)
-        if self._arm is not None and output is not None and not self._arm.adapt():
+        if output is not None and not self._law.adapt():
             # theta_hat stays; the next cycle's torque is computed with it as before.
             self._warn('adaptation', 'parameter update dropped: not finite')
 
@@ -856,8 +744,8 @@ class Controller(Node):
         if self._target is None:
             self._status = 'no_target'
             # An arm under gravity is held where it is (no task, no hand motion) rather than
-            # let fall; the SCARA (horizontal) gets zero torque, as before.
-            return None if self._arm is None else self._arm_step(None, 0.0, 0.0, None, dt)
+            # let fall.
+            return self._arm_step(None, 0.0, 0.0, None, dt)
         link = self._link_state(now)
         # a of the task in force, held between TaskStates from their stamps to the joint
         # state's (a TaskState delivered late would otherwise step a by its delay times
@@ -879,9 +767,7 @@ class Controller(Node):
             if self._rest_key != key:
                 self._rest_key = key
                 if self._fixed_rest is None:
-                    x = (forward_kinematics(self._q, self._values['l1'], self._values['l2'])
-                         if self._arm is None else self._arm.model.tool_position(self._q))
-                    self._rest = tuple(x.tolist())
+                    self._rest = tuple(self._tool_position().tolist())
         self._status = 'ok' if link.phase in (PHASE_ACTIVE, PHASE_FADING_IN) else 'no_task_state'
         if hand.phase in (PHASE_FADING_OUT, PHASE_IDLE):
             self._status = 'target_lost'
@@ -893,17 +779,8 @@ class Controller(Node):
         self._cycle_task = (shape, k)
         if self._separation_cap is not None:
             self._law.limit_pull_speed(self._separation_cap.knee(now))
-        if self._arm is not None:
-            return self._arm_step((target, target_velocity), weight, rate,
-                                  None if shape is None else (shape, k), dt)
-        try:
-            # V without its task term kp a Q, added once the command is out (_publish_state).
-            output = self._law.step_lean(self._q, self._dq, target, target_velocity,
-                                         (0.0, 0.0), weight, rate, shape, dt, monitor=monitor,
-                                         k=k, rest=self._rest, with_potential=False)
-        except Exception as error:  # noqa: BLE001 a robot command must stay safe
-            return self._step_failed(error)
-        return self._checked(output)
+        return self._arm_step((target, target_velocity), weight, rate,
+                              None if shape is None else (shape, k), dt)
 
     def _step_failed(self, error: Exception) -> None:
         """A control step that raised: zero torque (None) and a throttled warning."""
@@ -919,15 +796,16 @@ class Controller(Node):
         return output
 
     def _arm_step(self, hand, weight: float, rate: float, task, dt: float):
-        """arm_law's command for the n-joint arm: hand (x_d, xdot_d) tuples of 3 or None
-        (held where the tool is), task (shape, k) or None. The ArmOutput, or None on a fault.
+        """arm_law's command: hand (x_d, xdot_d) tuples on the task axes or None (held where
+        the tool is), task (shape, k) or None. The ArmOutput, or None on a fault.
         What the torque does not need waits until it is sent: theta_hat's update (_cycle) and
         V (_publish_state: 1/2 s^T M s and the barrier's energy, every 10th cycle)."""
-        arm = self._arm
+        arm = self._law
         q, dq = np.array(self._q), np.array(self._dq)
         try:
             if hand is None:
-                position, velocity = arm.model.tool_position(q), np.zeros(3)
+                position = self._tool_position()
+                velocity = np.zeros(position.size)
             else:
                 position, velocity = np.array(hand[0]), np.array(hand[1])
             active = None if task is None else ActiveTask(task[0], weight, rate, task[1])
@@ -935,11 +813,16 @@ class Controller(Node):
                 self._rest_array = (self._rest, None if self._rest is None
                                     else np.array(self._rest))
             # The torque only: theta_hat's update (eq. 19) waits until it is sent (_cycle).
-            output = arm.command(q, dq, HandState(position, velocity, np.zeros(3)), active,
-                                 dt, self._rest_array[1])
+            output = arm.command(q, dq, HandState(position, velocity, np.zeros(velocity.size)),
+                                 active, dt, self._rest_array[1])
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             return self._step_failed(error)
         return self._checked(output)
+
+    def _tool_position(self) -> np.ndarray:
+        """The tool on the task axes (m) at the last joint state."""
+        q = np.array(self._q)
+        return self._law.model.task_kinematics(q, np.zeros(q.size))[0]
 
     def _publish_state(self, now: float, output, command, published: int) -> None:
         started, ticks = self._window
@@ -958,11 +841,10 @@ class Controller(Node):
             msg.task = self._task_state.task.name
         if output is not None:
             msg.distance = float(output.distance)
-            if self._arm is not None:
-                try:
-                    output = output._replace(lyapunov=self._arm.lyapunov(output, self._q, None))
-                except Exception as error:  # noqa: BLE001 monitoring must not stop control
-                    self._warn('lyapunov', f'V not reported: {error!r}')
+            try:
+                output = output._replace(lyapunov=self._law.lyapunov(output, self._q, None))
+            except Exception as error:  # noqa: BLE001 monitoring must not stop control
+                self._warn('lyapunov', f'V not reported: {error!r}')
             if output.lyapunov is not None:
                 try:
                     task = self._weight * self._law.task_energy(output.distance,
@@ -975,9 +857,7 @@ class Controller(Node):
             msg.weight = self._weight
             msg.saturated = bool(output.torque_limited or self._rate_limited)
         elif self._q is not None and self._target is not None:
-            x = (forward_kinematics(self._q, self._values['l1'], self._values['l2'])
-                 if self._arm is None else self._arm.model.tool_position(self._q))
-            msg.distance = float(np.linalg.norm(x - np.array(self._target)))
+            msg.distance = float(np.linalg.norm(self._tool_position() - np.array(self._target)))
         self._state_pub.publish(msg)
 
 

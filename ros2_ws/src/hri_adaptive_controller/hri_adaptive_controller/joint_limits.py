@@ -60,11 +60,12 @@ Avoid tasks (open outward) never reach round: they move away from the hand.
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule
-from hri_adaptive_controller.task_variable import SECH_LIMIT, _smoothstep
+from hri_adaptive_controller.task_variable import SECH_LIMIT
 
 GOAL_MARGIN = 0.5
 """The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
@@ -84,36 +85,6 @@ IK_TOLERANCE = 1e-3
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
-
-
-@dataclass(frozen=True)
-class JointLimits:
-    """The joints' limits as the controller knows them, and how it keeps off them.
-
-    lower, upper (2,) rad: the limits (defaults: scara_sim's joint_lower_limits and
-    joint_upper_limits); band (rad, > 0): the barrier and the gate act within it;
-    barrier_torque kb (N m, >= 0): the barrier's torque at a limit.
-    """
-
-    lower: tuple[float, float] = (-2.30, -2.46)
-    upper: tuple[float, float] = (2.30, 2.46)
-    band: float = 0.1
-    barrier_torque: float = 3.0
-
-    def __post_init__(self):
-        values = (*self.lower, *self.upper)
-        if len(self.lower) != 2 or len(self.upper) != 2 or not all(map(math.isfinite, values)):
-            raise ValueError(f'joint limits must be 2 finite lower and 2 finite upper values, '
-                             f'got {self.lower} and {self.upper}')
-        if any(high - low <= 2.0 * self.band for low, high in zip(self.lower, self.upper,
-                                                                   strict=True)):
-            raise ValueError(f'each joint range {self.lower} .. {self.upper} must be wider than '
-                             f'2 band ({self.band} rad)')
-        if not (math.isfinite(self.band) and self.band > 0.0):
-            raise ValueError(f'band must be finite and > 0 rad, got {self.band}')
-        if not (math.isfinite(self.barrier_torque) and self.barrier_torque >= 0.0):
-            raise ValueError(f'barrier_torque must be finite and >= 0 N m, '
-                             f'got {self.barrier_torque}')
 
 
 @dataclass(frozen=True)
@@ -146,91 +117,77 @@ class ReachRoundSettings:
                 raise ValueError(f'reach-round {name} must be finite and >= 0 m, got {value}')
 
 
-def barrier(q1: float, q2: float, dq1: float, dq2: float, limits: JointLimits):
-    """The barrier's gradient g (N m), its time derivative (N m/s) and its proximity.
-
-    Returns (g1, g2, gd1, gd2, near): g = dB/dq, gd = (d2B/dq2) qdot (diagonal Hessian),
-    near = max_i w(u_i) in [0, 1] (0 outside every band, 1 at a limit).
-    """
-    band, kb = limits.band, limits.barrier_torque
-    (low1, low2), (high1, high2) = limits.lower, limits.upper
-    if low1 + band <= q1 <= high1 - band and low2 + band <= q2 <= high2 - band:
-        return 0.0, 0.0, 0.0, 0.0, 0.0  # outside every band (the usual case)
-    out = []
-    near = 0.0
-    for q, dq, low, high in ((q1, dq1, limits.lower[0], limits.upper[0]),
-                             (q2, dq2, limits.lower[1], limits.upper[1])):
-        up, dup = _smoothstep((q - (high - band)) / band)
-        down, ddown = _smoothstep(((low + band) - q) / band)
-        near = max(near, up, down)
-        out.append((kb * (up - down), kb * (dup + ddown) / band * dq))
-    (g1, gd1), (g2, gd2) = out
-    return g1, g2, gd1, gd2, near
+def _smoothstep_arrays(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The quintic smoothstep (C2) and its derivative, per element of u."""
+    u = np.clip(u, 0.0, 1.0)
+    v = 1.0 - u
+    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
 
 
-def barrier_energy(q1: float, q2: float, limits: JointLimits) -> float:
-    """B(q) (J): kb band times the integral of the smoothstep over each joint's overlap."""
-    band, kb = limits.band, limits.barrier_torque
+def barrier(q, dq, lower, upper, band: float, barrier_torque: float):
+    """The barrier's gradient g = dB/dq (n,) N m, its time derivative (n,) N m/s (the
+    diagonal Hessian times qdot) and its proximity near = max_i w(u_i) in [0, 1] (0 outside
+    every band, 1 at a limit). q, dq, lower, upper (n,) rad, rad/s; band rad; barrier_torque
+    kb N m."""
+    if (q >= lower + band).all() and (q <= upper - band).all():
+        zero = np.zeros(q.shape)
+        return zero, zero, 0.0  # outside every band (the usual case)
+    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
+    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
+    g = barrier_torque * (up - down)
+    gd = barrier_torque * (dup + ddown) / band * dq
+    return g, gd, float(max(up.max(), down.max()))
+
+
+def barrier_energy(q, lower, upper, band: float, barrier_torque: float) -> float:
+    """B(q) (J) of `barrier`: kb band times the smoothstep's integral over each overlap."""
     total = 0.0
-    for q, low, high in ((q1, limits.lower[0], limits.upper[0]),
-                         (q2, limits.lower[1], limits.upper[1])):
-        for u in ((q - (high - band)) / band, ((low + band) - q) / band):
-            if u > 0.0:
-                v = min(u, 1.0)
-                total += kb * band * (2.5 * v ** 4 - 3.0 * v ** 5 + v ** 6 + max(u - 1.0, 0.0))
+    for u in np.concatenate([(q - (upper - band)) / band, ((lower + band) - q) / band]):
+        if u > 0.0:
+            v = min(u, 1.0)
+            total += barrier_torque * band * (2.5 * v ** 4 - 3.0 * v ** 5 + v ** 6
+                                              + max(u - 1.0, 0.0))
     return total
 
 
-def gate_feed_forward(q1: float, q2: float, dq1: float, dq2: float, v1: float, v2: float,
-                      a1: float, a2: float, limits: JointLimits):
-    """The gated feed-forward joint velocity and its time derivative.
-
-    v (2,) rad/s: J+ f xdot_d; a (2,) rad/s^2: its time derivative; q, dq the joint state.
-    Returns (v1', v2', a1', a2').
-    """
-    band = limits.band
-    out = []
-    for q, dq, v, a, low, high in ((q1, dq1, v1, a1, limits.lower[0], limits.upper[0]),
-                                   (q2, dq2, v2, a2, limits.lower[1], limits.upper[1])):
-        up, dup = _smoothstep((q - (high - band)) / band)
-        down, ddown = _smoothstep(((low + band) - q) / band)
-        if up == 0.0 and down == 0.0 and dup == 0.0 and ddown == 0.0:
-            out.append((v, a))
-            continue
-        towards_up, dtu = _smoothstep(v / FEED_SPEED)
-        towards_down, dtd = _smoothstep(-v / FEED_SPEED)
-        factor = 1.0 - up * towards_up - down * towards_down
-        factor_rate = (-(dup / band * dq) * towards_up - up * dtu / FEED_SPEED * a
-                       - (-(ddown / band) * dq) * towards_down + down * dtd / FEED_SPEED * a)
-        out.append((v * factor, a * factor + v * factor_rate))
-    (w1, b1), (w2, b2) = out
-    return w1, w2, b1, b2
+def gate_feed_forward(q, dq, v, rate, lower, upper, band: float):
+    """The joint feed-forward v (n,) rad/s and its rate (n,) rad/s^2 with each component
+    towards a near limit faded out (module docstring)."""
+    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
+    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
+    towards_up, dtu = _smoothstep_arrays(v / FEED_SPEED)
+    towards_down, dtd = _smoothstep_arrays(-v / FEED_SPEED)
+    factor = 1.0 - up * towards_up - down * towards_down
+    factor_rate = (-(dup / band * dq) * towards_up - up * dtu / FEED_SPEED * rate
+                   + (ddown / band * dq) * towards_down + down * dtd / FEED_SPEED * rate)
+    return v * factor, rate * factor + v * factor_rate
 
 
-def workspace_radii(l1: float, l2: float, limits: JointLimits) -> tuple[float, float]:
-    """(folded, stretched) reach (m): the base-to-tip distance at joint 2's nearer limit
-    (or |l1 - l2| when joint 2 may fold fully) and l1 + l2."""
+def workspace_radii(l1: float, l2: float, limits) -> tuple[float, float]:
+    """(folded, stretched) reach (m) of a planar 2-link arm: the base-to-tip distance at
+    joint 2's nearer limit (or |l1 - l2| when joint 2 may fold fully) and l1 + l2. limits:
+    lower and upper (2,) rad (hri_core.robot_model.JointLimits)."""
     fold = min(abs(limits.lower[1]), abs(limits.upper[1]), math.pi)
     return math.sqrt(max(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(fold), 0.0)), l1 + l2
 
 
 def inverse_kinematics(x1: float, x2: float, near1: float, near2: float, l1: float, l2: float,
-                       limits: JointLimits) -> tuple[float, float]:
-    """Joint angles (rad) that put the tip at (x1, x2) m or nearest to it, clamped GOAL_MARGIN
-    band inside the limits; of the two elbows, the one the box cuts least, then the one nearer
-    to (near1, near2)."""
+                       lower, upper, band: float) -> tuple[float, float]:
+    """Joint angles (rad) of a planar 2-link arm that put the tip at (x1, x2) m or nearest to
+    it, clamped GOAL_MARGIN band inside the limits lower, upper (2,) rad; of the two elbows,
+    the one the box cuts least, then the one nearer to (near1, near2)."""
     r2 = x1 * x1 + x2 * x2
     c2 = (r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
     c2 = min(max(c2, -1.0), 1.0)
-    margin = GOAL_MARGIN * limits.band
+    margin = GOAL_MARGIN * band
     best = None
     for elbow in (1.0, -1.0):
         q2 = elbow * math.acos(c2)
         q1 = math.atan2(x2, x1) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
         # In (-pi, pi]: the nearest writing to a box centred on 0.
         q1 = math.remainder(q1, 2.0 * math.pi)
-        k1 = min(max(q1, limits.lower[0] + margin), limits.upper[0] - margin)
-        k2 = min(max(q2, limits.lower[1] + margin), limits.upper[1] - margin)
+        k1 = min(max(q1, lower[0] + margin), upper[0] - margin)
+        k2 = min(max(q2, lower[1] + margin), upper[1] - margin)
         # A solution the box cuts short misses the point: the one that reaches first.
         cost = (CLAMP_COST * ((k1 - q1) ** 2 + (k2 - q2) ** 2)
                 + (k1 - near1) ** 2 + (k2 - near2) ** 2)
@@ -343,20 +300,32 @@ class _JointBlend:
                                                                             strict=True)))
 
 
-class ReachRound(_JointBlend):
-    """The reach-round blend of the SCARA: when and where to (module docstring); `update`
-    runs once per control step with its dt."""
+class PlanarReachRound(_JointBlend):
+    """The reach-round blend of a planar 2-link arm (the SCARA): when and where to (module
+    docstring), with the hole round its base and its elbow choice (inverse_kinematics).
+
+    model: a planar RobotModel with link_lengths (l1, l2) m; lower, upper (2,) rad; band
+    (rad): the barrier's; reach (m): unused (the annulus comes from the link lengths and
+    joint 2's limits). `update` runs once per control step with its dt.
+    """
 
     BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
     CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
     STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
     STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
 
-    def __init__(self, settings: ReachRoundSettings, limits: JointLimits, l1: float,
-                 l2: float):
-        self.limits, self._l1, self._l2 = limits, l1, l2
-        self._inner, self._outer = workspace_radii(l1, l2, limits)
+    def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
+                 reach: float):
+        self._l1, self._l2 = model.link_lengths
+        self._lower, self._upper = tuple(map(float, lower)), tuple(map(float, upper))
+        self._band = band
+        self._inner, self._outer = workspace_radii(
+            self._l1, self._l2, _Box(self._lower, self._upper))
         super().__init__(settings)
+
+    def _solve(self, g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
+        return inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self._lower,
+                                  self._upper, self._band)
 
     def goal(self, x1: float, x2: float, h1: float, h2: float, d1: float, d2: float):
         """The task-space goal (m): the hand h (d1 = 0) or the point of the region's annulus
@@ -381,20 +350,19 @@ class ReachRound(_JointBlend):
                 g1, g2 = x1 * low / norm, x2 * low / norm
         return g1, g2, radius
 
-    def update(self, q1: float, q2: float, dq1: float, dq2: float, x1: float, x2: float,
-               hand, region, near: float, dt: float):
-        """Advance by dt (s) and return (sigma, dsigma/dt, u1, u2, du1/dt, du2/dt).
-
-        hand (2,) m: the target x_d; region (d1, d2) m of a follow task, or None (no task, or
-        an avoid task: sigma fades to 0); near: the barrier's proximity (barrier()).
-        """
+    def update(self, q, dq, x, hand, region, near: float, dt: float):
+        """Advance by dt (s) and return (sigma, dsigma/dt, u (2,), du/dt (2,)) or None while
+        sigma rests at 0. q, dq (2,); x, hand (2,) m: the tip and the target; region (d1, d2)
+        m of a follow task, or None (no task, or an avoid task: sigma fades to 0); near: the
+        barrier's proximity (barrier())."""
         settings = self.settings
+        (q1, q2), (x1, x2) = q.tolist(), x.tolist()
         target = None  # the joint goal, when worked out for the decision below
         if not settings.enabled or region is None:
             wanted = False
             goal = None
         else:
-            g1, g2, hand_radius = self.goal(x1, x2, hand[0], hand[1], *region)
+            g1, g2, hand_radius = self.goal(x1, x2, float(hand[0]), float(hand[1]), *region)
             clearance = _segment_clearance(x1, x2, g1, g2)
             distance = math.hypot(g1 - x1, g2 - x2)
             # The whole region out of reach: beyond the stretched arm or inside the hole.
@@ -406,7 +374,7 @@ class ReachRound(_JointBlend):
                 # the goal on the arm's elbow and within STRAIGHT_TURN of its joint 1, the arm
                 # off the stretched singularity (leaving earlier hands the arm back to the
                 # descent that was blocked).
-                t1, t2 = inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self.limits)
+                t1, t2 = self._solve(g1, g2, q1, q2)
                 target = (t1, t2)
                 straight = (clearance >= self._inner + self.CLEAR_CLEARANCE
                             and near < 0.5 * self.NEAR_BARRIER and t2 * q2 > 0.0
@@ -426,13 +394,17 @@ class ReachRound(_JointBlend):
                 return target
         else:
             def joint_goal():
-                return inverse_kinematics(goal[0], goal[1], q1, q2, self._l1, self._l2,
-                                          self.limits)
-        out = self._blend(wanted, joint_goal, (q1, q2), (dq1, dq2), dt)
+                return self._solve(goal[0], goal[1], q1, q2)
+        out = self._blend(wanted, joint_goal, (q1, q2), tuple(dq.tolist()), dt)
         if out is None:
-            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        sigma, sigma_rate, (u1, u2), (ud1, ud2) = out
-        return sigma, sigma_rate, u1, u2, ud1, ud2
+            return None
+        sigma, sigma_rate, u, du = out
+        return sigma, sigma_rate, np.array(u), np.array(du)
+
+
+class _Box(NamedTuple):
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
 
 
 def inverse_kinematics_n(model, goal, seeds, lower, upper, iterations: int = IK_ITERATIONS):
@@ -592,3 +564,13 @@ class ReachRoundN(_JointBlend):
             self._joint_goal = (now, inverse_kinematics_n(
                 self._model, goal, last[None, :], *self._box, self.IK_REFRESH))
         return self._joint_goal[1]
+
+
+def reach_round(settings: ReachRoundSettings, model, lower, upper, band: float,
+                reach: float) -> _JointBlend:
+    """The reach-round blend for `model`: a planar 2-link arm (task_axes 2, link_lengths) gets
+    PlanarReachRound (its hole round the base, its two elbows), any other ReachRoundN (the
+    model's numerical inverse kinematics). Arguments as theirs."""
+    if model.task_axes == 2 and getattr(model, 'link_lengths', None) is not None:
+        return PlanarReachRound(settings, model, lower, upper, band, reach)
+    return ReachRoundN(settings, model, lower, upper, band, reach)

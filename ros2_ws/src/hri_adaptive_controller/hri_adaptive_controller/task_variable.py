@@ -1,4 +1,4 @@
-"""Event-based task variable and joint-velocity reference (paper eq. 12, 14, 17, 18).
+"""Event-based task variable and the terms of the joint-velocity reference (eq. 12, 14, 18).
 
 Task variable (eq. 12, 13)
 --------------------------
@@ -34,7 +34,7 @@ g(r) = K dP/dr (signed, r = |dx|, e = dx / r), the task velocity is
 Q'(r) is C2 in r except where the quintic blends meet (C2 too), and its derivative Q'' enters
 qddot_r (eq. 18) exactly, so qdot_r and the torque are continuous in time at region entry.
 delta_eps is a gradient (of the radial Q = integral of Q'), so eq. 21, 22 hold with Q in place
-of P (see adaptive_law).
+of P (see arm_law).
 
 Rest position (avoid tasks)
 ---------------------------
@@ -59,7 +59,8 @@ Joint-velocity reference (eq. 14) and its derivative (eq. 18)
 f = 1 for follow tasks (and without a task), f = 1 - a for avoid tasks (v_rest = 0 for
 follow tasks); xdot = J qdot; H_Q = d(delta_eps)/d(dx), from Q'' and Q'/r through the chain
 rule; dv_rest/dt = c w'(r) e^T (xdot - xdot_d) + w Dc xdot: the exact time derivative, no
-finite difference. J+ is the damped pseudo-inverse
+finite difference (arm_law puts the terms together for any arm, on its task axes). J+ is
+the damped pseudo-inverse (damped_pseudo_inverse)
 
     J+ = J^T (J J^T + lambda^2 I)^-1,
     lambda^2 = lambda_max^2 (1 - w^2 / w0^2)^2 for w < w0, else 0,  w = sqrt(det(J J^T)),
@@ -67,7 +68,7 @@ finite difference. J+ is the damped pseudo-inverse
 so J+ is the exact inverse away from singularities (w >= w0: eq. 22 holds unchanged) and the
 damping grows smoothly (C1 in q) to lambda_max at a singularity, where it bounds the joint
 speed by |v_r| / (2 lambda_max). dJ+/dt is differentiated analytically, including
-d(lambda^2)/dt, from J and Jdot = hri_core.dynamics.jacobian_derivative.
+d(lambda^2)/dt, from J and Jdot (RobotModel.task_kinematics).
 """
 
 import dataclasses
@@ -77,7 +78,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hri_core.dynamics import forward_kinematics, jacobian, jacobian_derivative
 from hri_core.potential import (
     TaskShape,
     default_task_gain,
@@ -86,7 +86,7 @@ from hri_core.potential import (
     potential_gradient,
     signed_log_potential_slope,
 )
-from hri_core.validation import planar_vector, positive
+from hri_core.validation import positive
 
 # Largest |entry| (1/s) of the Hessian of Q. Only a potential that steps within a fraction of
 # a micrometre reaches it; there the exact derivative is meaningless for a sampled controller,
@@ -200,50 +200,6 @@ class TaskDrive:
         """Distance (m) from the hand where the rest term starts to fade in."""
         edge = self.shape.d1 if self.shape.s == 1 else self.shape.d2
         return edge + self.margin
-
-
-@dataclass(frozen=True)
-class TaskVariable:
-    """Task variable at one dx (eq. 12').
-
-    distance: |dx| (m); gradient: delta_eps = dQ/d(dx), shape (2,), m/s;
-    hessian: d(delta_eps)/d(dx), shape (2, 2), 1/s; radial_slope: dQ/dr (m/s).
-    """
-
-    distance: float
-    gradient: np.ndarray
-    hessian: np.ndarray
-    radial_slope: float
-
-
-@dataclass(frozen=True)
-class JointReference:
-    """Joint-velocity reference of eq. 14 and its time derivative (eq. 18).
-
-    qdot_r (2,) rad/s; qddot_r (2,) rad/s^2; position x (2,) m and dx = x - x_d (2,) m;
-    distance |dx| (m); task_velocity: -a delta_eps + a v_rest (2,) m/s, the task part of
-    v_r; weighted_task_variable: a delta_eps (2,) m/s (enters the torque law, eq. 16);
-    jacobian J (2, 2) m/rad; pinv J+ (2, 2) rad/m; damping lambda^2 (m^2/rad^2);
-    task: the TaskVariable (None when no task is active); pinv_rate dJ+/dt (2, 2) rad/(m s);
-    feed_forward f xdot_d (2,) m/s and feed_forward_rate its time derivative (2,) m/s^2;
-    task_rate: the time derivative of task_velocity (2,) m/s^2.
-    """
-
-    qdot_r: np.ndarray
-    qddot_r: np.ndarray
-    position: np.ndarray
-    dx: np.ndarray
-    distance: float
-    task_velocity: np.ndarray
-    weighted_task_variable: np.ndarray
-    jacobian: np.ndarray
-    pinv: np.ndarray
-    damping: float
-    task: TaskVariable | None
-    pinv_rate: np.ndarray | None = None
-    feed_forward: np.ndarray | None = None
-    feed_forward_rate: np.ndarray | None = None
-    task_rate: np.ndarray | None = None
 
 
 def open_outward(shape: TaskShape, reach: float) -> bool:
@@ -401,38 +357,6 @@ def radial_potential_slope(distance, shape: TaskShape) -> np.ndarray:
     return potential_gradient(points.reshape(-1, 2), shape)[:, 0].reshape(r.shape)
 
 
-def task_variable(dx, drive: TaskDrive) -> TaskVariable:
-    """Task variable delta_eps = Q'(r) e and its Hessian Q'' e e^T + (Q'/r)(I - e e^T)
-    (eq. 12', 18); dx (2,) m. Entries bounded by MAX_TASK_HESSIAN. Zero on Q's zero set."""
-    dx = planar_vector(dx, 'dx')
-    g1, g2, h11, h12, h22 = task_term(float(dx[0]), float(dx[1]), drive)
-    r = math.hypot(dx[0], dx[1])
-    slope = 0.0 if r == 0.0 else (g1 * dx[0] + g2 * dx[1]) / r
-    return TaskVariable(r, np.array([g1, g2]), np.array([[h11, h12], [h12, h22]]), slope)
-
-
-def task_term(dx1: float, dx2: float,
-              drive: TaskDrive) -> tuple[float, float, float, float, float]:
-    """delta_eps = dQ/d(dx) (m/s) and its symmetric Hessian's entries (1/s) at dx (m) in plain
-    floats, the controller's per-cycle path (eq. 12'): returns (g1, g2, h11, h12, h22).
-
-    dx1, dx2 finite (checked by the caller at its boundary). The only place the control step
-    evaluates the task's potential: a different task term changes this function alone.
-    """
-    r = math.hypot(dx1, dx2)
-    slope, curvature = radial_drive(r, drive)
-    if r == 0.0:
-        # Radial symmetry: no gradient; Hessian Q''(0) I.
-        return 0.0, 0.0, curvature, 0.0, curvature
-    e1, e2 = dx1 / r, dx2 / r
-    tangential = slope / r
-    h11 = curvature * e1 * e1 + tangential * (1.0 - e1 * e1)
-    h12 = (curvature - tangential) * e1 * e2
-    h22 = curvature * e2 * e2 + tangential * (1.0 - e2 * e2)
-    return (slope * e1, slope * e2, _clip_hessian(h11), _clip_hessian(h12),
-            _clip_hessian(h22))
-
-
 def _rest_gate(r: float, drive: TaskDrive) -> tuple[float, float]:
     """The rest term's gate w(r) and w'(r) (1/m) at r = |x - x_d| (m)."""
     w, dw = _smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
@@ -444,38 +368,9 @@ def _rest_speed(rho: float, drive: TaskDrive) -> tuple[float, float]:
     return speed_cap(drive.rest_gain * rho, min(drive.max_task_speed, drive.pull_limit))
 
 
-def rest_term(dx1: float, dx2: float, y1: float, y2: float, drive: TaskDrive):
-    """The avoid task's return to rest, v_rest = w(r) c(y) and its derivatives, in floats.
-
-    dx = x - x_d (m), y = x - x_rest (m). Returns (v1, v2, c1, c2, gw1, gw2, b11, b12, b22):
-    v_rest (m/s); c(y) (m/s); grad w = w'(r) e (1/m); w Dc = w dc/dy (1/s, symmetric), so that
-    dv_rest/dt = c (grad w . (xdot - xdot_d)) + w Dc xdot. Zero for follow tasks.
-    """
-    if not drive.open_outward or drive.rest_gain == 0.0:
-        return (0.0,) * 9
-    r = math.hypot(dx1, dx2)
-    w, dw = _rest_gate(r, drive)
-    rho = math.hypot(y1, y2)
-    if (w == 0.0 and dw == 0.0) or rho == 0.0:
-        if rho == 0.0 and w > 0.0:
-            # c(y) = -k y near y = 0: Dc = -k I, c = 0.
-            k = -w * drive.rest_gain
-            return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, k, 0.0, k
-        return (0.0,) * 9
-    n1, n2 = y1 / rho, y2 / rho
-    speed, slope = _rest_speed(rho, drive)
-    c1, c2 = -speed * n1, -speed * n2
-    radial, tangential = -slope * drive.rest_gain, -speed / rho
-    b11 = w * (radial * n1 * n1 + tangential * (1.0 - n1 * n1))
-    b12 = w * (radial - tangential) * n1 * n2
-    b22 = w * (radial * n2 * n2 + tangential * (1.0 - n2 * n2))
-    gw1, gw2 = (dw * dx1 / r, dw * dx2 / r) if r > 0.0 else (0.0, 0.0)
-    return w * c1, w * c2, c1, c2, gw1, gw2, b11, b12, b22
-
-
 def rest_term_n(dx, y, u, xdot, drive: TaskDrive):
-    """rest_term for task vectors of any length m (the n-joint law's 3-D task space), in
-    floats: v_rest = w(r) c(y) and dv_rest/dt = c (grad w . u) + w Dc xdot, each a list of m
+    """An avoid task's return to rest (module docstring) for task vectors of any length m,
+    in floats: v_rest = w(r) c(y) and dv_rest/dt = c (grad w . u) + w Dc xdot, each a list of m
     floats (m/s, m/s^2), or None where both are zero (follow tasks; the arm inside the
     gate's start). dx = x - x_d, y = x - x_rest (m), u = xdot - xdot_d, xdot (m/s): sequences
     of m floats."""
@@ -515,38 +410,18 @@ def _retreat_speed(r: float, c: float, drive: TaskDrive):
     return g, -dg / RETREAT_REACH, p, dp
 
 
-def retreat_term(dx1: float, dx2: float, u1: float, u2: float, vd1: float, vd2: float,
-                 ad1: float, ad2: float, drive: TaskDrive):
-    """An avoid task's retreat from an approaching hand, v_away = g(r) p(e . xdot_d) e, and
-    its time derivative, in floats: (v1, v2, dv1, dv2) m/s, m/s^2.
-
-    dx = x - x_d (m), e = dx / r; u = xdot - xdot_d (m/s); xdot_d, xddot_d the hand's velocity
-    and acceleration. p(c) is the smooth positive part of the hand's speed towards the arm
-    (C1: c^2 / (2 RETREAT_SPEED) up to RETREAT_SPEED, then c - RETREAT_SPEED / 2; capped
-    smoothly at 2 max_task_speed), g(r) the
-    quintic smoothstep from 1 at r <= d1 to 0 at d1 + RETREAT_REACH. Zero for follow tasks.
-    The arm backs away as fast as the hand comes (on top of the potential's push, which
-    starts only inside d1), so a hand that chases the arm at the arm's own speed no longer
-    gains on it.
-    """
-    r = math.hypot(dx1, dx2)
-    e1, e2 = (dx1 / r, dx2 / r) if r > 0.0 else (0.0, 0.0)
-    profile = _retreat_speed(r, e1 * vd1 + e2 * vd2, drive)
-    if profile is None:
-        return 0.0, 0.0, 0.0, 0.0
-    g, dg, p, dp = profile
-    radial = e1 * u1 + e2 * u2  # dr/dt
-    de1, de2 = (u1 - e1 * radial) / r, (u2 - e2 * radial) / r  # de/dt
-    dc = de1 * vd1 + de2 * vd2 + e1 * ad1 + e2 * ad2
-    rate = dg * radial * p + g * dp * dc  # d(g p)/dt
-    gp = g * p
-    return gp * e1, gp * e2, rate * e1 + gp * de1, rate * e2 + gp * de2
-
-
 def retreat_term_n(dx, u, velocity, acceleration, drive: TaskDrive):
-    """retreat_term for task vectors of any length m, in floats: v_away and its rate, each a
-    list of m floats (m/s, m/s^2), or None where both are zero. dx = x - x_d (m), u = xdot -
-    xdot_d, the hand's velocity and acceleration: sequences of m floats."""
+    """An avoid task's retreat from an approaching hand, v_away = g(r) p(e . xdot_d) e, and
+    its time derivative, for task vectors of any length m, in floats: each a list of m floats
+    (m/s, m/s^2), or None where both are zero. dx = x - x_d (m), e = dx / r; u = xdot -
+    xdot_d, the hand's velocity and acceleration: sequences of m floats.
+
+    p(c) is the smooth positive part of the hand's speed towards the arm (C1: c^2 / (2
+    RETREAT_SPEED) up to RETREAT_SPEED, then c - RETREAT_SPEED / 2; capped smoothly at 2
+    max_task_speed), g(r) the quintic smoothstep from 1 at r <= d1 to 0 at d1 +
+    RETREAT_REACH. The arm backs away as fast as the hand comes (on top of the potential's
+    push, which starts only inside d1), so a hand that chases the arm at the arm's own speed
+    no longer gains on it."""
     r = math.hypot(*dx)
     if r == 0.0:
         return None
@@ -562,10 +437,6 @@ def retreat_term_n(dx, u, velocity, acceleration, drive: TaskDrive):
     gp = g * p
     return ([gp * value for value in e],
             [rate * value + gp * change for value, change in zip(e, de, strict=True)])
-
-
-def _clip_hessian(value: float) -> float:
-    return -MAX_TASK_HESSIAN if value < -MAX_TASK_HESSIAN else min(value, MAX_TASK_HESSIAN)
 
 
 def _radial_slopes(radii, drive: TaskDrive) -> np.ndarray:
@@ -688,9 +559,8 @@ class PotentialAlongPath:
 
 
 class TaskDrives:
-    """The task drives of a controller (adaptive_law.AdaptiveController, arm_law.ArmController
-    derive from it): one TaskDrive per task shape and gain, the pull limit of
-    limit_pull_speed, and the task's share of V.
+    """The task drives of a controller (arm_law.ArmController derives from it): one TaskDrive
+    per task shape and gain, the pull limit of limit_pull_speed, and the task's share of V.
 
     gains: the controller's gains (task_gain, max_task_speed, approach_speed, region_margin,
     rest_gain, rest_gate, kp; gains_drive); reach (m): the arm's, for the default gain and the
@@ -796,142 +666,49 @@ def _radial_integrals(drive: TaskDrive, start: np.ndarray, end: np.ndarray) -> n
     return np.sum(half[:, :, None] * _GAUSS_WEIGHTS[None, None, :] * slopes, axis=(1, 2))
 
 
-def _gram_damping(gram: np.ndarray, settings: DampingSettings) -> tuple[float, float]:
-    """(lambda^2, d(lambda^2)/d(w^2)) from the Gram matrix J J^T (2, 2)."""
-    w2 = gram[0, 0] * gram[1, 1] - gram[0, 1] * gram[1, 0]
-    threshold2 = settings.threshold ** 2
-    ratio = w2 / threshold2
-    if ratio >= 1.0:
-        return 0.0, 0.0
-    lam2 = settings.max_damping ** 2
-    return lam2 * (1.0 - ratio) ** 2, -2.0 * lam2 * (1.0 - ratio) / threshold2
+def _adjugate(gram: np.ndarray) -> np.ndarray:
+    """The adjugate of a symmetric k x k matrix, k = 2 or 3 (adj(G) G = det(G) I)."""
+    if gram.shape == (2, 2):
+        (g00, g01), (_, g11) = gram.tolist()
+        return np.array([[g11, -g01], [-g01, g00]])
+    if gram.shape == (3, 3):
+        (g00, g01, g02), (_, g11, g12), (_, _, g22) = gram.tolist()
+        c00, c01, c02 = g11 * g22 - g12 * g12, g02 * g12 - g01 * g22, g01 * g12 - g02 * g11
+        c11, c12, c22 = g00 * g22 - g02 * g02, g01 * g02 - g00 * g12, g00 * g11 - g01 * g01
+        return np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
+    raise ValueError(f'the damped pseudo-inverse takes a 2- or 3-row Jacobian, got {gram.shape}')
 
 
-def _inverse_2x2(matrix: np.ndarray) -> np.ndarray:
-    det = matrix[0, 0] * matrix[1, 1] - matrix[0, 1] * matrix[1, 0]
+def damped_pseudo_inverse(jac, rate, threshold2: float, max_damping2: float):
+    """Damped least squares, the one home of J+ (eq. 14) and its exact rate (eq. 18).
+
+    jac J (k, n) m/rad and rate dJ/dt (k, n), k = 2 or 3 task axes; threshold2 w0^2 (m^4 for
+    k = 2, m^6 for k = 3); max_damping2 lambda_max^2. With G = J J^T and w^2 = det(G):
+
+        lambda^2 = lambda_max^2 (1 - w^2 / w0^2)^2 below w0, 0 above (C1 across w0),
+        J+ = J^T (G + lambda^2 I)^-1,
+        dJ+/dt = (Jdot^T - J+ dA/dt) A^-1, A = G + lambda^2 I,
+        dA/dt = Jdot J^T + J Jdot^T + d(lambda^2)/dt I, d det(G)/dt = tr(adj(G) dG/dt).
+
+    Returns (J+ (n, k) rad/m, dJ+/dt (n, k), lambda^2). J+ is the exact inverse of a square
+    J with w >= w0 (eq. 22 then holds unchanged). Raises ValueError where A has no inverse
+    (a singular J and max_damping = 0). The numpy reference of arm_kernels'."""
+    gram = jac @ jac.T
+    gram_rate = rate @ jac.T
+    gram_rate = gram_rate + gram_rate.T
+    adjugate = _adjugate(gram)
+    ratio = float(np.sum(gram[0] * adjugate[0])) / threshold2
+    lam2 = lam2_rate = 0.0
+    if ratio < 1.0:
+        lam2 = max_damping2 * (1.0 - ratio) ** 2
+        lam2_rate = (-2.0 * max_damping2 * (1.0 - ratio) * float(np.sum(adjugate * gram_rate))
+                     / threshold2)
+        gram = gram + lam2 * np.eye(gram.shape[0])
+        adjugate = _adjugate(gram)
+    det = float(np.sum(gram[0] * adjugate[0]))
     if abs(det) <= 1e-300:
         raise ValueError('singular Jacobian and no damping (max_damping = 0)')
-    return np.array([[matrix[1, 1], -matrix[0, 1]], [-matrix[1, 0], matrix[0, 0]]]) / det
-
-
-def _checked_jacobian(jac) -> np.ndarray:
-    jac = np.asarray(jac, dtype=float)
-    if jac.ndim != 2 or jac.shape[0] != 2 or not np.all(np.isfinite(jac)):
-        raise ValueError(f'jacobian must be a finite (2, n) array, got {jac}')
-    return jac
-
-
-def pseudo_inverse_damping(jac, settings: DampingSettings) -> tuple[float, float]:
-    """Damping lambda^2 of the pseudo-inverse and d(lambda^2)/d(w^2), w^2 = det(J J^T).
-
-    jac (2, n) in m/rad. lambda^2 = lambda_max^2 (1 - w^2/w0^2)^2 below w0, 0 above
-    (C1 across w0). Returns (lambda^2 in m^2/rad^2, d(lambda^2)/d(w^2) in rad^2/m^2).
-    """
-    jac = _checked_jacobian(jac)
-    return _gram_damping(jac @ jac.T, settings)
-
-
-def damped_pseudo_inverse(jac, settings: DampingSettings) -> tuple[np.ndarray, float]:
-    """Damped pseudo-inverse J+ = J^T (J J^T + lambda^2 I)^-1 of eq. 14.
-
-    jac (2, n) in m/rad. Returns (J+ of shape (n, 2) in rad/m, lambda^2 in m^2/rad^2). Equal to
-    the exact inverse for a square J with w >= threshold. Raises ValueError for a non-finite J
-    or a singular J with max_damping = 0.
-    """
-    jac = _checked_jacobian(jac)
-    gram = jac @ jac.T
-    lam2, _ = _gram_damping(gram, settings)
-    return jac.T @ _inverse_2x2(gram + lam2 * np.eye(2)), lam2
-
-
-def damped_pseudo_inverse_derivative(jac, jac_dot, settings: DampingSettings) -> np.ndarray:
-    """Exact time derivative dJ+/dt of the damped pseudo-inverse (rad/(m s)), shape (n, 2).
-
-    With A = J J^T + lambda^2 I: dJ+/dt = Jdot^T A^-1 - J^T A^-1 Adot A^-1, where
-    Adot = Jdot J^T + J Jdot^T + d(lambda^2)/dt I and d(lambda^2)/dt = d(lambda^2)/d(w^2)
-    tr(adj(J J^T) (Jdot J^T + J Jdot^T)). jac, jac_dot (2, n): J (m/rad), dJ/dt (m/(rad s)).
-    """
-    return _pseudo_inverse_and_derivative(jac, jac_dot, settings)[2]
-
-
-def _pseudo_inverse_and_derivative(jac, jac_dot, settings: DampingSettings):
-    """(J+, lambda^2, dJ+/dt) in one pass (see damped_pseudo_inverse_derivative)."""
-    jac = _checked_jacobian(jac)
-    jac_dot = np.asarray(jac_dot, dtype=float)
-    if jac_dot.shape != jac.shape or not np.all(np.isfinite(jac_dot)):
-        raise ValueError(f'jacobian derivative must be finite with shape {jac.shape}')
-    gram = jac @ jac.T
-    lam2, dlam2_dw2 = _gram_damping(gram, settings)
-    a_inv = _inverse_2x2(gram + lam2 * np.eye(2))
-    pinv = jac.T @ a_inv
-    gram_dot = jac_dot @ jac.T + jac @ jac_dot.T
-    # d det(G)/dt = tr(adj(G) dG/dt) for a 2 x 2 G.
-    w2_dot = (gram[1, 1] * gram_dot[0, 0] + gram[0, 0] * gram_dot[1, 1]
-              - gram[0, 1] * gram_dot[1, 0] - gram[1, 0] * gram_dot[0, 1])
-    a_dot = gram_dot + (dlam2_dw2 * w2_dot) * np.eye(2)
-    return pinv, lam2, jac_dot.T @ a_inv - pinv @ a_dot @ a_inv
-
-
-def joint_velocity_reference(q, dq, x_d, xdot_d, xddot_d, weight: float, weight_rate: float,
-                             drive: TaskDrive | None, l1: float, l2: float,
-                             damping: DampingSettings = DampingSettings(),
-                             rest=None) -> JointReference:
-    """qdot_r of eq. 14 and its exact time derivative qddot_r (eq. 18), module docstring.
-
-    q, dq (2,): joint positions (rad) and velocities (rad/s); x_d, xdot_d, xddot_d (2,): the
-    target (centre of the desired region) in m, m/s, m/s^2; weight a(E, t) in [0, 1] and
-    weight_rate da/dt (1/s) from event_weight; drive: the active task's TaskDrive, or None
-    (no task: the reference only follows xdot_d); l1, l2 link lengths (m); damping of J+;
-    rest (2,) m: x_rest of an avoid task (None: the current position, no return).
-    Raises ValueError for non-finite inputs or a weight outside [0, 1].
-    """
-    q, dq = planar_vector(q, 'q'), planar_vector(dq, 'dq')
-    x_d, xdot_d = planar_vector(x_d, 'x_d', 'm'), planar_vector(xdot_d, 'xdot_d', 'm/s')
-    xddot_d = planar_vector(xddot_d, 'xddot_d', 'm/s^2')
-    if not (math.isfinite(weight) and 0.0 <= weight <= 1.0):
-        raise ValueError(f'weight a(E, t) must be in [0, 1], got {weight}')
-    if not math.isfinite(weight_rate):
-        raise ValueError(f'weight_rate must be finite, got {weight_rate}')
-    jac = jacobian(q, l1, l2)
-    jac_dot = jacobian_derivative(q, dq, l1, l2)
-    pinv, lam2, pinv_dot = _pseudo_inverse_and_derivative(jac, jac_dot, damping)
-    x = forward_kinematics(q, l1, l2)
-    rest = x if rest is None else planar_vector(rest, 'rest', 'm')
-    dx = x - x_d
-    distance = float(math.hypot(dx[0], dx[1]))
-    feed, feed_rate = 1.0, 0.0
-    if drive is None:
-        task = None
-        weighted = weighted_dot = returning = returning_dot = np.zeros(2)
-    else:
-        task = task_variable(dx, drive)
-        velocity = jac @ dq
-        relative_velocity = velocity - xdot_d
-        # Products written out as adaptive_law.step_lean does, so the two agree to rounding
-        # (the Hessian reaches MAX_TASK_HESSIAN).
-        u1, u2 = float(relative_velocity[0]), float(relative_velocity[1])
-        xv1, xv2 = float(velocity[0]), float(velocity[1])
-        (h11, h12), (_, h22) = task.hessian.tolist()
-        weighted = weight * task.gradient
-        weighted_dot = weight_rate * task.gradient + weight * np.array(
-            [h11 * u1 + h12 * u2, h12 * u1 + h22 * u2])
-        v1, v2, c1, c2, gw1, gw2, b11, b12, b22 = rest_term(
-            float(dx[0]), float(dx[1]), float(x[0] - rest[0]), float(x[1] - rest[1]), drive)
-        rest_velocity = np.array([v1, v2])
-        along = gw1 * u1 + gw2 * u2
-        rest_rate = np.array([c1 * along + (b11 * xv1 + b12 * xv2),
-                              c2 * along + (b12 * xv1 + b22 * xv2)])
-        returning = weight * rest_velocity
-        returning_dot = weight_rate * rest_velocity + weight * rest_rate
-        if drive.open_outward:
-            feed, feed_rate = 1.0 - weight, -weight_rate
-    v_r = feed * xdot_d - weighted + returning
-    v_r_dot = feed * xddot_d + feed_rate * xdot_d - weighted_dot + returning_dot
-    qdot_r = pinv @ v_r
-    qddot_r = pinv_dot @ v_r + pinv @ v_r_dot
-    return JointReference(
-        qdot_r=qdot_r, qddot_r=qddot_r, position=x, dx=dx, distance=distance,
-        task_velocity=returning - weighted, weighted_task_variable=weighted, jacobian=jac,
-        pinv=pinv, damping=lam2, task=task, pinv_rate=pinv_dot, feed_forward=feed * xdot_d,
-        feed_forward_rate=feed * xddot_d + feed_rate * xdot_d,
-        task_rate=returning_dot - weighted_dot)
+    inverse = adjugate / det
+    pinv = jac.T @ inverse
+    pinv_rate = (rate.T - pinv @ (gram_rate + lam2_rate * np.eye(gram.shape[0]))) @ inverse
+    return pinv, pinv_rate, lam2

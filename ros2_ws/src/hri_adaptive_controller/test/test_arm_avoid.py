@@ -15,14 +15,9 @@ from hri_adaptive_controller.arm_law import (
 from hri_adaptive_controller.controller_node import rest_position_from
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import ReachRoundN
-from hri_adaptive_controller.task_variable import (
-    rest_term,
-    rest_term_n,
-    retreat_term,
-    retreat_term_n,
-)
+from hri_adaptive_controller.task_variable import rest_term_n, retreat_term_n
 from hri_core.potential import TaskShape
-from hri_core.robot_model import robot_model
+from hri_core.robot_model import ScaraModel, robot_model
 
 AVOID = TaskShape(1, 0.056, 25.46, 0.183, 2.0)  # Table I's rows
 FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)
@@ -155,37 +150,34 @@ def test_the_monitor_predicts_dv_dt_while_a_hand_pushes_into_an_avoid_task(panda
     assert error <= 0.02 * scale, (error, scale)
 
 
-def test_rest_position_takes_2_values_for_the_scara_and_3_for_an_arm():
-    assert rest_position_from({'rest_position': None}, 'panda') is None
-    assert rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, 'panda') == (0.3, 0.1, 0.5)
-    assert rest_position_from({'rest_position': [0.35, 0.3]}, None) == (0.35, 0.3)
+def test_rest_position_takes_2_values_for_the_scara_and_3_for_an_arm(panda):
+    scara = ScaraModel()
+    assert rest_position_from({'rest_position': None}, panda) is None
+    assert rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, panda) == (0.3, 0.1, 0.5)
+    assert rest_position_from({'rest_position': [0.35, 0.3]}, scara) == (0.35, 0.3)
     with pytest.raises(ValueError, match=r'must have 3 values \[x, y, z\] \(m\) for panda, '
                        'got 2'):
-        rest_position_from({'rest_position': [0.35, 0.3]}, 'panda')
-    with pytest.raises(ValueError, match=r'must have 2 values \[x, y\] \(m\) for the SCARA'):
-        rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, None)
+        rest_position_from({'rest_position': [0.35, 0.3]}, panda)
+    with pytest.raises(ValueError, match=r'must have 2 values \[x, y\] \(m\) for scara'):
+        rest_position_from({'rest_position': [0.3, 0.1, 0.5]}, scara)
 
-def test_the_n_dimensional_rest_and_retreat_terms_are_the_planar_ones_in_the_plane(panda):
+
+def test_the_rest_and_retreat_terms_in_3d_are_the_planar_ones_in_the_plane(panda):
     rng = np.random.default_rng(16)
     drive = ArmController(panda, PANDA_GAINS).drive(AVOID)
     active = 0
     for _ in range(300):
-        dx, y, u, xdot, velocity, acceleration = (rng.uniform(-0.3, 0.3, 2) for _ in range(6))
-        lift = [np.array([*v, 0.0]).tolist() for v in (dx, y, u, xdot, velocity,
-                                                        acceleration)]
-        v1, v2, c1, c2, gw1, gw2, b11, b12, b22 = rest_term(*dx, *y, drive)
-        rate = np.array([c1, c2]) * float(np.array([gw1, gw2]) @ u) + np.array(
-            [[b11, b12], [b12, b22]]) @ xdot
-        rest = rest_term_n(*lift[:4], drive)
-        if rest is None:
-            assert (v1, v2) == (0.0, 0.0) and not np.any(rate)
-        else:
-            np.testing.assert_allclose(rest, [[v1, v2, 0.0], [*rate, 0.0]], atol=1e-12)
-        e1, e2, de1, de2 = retreat_term(*dx, *u, *velocity, *acceleration, drive)
-        retreat = retreat_term_n(lift[0], lift[2], *lift[4:], drive)
-        if retreat is None:
-            assert (e1, e2, de1, de2) == (0.0,) * 4
-        else:
-            np.testing.assert_allclose(retreat, [[e1, e2, 0.0], [de1, de2, 0.0]], atol=1e-12)
-        active += rest is not None and retreat is not None
+        vectors = [rng.uniform(-0.3, 0.3, 2) for _ in range(6)]
+        planar = [v.tolist() for v in vectors]
+        lift = [np.array([*v, 0.0]).tolist() for v in vectors]
+        for terms in ((rest_term_n(*planar[:4], drive), rest_term_n(*lift[:4], drive)),
+                      (retreat_term_n(planar[0], planar[2], *planar[4:], drive),
+                       retreat_term_n(lift[0], lift[2], *lift[4:], drive))):
+            flat, spatial = terms
+            assert (flat is None) == (spatial is None)
+            if flat is not None:
+                np.testing.assert_allclose(spatial, [[*flat[0], 0.0], [*flat[1], 0.0]],
+                                           atol=1e-12)
+        active += rest_term_n(*lift[:4], drive) is not None and retreat_term_n(
+            lift[0], lift[2], *lift[4:], drive) is not None
     assert active >= 10  # both terms were compared where they act

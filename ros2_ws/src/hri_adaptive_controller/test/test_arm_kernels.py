@@ -1,6 +1,7 @@
-"""Unit tests of arm_kernels: the n-joint law's compiled arithmetic gives arm_law's numpy
-results (the reference, `ArmController(..., compiled=False)`) to rounding, in the usual case,
-within the barrier bands, through the reach-round blend and in a closed loop."""
+"""Unit tests of arm_kernels: the law's compiled arithmetic gives arm_law's numpy results (the
+reference, `ArmController(..., compiled=False)`) to rounding, on the SCARA's two task axes and
+the Panda's three, in the usual case, within the barrier bands, through the reach-round blend
+and in a closed loop."""
 
 import dataclasses
 import math
@@ -18,7 +19,7 @@ from hri_adaptive_controller.arm_law import (
     default_arm_ks,
     rk4_step,
 )
-from hri_adaptive_controller.task_variable import SECH_LIMIT, speed_cap
+from hri_adaptive_controller.task_variable import SECH_LIMIT, damped_pseudo_inverse, speed_cap
 from hri_core.potential import TaskShape
 from hri_core.robot_model import robot_model
 
@@ -53,6 +54,11 @@ def panda():
     return robot_model('panda')
 
 
+@pytest.fixture(scope='module', params=['scara', 'panda'])
+def arm(request, panda):
+    return panda if request.param == 'panda' else robot_model('scara')
+
+
 def close(compiled, reference, what):
     """compiled equals reference within rounding: 1e-10 of the reference's scale."""
     compiled, reference = np.asarray(compiled, float), np.asarray(reference, float)
@@ -75,10 +81,11 @@ def random_states(model, rng, count):
     for _ in range(count):
         q = rng.uniform(model.limits.lower + 0.01, model.limits.upper - 0.01)
         dq = rng.normal(0.0, 0.8, model.dof)
-        offset = rng.normal(size=3)
+        axes = model.task_axes
+        offset = rng.normal(size=axes)
         offset *= rng.uniform(0.0, 1.5) / np.linalg.norm(offset)
-        hand = HandState(model.tool_position(q) + offset, rng.normal(0.0, 0.3, 3),
-                         rng.normal(0.0, 1.0, 3))
+        hand = HandState(model.task_kinematics(q, dq)[0] + offset, rng.normal(0.0, 0.3, axes),
+                         rng.normal(0.0, 1.0, axes))
         shape = shapes[rng.integers(len(shapes))]
         task = None if shape is None else ActiveTask(shape, float(rng.uniform()),
                                                      float(rng.normal()), 0.0)
@@ -96,20 +103,22 @@ def test_speed_cap_is_task_variables(panda):
 
 
 @pytest.mark.parametrize('max_damping', [0.05, 0.0])
-def test_the_pseudo_inverse_is_the_numpy_one_near_and_far_from_singular(panda, max_damping):
-    gains = dataclasses.replace(
-        PANDA_GAINS, damping=dataclasses.replace(PANDA_GAINS.damping, max_damping=max_damping))
-    reference = ArmController(panda, gains, compiled=False)
+def test_the_pseudo_inverse_is_the_numpy_one_near_and_far_from_singular(arm, max_damping):
+    gains = ArmController(arm).gains
+    threshold2 = gains.damping.threshold ** 2
     rng = np.random.default_rng(3)
-    stretched = panda.home.copy()
-    stretched[1], stretched[3] = 0.0, -0.07  # near the elbow's singularity: damped
+    stretched = arm.home.copy()
+    if arm.dof == 7:
+        stretched[1], stretched[3] = 0.0, -0.07  # near the elbow's singularity: damped
+    else:
+        stretched[1] = 0.05  # the SCARA nearly stretched out
     damped = 0
-    for q in [stretched, *rng.uniform(panda.limits.lower, panda.limits.upper, (200, 7))]:
-        _, jac, rate = reference._kinematics(q, rng.normal(0.0, 1.0, 7))
+    for q in [stretched, *rng.uniform(arm.limits.lower, arm.limits.upper, (200, arm.dof))]:
+        _, jac, rate = arm.task_kinematics(q, rng.normal(0.0, 1.0, arm.dof))
         pinv, pinv_rate, lam2, singular = arm_kernels.damped_pseudo_inverse(
-            jac, rate, reference._threshold2, reference._max_damping2)
+            jac, rate, threshold2, max_damping ** 2)
         assert not singular
-        expected = reference._pseudo_inverse(jac, rate)
+        expected = damped_pseudo_inverse(jac, rate, threshold2, max_damping ** 2)
         close(pinv, expected[0], 'J+')
         close(pinv_rate, expected[1], 'dJ+/dt')
         assert lam2 == pytest.approx(expected[2], rel=1e-12, abs=1e-300)
@@ -117,29 +126,53 @@ def test_the_pseudo_inverse_is_the_numpy_one_near_and_far_from_singular(panda, m
     assert damped >= 1 or max_damping == 0.0
 
 
-def test_a_singular_jacobian_without_damping_is_a_fault(panda, monkeypatch):
+def test_the_pseudo_inverse_rate_is_its_time_derivative(arm):
+    """dJ+/dt against a central difference of J+ along q + t dq, damped and not."""
+    gains = ArmController(arm).gains
+    threshold2, damping2 = gains.damping.threshold ** 2, gains.damping.max_damping ** 2
+    rng = np.random.default_rng(8)
+    h = 1e-6
+    damped = 0
+    for q in rng.uniform(arm.limits.lower, arm.limits.upper, (200, arm.dof)):
+        dq = rng.normal(0.0, 1.0, arm.dof)
+        _, jac, rate = arm.task_kinematics(q, dq)
+        pinv, pinv_rate, lam2 = damped_pseudo_inverse(jac, rate, threshold2, damping2)
+        ahead = damped_pseudo_inverse(*arm.task_kinematics(q + h * dq, dq)[1:], threshold2,
+                                      damping2)[0]
+        behind = damped_pseudo_inverse(*arm.task_kinematics(q - h * dq, dq)[1:], threshold2,
+                                       damping2)[0]
+        np.testing.assert_allclose(pinv_rate, (ahead - behind) / (2 * h), rtol=1e-5,
+                                   atol=1e-6 * max(1.0, float(np.abs(pinv_rate).max())))
+        damped += lam2 > 0.0
+    assert damped >= 1  # the damping's own rate took part
+
+
+def test_a_singular_jacobian_without_damping_is_a_fault(arm, monkeypatch):
     gains = dataclasses.replace(
-        PANDA_GAINS, damping=dataclasses.replace(PANDA_GAINS.damping, max_damping=0.0))
-    jac = np.zeros((3, 7))
+        ArmController(arm).gains,
+        damping=dataclasses.replace(ArmController(arm).gains.damping, max_damping=0.0))
+    axes, n = arm.task_axes, arm.dof
+    jac = np.zeros((axes, n))
     jac[0, 0] = 1.0  # rank 1: J J^T has no inverse and nothing damps it
-    *_, singular = arm_kernels.damped_pseudo_inverse(jac, np.zeros((3, 7)), 1e-4, 0.0)
+    *_, singular = arm_kernels.damped_pseudo_inverse(jac, np.zeros((axes, n)), 1e-4, 0.0)
     assert singular
-    hand = HandState(np.zeros(3), np.zeros(3), np.zeros(3))
+    hand = HandState(np.zeros(axes), np.zeros(axes), np.zeros(axes))
     for compiled in (True, False):
-        controller = ArmController(panda, gains, compiled=compiled)
-        monkeypatch.setattr(controller, '_kinematics',
-                            lambda q, dq: (np.ones(3), jac, np.zeros((3, 7))))
-        out = controller.command(panda.home, np.zeros(7), hand, ActiveTask(FOLLOW, 1.0), DT)
+        controller = ArmController(arm, gains, compiled=compiled)
+        monkeypatch.setattr(arm, 'task_kinematics',
+                            lambda q, dq: (np.ones(axes), jac, np.zeros((axes, n))))
+        out = controller.command(arm.home, np.zeros(n), hand, ActiveTask(FOLLOW, 1.0), DT)
+        monkeypatch.undo()
         assert out.fault and 'singular Jacobian' in out.fault_reason
         assert np.all(out.tau == 0.0)
 
 
-def test_commands_equal_numpys_on_random_states(panda):
+def test_commands_equal_numpys_on_random_states(arm):
     rng = np.random.default_rng(0)
-    compiled = ArmController(panda, PANDA_GAINS, theta_hat0=0.7 * panda.theta)
-    reference = ArmController(panda, PANDA_GAINS, theta_hat0=0.7 * panda.theta, compiled=False)
+    compiled = ArmController(arm, theta_hat0=0.7 * arm.theta)
+    reference = ArmController(arm, theta_hat0=0.7 * arm.theta, compiled=False)
     seen = {'near': 0, 'blend': 0, 'limited': 0}
-    for q, dq, hand, task in random_states(panda, rng, 600):
+    for q, dq, hand, task in random_states(arm, rng, 600):
         # Both stateful parts (the reach-round and the hand filter) see the same sequence.
         out = compiled.step(q, dq, hand, task, DT)
         expected = reference.step(q, dq, hand, task, DT)
@@ -152,13 +185,17 @@ def test_commands_equal_numpys_on_random_states(panda):
 
 
 @pytest.mark.parametrize(('arm', 'hand_at'), [('panda', (-0.3, 0.0, 0.2)),
-                                              ('ur5', (0.0, 0.0, 1.3))])
+                                              ('ur5', (0.0, 0.0, 1.3)),
+                                              ('scara', (-0.3, -0.15))])
 def test_a_closed_loop_follows_the_same_path_compiled(panda, arm, hand_at):
-    # The hand low behind the Panda's base (its joints reach their barrier bands) or above
-    # the UR5, out of reach: the reach-round blends in, the null space acts, and the two laws
-    # drive the same arm along the same path.
+    # The hand low behind the Panda's base (its joints reach their barrier bands), above
+    # the UR5, out of reach, or across the SCARA's base: the reach-round blends in, the null
+    # space acts, and the two laws drive the same arm along the same path.
     if arm == 'panda':
         model, gains = panda, PANDA_GAINS
+    elif arm == 'scara':
+        model = robot_model('scara')
+        gains = ArmController(model).gains
     else:
         path = metadata.distribution('example-robot-data').locate_file(
             'cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf')
@@ -167,7 +204,8 @@ def test_a_closed_loop_follows_the_same_path_compiled(panda, arm, hand_at):
     laws = [ArmController(model, gains, theta_hat0=0.7 * model.theta, compiled=flag)
             for flag in (True, False)]
     states = [(model.home.copy(), np.zeros(model.dof)) for _ in laws]
-    hand = HandState(np.array(hand_at), np.zeros(3), np.zeros(3))
+    axes = model.task_axes
+    hand = HandState(np.array(hand_at), np.zeros(axes), np.zeros(axes))
     blended = near = 0
     for i in range(1500):
         task = ActiveTask(FOLLOW, min(1.0, i / 300))

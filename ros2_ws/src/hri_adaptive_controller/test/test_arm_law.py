@@ -1,5 +1,6 @@
-"""Unit tests of arm_law: the n-joint adaptive law in 3-D, closed with the Panda's own
-forward dynamics (RK4 at 1 kHz, a perturbed 'true' arm, theta_hat from a wrong start)."""
+"""Unit tests of arm_law, the one adaptive law for every arm: the Panda in 3-D closed with its
+own forward dynamics (RK4 at 1 kHz, a perturbed 'true' arm, theta_hat from a wrong start), and
+what the law does alike on the SCARA's two task axes (test_closed_loop runs the SCARA)."""
 
 import dataclasses
 import math
@@ -11,27 +12,25 @@ import pytest
 from hri_adaptive_controller.arm_law import (
     KS_RATE,
     PANDA_GAINS,
+    SCARA_GAINS,
     ActiveTask,
     ArmController,
     ArmGains,
     HandState,
-    barrier_energy_n,
-    barrier_n,
     default_arm_ks,
-    gate_feed_forward_n,
+    default_gains,
     rk4_step,
-    task_term_3d,
+    task_term,
 )
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import (
-    JointLimits,
     ReachRoundSettings,
     _JointBlend,
     barrier,
     barrier_energy,
     gate_feed_forward,
 )
-from hri_adaptive_controller.task_variable import RETREAT_REACH, task_potential, task_term
+from hri_adaptive_controller.task_variable import RETREAT_REACH, task_potential
 from hri_core.potential import TaskShape
 from hri_core.robot_model import ScaraModel, robot_model
 
@@ -140,35 +139,50 @@ def test_null_space_motion_leaves_the_tool_velocity_unchanged(panda):
     assert checked >= 10
 
 
-def test_barrier_and_gate_equal_the_scaras_for_two_joints():
+def test_barrier_gradient_rate_and_energy_are_exact_on_both_arms(panda):
+    """g = dB/dq and its rate (the diagonal Hessian times qdot) by central differences of B,
+    on random states in and near every joint's band, the SCARA's (band 0.1 rad) and the
+    Panda's (0.15 rad)."""
     rng = np.random.default_rng(4)
-    limits = JointLimits()
-    lower, upper = np.array(limits.lower), np.array(limits.upper)
-    for _ in range(200):
-        q = rng.uniform(lower - 0.05, upper + 0.05)
-        dq, v, rate = (rng.uniform(-1.0, 1.0, 2) for _ in range(3))
-        g, gd, near = barrier_n(q, dq, lower, upper, limits.band, limits.barrier_torque)
-        g1, g2, gd1, gd2, near2 = barrier(*q, *dq, limits)
-        np.testing.assert_allclose(np.concatenate([g, gd, [near]]),
-                                   [g1, g2, gd1, gd2, near2], atol=1e-12)
-        assert barrier_energy_n(q, lower, upper, limits.band, limits.barrier_torque) == \
-            pytest.approx(barrier_energy(*q, limits), abs=1e-12)
-        gated, gated_rate = gate_feed_forward_n(q, dq, v, rate, lower, upper, limits.band)
-        np.testing.assert_allclose(np.concatenate([gated, gated_rate]),
-                                   gate_feed_forward(*q, *dq, *v, *rate, limits), atol=1e-12)
+    h = 1e-7
+    for model, band in ((ScaraModel(), 0.1), (panda, 0.15)):
+        lower, upper = model.limits.lower, model.limits.upper
+        for _ in range(100):
+            q = np.where(rng.random(model.dof) < 0.5, rng.uniform(lower, lower + 1.2 * band),
+                         rng.uniform(upper - 1.2 * band, upper))
+            dq = rng.uniform(-1.0, 1.0, model.dof)
+            g, gd, near = barrier(q, dq, lower, upper, band, 3.0)
+            numeric = np.array([(barrier_energy(q + h * e, lower, upper, band, 3.0)
+                                 - barrier_energy(q - h * e, lower, upper, band, 3.0)) / (2 * h)
+                                for e in np.eye(model.dof)])
+            np.testing.assert_allclose(g, numeric, atol=1e-6)
+            ahead = barrier(q + h * dq, dq, lower, upper, band, 3.0)[0]
+            behind = barrier(q - h * dq, dq, lower, upper, band, 3.0)[0]
+            np.testing.assert_allclose(gd, (ahead - behind) / (2 * h), atol=1e-5)
+            assert 0.0 <= near <= 1.0 and (near > 0.0) == bool(np.any(g))
 
 
-def test_task_term_in_3d_is_the_planar_one_in_the_plane():
+def test_the_gate_stops_feed_forward_into_a_limit_only():
+    lower, upper = ScaraModel().limits.lower, ScaraModel().limits.upper
+    q = np.array([upper[0] - 0.01, 0.0])  # joint 1 deep in its upper band
+    towards, rate = gate_feed_forward(q, np.zeros(2), np.array([0.5, 0.5]), np.zeros(2), lower,
+                                      upper, 0.1)
+    assert abs(towards[0]) < 0.1 * 0.5 and towards[1] == 0.5
+    away, _ = gate_feed_forward(q, np.zeros(2), np.array([-0.5, 0.5]), np.zeros(2), lower,
+                                upper, 0.1)
+    np.testing.assert_allclose(away, [-0.5, 0.5])
+
+
+def test_the_task_term_on_two_axes_is_the_one_in_3d_in_the_plane():
     rng = np.random.default_rng(5)
     controller = ArmController(robot_model('panda'), PANDA_GAINS)
     drive = controller.drive(FOLLOW)
     for _ in range(50):
         dx = rng.uniform(-0.4, 0.4, 2)
-        slope, hessian = task_term_3d(np.array([*dx, 0.0]), drive)
-        g1, g2, h11, h12, h22 = task_term(*dx, drive)
-        np.testing.assert_allclose(slope, [g1, g2, 0.0], atol=1e-12)
-        np.testing.assert_allclose(hessian[:2, :2], [[h11, h12], [h12, h22]], rtol=1e-9,
-                                   atol=1e-12)
+        slope, hessian = task_term(np.array([*dx, 0.0]), drive)
+        planar_slope, planar_hessian = task_term(dx, drive)
+        np.testing.assert_allclose(slope, [*planar_slope, 0.0], atol=1e-12)
+        np.testing.assert_allclose(hessian[:2, :2], planar_hessian, rtol=1e-9, atol=1e-12)
 
 
 def test_a_non_finite_state_gives_zero_torque_and_a_fault(panda):
@@ -182,15 +196,22 @@ def test_a_non_finite_state_gives_zero_torque_and_a_fault(panda):
     np.testing.assert_array_equal(controller.theta_hat, theta)
 
 
-def test_bad_gains_and_models_are_refused(panda):
+def test_bad_gains_and_models_are_refused(panda, tmp_path):
+    scara_urdf_file = tmp_path / 'scara.urdf'  # the SCARA as a URDF arm: 3-D, 2 joints
+    scara_urdf_file.write_text(ScaraModel().urdf)
     with pytest.raises(ValueError, match='ks must have 7 values'):
         ArmController(panda, dataclasses.replace(PANDA_GAINS, ks=(1.0, 1.0)))
-    with pytest.raises(ValueError, match='adaptation must be 11'):
-        dataclasses.replace(PANDA_GAINS, adaptation=(1.0,))
+    with pytest.raises(ValueError, match='panda takes 11 adaptation rates'):
+        ArmController(panda, dataclasses.replace(PANDA_GAINS, adaptation=(1.0,)))
+    with pytest.raises(ValueError, match='scara takes 7 adaptation rates'):
+        ArmController(ScaraModel(), ArmGains(ks=(1.0, 1.0), kp=1.0, adaptation=(0.0,) * 11))
+    with pytest.raises(ValueError, match='adaptation must be finite values >= 0'):
+        dataclasses.replace(PANDA_GAINS, adaptation=(-1.0,) * 11)
     with pytest.raises(ValueError, match='effort_scale must be <= 1'):
         dataclasses.replace(PANDA_GAINS, effort_scale=1.5)
-    with pytest.raises(ValueError, match='needs at least 3'):
-        ArmController(ScaraModel(), ArmGains(ks=(1.0, 1.0), kp=1.0, adaptation=(0.0,) * 11))
+    with pytest.raises(ValueError, match='on 3 task axes needs at least 3'):
+        ArmController(robot_model(urdf_file=scara_urdf_file, tool_frame='tip'),
+                      ArmGains(ks=(1.0, 1.0), kp=1.0, adaptation=(0.0,) * 11))
     with pytest.raises(ValueError, match='theta_hat0 must be 77'):
         ArmController(panda, PANDA_GAINS, theta_hat0=np.zeros(3))
 
@@ -232,32 +253,49 @@ def test_avoid_backs_away_from_a_hand_reaching_in_along_z(panda):
     assert max(steps) <= 1.0, max(steps)
 
 
-def test_the_node_picks_the_law_by_robot(panda):
-    from hri_adaptive_controller.controller_node import arm_gains_from, arm_model_from
+def test_the_node_builds_every_arm_through_one_model_and_its_gains(panda):
+    from hri_adaptive_controller.controller_node import gains_from, initial_estimate, model_from
 
-    values = {'robot': 'scara', 'urdf_file': '', 'tool_frame': '', 'arm_ks': None,
-              'arm_adaptation_gain': None, 'kp': 10.0, 'approach_speed': 0.1,
-              'region_margin': 0.02, 'max_task_speed': 0.25, 'rest_gain': 2.0,
-              'rest_gate': 0.03, 'max_effort_rate': 1000.0, 'joint_limit_band': 0.15,
-              'barrier_torque': 3.0, 'reach_round': True, 'rest_position': None}
-    assert arm_model_from(values) is None  # the SCARA keeps adaptive_law's fast path
-    with pytest.raises(ValueError, match='home_position is for an arm of 3 or more joints'):
-        arm_model_from({**values, 'home_position': [0.0, 1.0]})
+    values = {'robot': 'scara', 'urdf_file': '', 'tool_frame': '', 'ks': None,
+              'adaptation_gain': None, 'theta_hat0': None, 'kp': 10.0,
+              'approach_speed': 0.1, 'region_margin': 0.02, 'max_task_speed': 0.25,
+              'rest_gain': 2.0, 'rest_gate': 0.03, 'max_effort_rate': 1000.0,
+              'effort_limit': 0.0, 'joint_limit_band': 0.1, 'barrier_torque': 3.0,
+              'reach_round': True, 'rest_position': None}
+    scara = model_from(values)
+    assert scara.task_axes == 2 and gains_from(values, scara) == SCARA_GAINS
+    np.testing.assert_allclose(initial_estimate(values, scara, SCARA_GAINS), 0.6 * scara.theta)
+    with pytest.raises(ValueError, match=r'home_position must have shape \(2,\)'):
+        model_from({**values, 'home_position': [0.0, 1.0, 2.0]})
     bent = [0.3, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8]
-    assert arm_model_from({**values, 'robot': 'panda', 'home_position': bent}).home.tolist() \
+    assert model_from({**values, 'robot': 'panda', 'home_position': bent}).home.tolist() \
         == bent
     with pytest.raises(ValueError, match=r'home_position must have shape \(7,\)'):
-        arm_model_from({**values, 'robot': 'panda', 'home_position': bent[:6]})
+        model_from({**values, 'robot': 'panda', 'home_position': bent[:6]})
     with pytest.raises(ValueError, match='outside the joint limits'):
-        arm_model_from({**values, 'robot': 'panda', 'home_position': [0.0] * 7})
-    model = arm_model_from({**values, 'robot': 'panda'})
+        model_from({**values, 'robot': 'panda', 'home_position': [0.0] * 7})
+    model = model_from({**values, 'robot': 'panda'})
     assert model.joint_names == panda.joint_names
-    assert arm_gains_from(values, model) == PANDA_GAINS
-    gains = arm_gains_from({**values, 'arm_ks': [5.0] * 6}, model)
-    with pytest.raises(ValueError, match='ks must have 7 values'):
-        ArmController(model, gains)
+    assert gains_from(values, model) == dataclasses.replace(PANDA_GAINS, limit_band=0.1)
+    with pytest.raises(ValueError, match='ks must have 7 values for panda'):
+        gains_from({**values, 'ks': [5.0] * 6}, model)
+    with pytest.raises(ValueError, match='adaptation_gain must have 11 values for panda'):
+        gains_from({**values, 'adaptation_gain': [1.0] * 7}, model)
+    with pytest.raises(ValueError, match='theta_hat0 must have 77 values for panda'):
+        initial_estimate({**values, 'theta_hat0': [1.0] * 7}, model, PANDA_GAINS)
+    assert ArmController(model, gains_from({**values, 'effort_limit': 20.0}, model)
+                         ).effort_limits.max() == 20.0
     with pytest.raises(ValueError, match='unknown robot'):
-        arm_model_from({**values, 'robot': 'ur5'})
+        model_from({**values, 'robot': 'no_such_arm'})
+
+
+def test_the_default_gains_are_the_robots_own_or_derived(panda, tmp_path):
+    assert default_gains(ScaraModel()) is SCARA_GAINS
+    assert default_gains(panda) is PANDA_GAINS
+    urdf = tmp_path / 'panda_copy.urdf'
+    urdf.write_text(panda.urdf)
+    copy = robot_model(urdf_file=str(urdf), tool_frame='panda_hand_tcp')
+    assert default_gains(copy).ks == default_arm_ks(copy)
 
 
 def test_a_joint_started_in_its_limit_band_is_pushed_out(panda):

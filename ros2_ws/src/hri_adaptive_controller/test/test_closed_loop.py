@@ -1,4 +1,4 @@
-"""Closed-loop tests: event weight + adaptive controller + SCARA dynamics (eq. 13-23), no ROS.
+"""Closed-loop tests on the SCARA: event weight + adaptive law + its dynamics (eq. 13-23), no ROS.
 
 The controller starts from a wrong parameter estimate (50-100 % off) unless stated; the arm
 starts at q = (0, pi/2), end-effector (0.35, 0.30) m, at rest, with no task (a = 0), and an
@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
+from hri_adaptive_controller.arm_law import SCARA_GAINS as DEFAULT_GAINS
 from hri_adaptive_controller.closed_loop import (
     LoopConditions,
     minimum_jerk_target,
@@ -25,6 +25,7 @@ from hri_core.dynamics import (
     mass_matrix,
 )
 from hri_core.potential import TaskShape
+from hri_core.robot_model import ScaraModel
 
 TASKS = {
     'follow': TaskShape(1, 1.291, 13.66, 0.0, 0.041),
@@ -32,6 +33,7 @@ TASKS = {
     'follow_safe': TaskShape(1, 1.576, 30.78, 0.183, 0.271),
 }
 PARAMS = ScaraParameters()
+SCARA = ScaraModel(PARAMS)
 THETA = dynamic_parameters(PARAMS)
 WRONG_THETA = THETA * np.array([0.5, 1.6, 2.0, 0.3, 2.0, 1.0, 1.0])
 DT = 1e-3
@@ -39,7 +41,7 @@ DT = 1e-3
 
 def run(task, target, duration=5.0, theta_hat0=WRONG_THETA, monitor=True):
     return simulate(TASKS, [(0.0, task)], target, duration,
-                    LoopConditions(params=PARAMS, theta_hat0=theta_hat0, dt=DT, monitor=monitor))
+                    LoopConditions(arm=SCARA, theta_hat0=theta_hat0, dt=DT, monitor=monitor))
 
 
 @pytest.fixture(scope='module')
@@ -76,7 +78,7 @@ def time_goal_reached(result, goal):
 def assert_torque_safe(result):
     assert not result.fault.any()
     assert np.all(np.isfinite(result.tau))
-    assert np.max(np.abs(result.tau)) <= DEFAULT_GAINS.effort_limit + 1e-12
+    assert np.max(np.abs(result.tau)) <= SCARA.limits.effort[0] + 1e-12
 
 
 def eq_23_bound(result):
@@ -159,7 +161,7 @@ def test_task_switches_faster_than_the_ramp_stay_safe():
               (2.4, 'follow_safe'), (2.45, 'avoid'), (2.5, 'follow_safe')]
     target = minimum_jerk_target([0.45, 0.05], [0.40, 0.20], 3.0, 1.5)
     result = simulate(TASKS, events, target, 8.0,
-                      LoopConditions(params=PARAMS, theta_hat0=WRONG_THETA, monitor=False))
+                      LoopConditions(arm=SCARA, theta_hat0=WRONG_THETA, monitor=False))
     assert_torque_safe(result)
     assert np.all((result.weight >= 0.0) & (result.weight <= 1.0))
     assert result.active_task[-1] == 'follow_safe' and result.phase[-1] == 'active'
@@ -168,7 +170,7 @@ def test_task_switches_faster_than_the_ramp_stay_safe():
 
 
 def test_theta_hat_stays_in_the_projection_box(follow):
-    lower = np.asarray(DEFAULT_GAINS.theta_lower)
+    lower = SCARA.theta_lower
     assert np.all(follow.theta_hat >= lower)
 
 
@@ -227,7 +229,7 @@ def run_rows(rows, events, target, duration, **kwargs):
     tasks = {name: shape for name, (shape, _) in rows.items()}
     gains = {name: k for name, (_, k) in rows.items()}
     return simulate(tasks, events, target, duration, LoopConditions(
-        params=PARAMS, theta_hat0=WRONG_THETA, dt=DT, monitor=False, task_gains=gains,
+        arm=SCARA, theta_hat0=WRONG_THETA, dt=DT, monitor=False, task_gains=gains,
         **kwargs))
 
 

@@ -277,8 +277,9 @@ def float_constants(p: ScaraParameters) -> tuple[float, ...]:
     return pi1, pi2, pi3, b1, b2, p.gravity * mlc1, p.gravity * mlc2
 
 
-def _acceleration_scalar(q1, q2, v1, v2, tau, k) -> tuple[float, float]:
-    """forward_dynamics of one state in plain floats; k from float_constants."""
+def acceleration_floats(q1, q2, v1, v2, tau, k) -> tuple[float, float]:
+    """forward_dynamics of one state in plain floats (rad/s^2): q1, q2 rad, v1, v2 rad/s, tau
+    (2,) N m; k from float_constants."""
     pi1, pi2, pi3, b1, b2, gm1, gm2 = k
     c2, s2 = math.cos(q2), math.sin(q2)
     h = pi2 * s2
@@ -296,14 +297,14 @@ def rk4_step_floats(state, tau, dt, k) -> tuple[float, float, float, float]:
     the step, dt > 0 s, k = float_constants(p). Returns the new (q1, q2, dq1, dq2); no checks
     (a non-finite result is the caller's to catch)."""
     q1, q2, v1, v2 = state
-    a1, a2 = _acceleration_scalar(q1, q2, v1, v2, tau, k)
+    a1, a2 = acceleration_floats(q1, q2, v1, v2, tau, k)
     h = 0.5 * dt
     b1v1, b1v2 = v1 + h * a1, v2 + h * a2
-    b1a1, b1a2 = _acceleration_scalar(q1 + h * v1, q2 + h * v2, b1v1, b1v2, tau, k)
+    b1a1, b1a2 = acceleration_floats(q1 + h * v1, q2 + h * v2, b1v1, b1v2, tau, k)
     c1v1, c1v2 = v1 + h * b1a1, v2 + h * b1a2
-    c1a1, c1a2 = _acceleration_scalar(q1 + h * b1v1, q2 + h * b1v2, c1v1, c1v2, tau, k)
+    c1a1, c1a2 = acceleration_floats(q1 + h * b1v1, q2 + h * b1v2, c1v1, c1v2, tau, k)
     d1v1, d1v2 = v1 + dt * c1a1, v2 + dt * c1a2
-    d1a1, d1a2 = _acceleration_scalar(q1 + dt * c1v1, q2 + dt * c1v2, d1v1, d1v2, tau, k)
+    d1a1, d1a2 = acceleration_floats(q1 + dt * c1v1, q2 + dt * c1v2, d1v1, d1v2, tau, k)
     w = dt / 6.0
     return (q1 + w * (v1 + 2.0 * b1v1 + 2.0 * c1v1 + d1v1),
             q2 + w * (v2 + 2.0 * b1v2 + 2.0 * c1v2 + d1v2),

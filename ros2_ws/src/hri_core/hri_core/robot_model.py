@@ -180,6 +180,50 @@ class RobotModel(ABC):
     def regressor(self, q, dq, dq_r, ddq_r) -> np.ndarray:
         """Y(q, dq, dq_r, ddq_r) (n, p) of eq. 18: Y theta = M ddq_r + C dq_r + F dq_r + g."""
 
+    # The control law's view: its task axes and the per-cycle calls without checks. -------
+
+    task_axes: int = 3
+    """k: the tool point's coordinates the law controls (x, y, z; x, y for a planar arm, whose
+    k x n Jacobian is then exact and square)."""
+
+    attained_reach: float | None = None
+    """The farthest the tool point gets from `shoulder` within the joint limits (m), where
+    the model knows it exactly; None: sampled by the law (arm_law.attained_reach)."""
+
+    @abstractmethod
+    def task_kinematics(self, q, dq) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """x (k,) m, J (k, n) and dJ/dt (k, n) on the task axes at q, dq (n,) rad, rad/s:
+        finite floats the caller has checked (the 1 kHz path; no checks here)."""
+
+    def regressor_unchecked(self, q, dq, dq_r, ddq_r) -> np.ndarray:
+        """regressor() for inputs the caller has checked ((n,) finite floats)."""
+        return self.regressor(q, dq, dq_r, ddq_r)
+
+    def forward_dynamics(self, q, dq, tau) -> np.ndarray:
+        """ddq (n,) = M^-1 (tau - C dq - F dq - g), rad/s^2; inputs unchecked."""
+        bias = self.coriolis_matrix(q, dq) @ dq + self.friction_torque(dq) + self.gravity_torque(q)
+        return np.linalg.solve(self.mass_matrix(q), tau - bias)
+
+    def kinetic_energy(self, q, dq) -> float:
+        """1/2 dq^T M(q) dq (J)."""
+        dq = np.asarray(dq, dtype=float)
+        return 0.5 * float(dq @ self.mass_matrix(q) @ dq)
+
+    @property
+    def adaptation_kinds(self) -> tuple[str, ...]:
+        """The kinds of parameters the adaptive law gives one rate each (eq. 19's L):
+        `adaptation_rates` spreads them over theta."""
+        return self.parameter_names
+
+    def adaptation_rates(self, rates) -> np.ndarray:
+        """L's diagonal (p,) from one rate per adaptation kind; ValueError if the count
+        differs."""
+        rates = np.asarray(rates, dtype=float)
+        if rates.shape != (len(self.adaptation_kinds),):
+            raise ValueError(f'{self.name} takes {len(self.adaptation_kinds)} adaptation rates '
+                             f'({", ".join(self.adaptation_kinds)}), got {rates.size}')
+        return rates.copy()
+
 
 # The SCARA --------------------------------------------------------------------------------
 
@@ -187,9 +231,14 @@ class RobotModel(ABC):
 # limit is the speed range hri_core's dynamics tests cover; scara_sim enforces none.
 SCARA_LIMITS = JointLimits(lower=np.array([-2.30, -2.46]), upper=np.array([2.30, 2.46]),
                            velocity=np.array([3.0, 3.0]), effort=np.array([20.0, 20.0]))
-# The projection box of the controller's theta_hat (adaptive_law.DEFAULT_THETA_*): inertias
-# positive, pi2 = m2 l1 lc2 and friction >= 0, the gravity moments free.
-SCARA_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, -math.inf, -math.inf)
+# The projection box of the controller's theta_hat: inertias positive, pi2 = m2 l1 lc2,
+# friction and the mass moments >= 0.
+SCARA_THETA_LOWER = (1e-3, 0.0, 1e-3, 0.0, 0.0, 0.0, 0.0)
+# Above, what a 2-link arm of this size (links up to 0.5 m, up to 10 kg each) can have: pi1 <=
+# 3, pi2, pi3 <= 1 kg m^2, b1, b2 <= 5 N m s/rad, mlc1, mlc2 <= 10 kg m (scara_sim's arm: 0.66,
+# 0.19, 0.13, 1.0, 0.5, 1.75, 0.54). A bounded box keeps the estimate bounded whatever the
+# regressor sees (a stop's force, a saturated drive).
+SCARA_THETA_UPPER = (3.0, 1.0, 1.0, 5.0, 5.0, 10.0, 10.0)
 DEFAULT_SCARA = ScaraParameters()
 
 
@@ -211,12 +260,16 @@ class ScaraModel(RobotModel):
         self.parameter_names = ('pi1', 'pi2', 'pi3', 'b1', 'b2', 'mlc1', 'mlc2')
         self.theta = dynamics.dynamic_parameters(params)
         self.theta_lower = np.array(SCARA_THETA_LOWER)
-        self.theta_upper = np.full(7, math.inf)
+        self.theta_upper = np.array(SCARA_THETA_UPPER)
         self.reach = params.l1 + params.l2
+        self.attained_reach = self.reach  # joint 2 stretches out within its limits
+        self.link_lengths = (params.l1, params.l2)
+        self.task_axes = 2
         self.shoulder = np.zeros(3)
         self.urdf = scara_urdf(params, limits)
         self.tool_frame = 'tip'
         self.home = np.clip([0.0, math.pi / 2], limits.lower, limits.upper)
+        self._constants = dynamics.float_constants(params)
 
     def tool_position(self, q) -> np.ndarray:
         x, y = dynamics.forward_kinematics(self.joint_vector(q, 'q'), self.params.l1,
@@ -250,6 +303,34 @@ class ScaraModel(RobotModel):
         return dynamics.regressor(self.joint_vector(q, 'q'), self.joint_vector(dq, 'dq'),
                                   self.joint_vector(dq_r, 'dq_r'),
                                   self.joint_vector(ddq_r, 'ddq_r'), self.params.gravity)
+
+    def regressor_unchecked(self, q, dq, dq_r, ddq_r) -> np.ndarray:
+        """dynamics.regressor of one state in plain floats (the 1 kHz path)."""
+        (q1, q2), (w1, w2), (v1, v2), (a1, a2) = q.tolist(), dq.tolist(), dq_r.tolist(), \
+            ddq_r.tolist()
+        c2, s2 = math.cos(q2), math.sin(q2)
+        gravity = self.params.gravity
+        g1, g12 = gravity * math.cos(q1), gravity * math.cos(q1 + q2)
+        return np.array([
+            [a1, c2 * (2.0 * a1 + a2) - s2 * (w2 * v1 + (w1 + w2) * v2), a2, v1, 0.0, g1, g12],
+            [0.0, c2 * a1 + s2 * w1 * v1, a1 + a2, 0.0, v2, 0.0, g12]])
+
+    def task_kinematics(self, q, dq):
+        """x, y of the tip, J (2, 2) and dJ/dt (hri_core.dynamics), in plain floats."""
+        (q1, q2), (w1, w2) = q.tolist(), dq.tolist()
+        l1, l2 = self.params.l1, self.params.l2
+        s1, c1 = math.sin(q1), math.cos(q1)
+        s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
+        w12 = w1 + w2
+        return (np.array((l1 * c1 + l2 * c12, l1 * s1 + l2 * s12)),
+                np.array(((-l1 * s1 - l2 * s12, -l2 * s12), (l1 * c1 + l2 * c12, l2 * c12))),
+                np.array(((-l1 * c1 * w1 - l2 * c12 * w12, -l2 * c12 * w12),
+                          (-l1 * s1 * w1 - l2 * s12 * w12, -l2 * s12 * w12))))
+
+    def forward_dynamics(self, q, dq, tau) -> np.ndarray:
+        """dynamics.forward_dynamics of one state, unchecked."""
+        return np.array(dynamics.acceleration_floats(*q.tolist(), *dq.tolist(), tau.tolist(),
+                                                     self._constants))
 
 
 def _scara_link(name: str, mass: float, centre_of_mass: float, inertia: float) -> str:
@@ -478,6 +559,27 @@ class PinocchioModel(RobotModel):
         regress = self._pin.computeJointTorqueRegressor
         return 0.25 * (regress(plus, plus_data, q, dq + dq_r, 2.0 * ddq_r)
                        - regress(minus, minus_data, q, dq - dq_r, -2.0 * ddq_r))
+
+    def task_kinematics(self, q, dq):
+        """x (3,), J (3, n), dJ/dt (3, n) of the tool point, base-frame axes."""
+        pin, model, data, frame = self._pin, self.model, self.data, self.tool_frame_id
+        pin.computeJointJacobiansTimeVariation(model, data, q, dq)
+        x = pin.updateFramePlacement(model, data, frame).translation.copy()
+        jac = pin.getFrameJacobian(model, data, frame, self._world_aligned)[:3]
+        rate = pin.getFrameJacobianTimeVariation(model, data, frame, self._world_aligned)[:3]
+        return x, jac, rate
+
+    @property
+    def adaptation_kinds(self) -> tuple[str, ...]:
+        """Each link's ten inertial parameters and its joint's damping: one rate per kind,
+        the same for every joint."""
+        return (*INERTIA_NAMES, 'damping')
+
+    def adaptation_rates(self, rates) -> np.ndarray:
+        rates = super().adaptation_rates(rates)
+        per_link = len(INERTIA_NAMES)
+        return np.concatenate([np.tile(rates[:per_link], self.dof),
+                               np.full(self.dof, rates[per_link])])
 
     def forward_dynamics(self, q, dq, tau) -> np.ndarray:
         """ddq (n,) = M^-1 (tau - C dq - F dq - g) by pinocchio's ABA; inputs unchecked."""

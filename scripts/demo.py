@@ -52,6 +52,7 @@ from hri_bringup.processes import (  # noqa: E402
 from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
 from hri_core.recorded_motion import ReachAnnulus  # noqa: E402
+from hri_core.robot_model import robot_model  # noqa: E402
 from hri_core.separation import ProtectiveSeparation, separation_verdict  # noqa: E402
 from hri_core.task_file import TaskRecord, load_task_file  # noqa: E402
 from hri_demo_learning.bag_io import read_bag  # noqa: E402
@@ -561,8 +562,8 @@ class Demo:
     def effort_shares(self, contents: dict, times, commands):
         """The commands (N, n) N m at `times` (s) as fractions of each joint's effort limit,
         for the recorded person's high-effort hold: the SCARA's (horizontal, no gravity)
-        over the controller's effort_limit."""
-        return commands / load_defaults('hri_adaptive_controller', 'controller')['effort_limit']
+        over its model's effort limits."""
+        return commands / robot_model('scara').limits.effort
 
     def recorded_person_report(self, bag: Path) -> None:
         """Figures of the recorded person's run per task the controller ran

@@ -200,3 +200,23 @@ def torque(regressor, theta, qddot_r, s, ks, jac, task_force, barrier, inverse_e
     if not math.isfinite(check):
         peak = math.nan
     return tau, peak
+
+
+@njit(cache=True, nogil=True)
+def adapt(regressor, s, rates, pace, theta, lower, upper):
+    """eq. 19's Euler step of theta_hat (p,): theta - pace L Y^T s, projected onto the box
+    [lower, upper] (p,); Y (n, p), s (n,) rad/s, L = diag(rates), pace (s). Returns the new
+    theta and whether it is finite (if not, the caller keeps the old one)."""
+    n, p = regressor.shape
+    out = np.empty(p)
+    total = 0.0
+    for j in range(p):
+        change = 0.0
+        for i in range(n):
+            change += regressor[i, j] * s[i]
+        value = theta[j] - pace * rates[j] * change
+        value = max(value, lower[j])
+        value = min(value, upper[j])
+        out[j] = value
+        total += value
+    return out, math.isfinite(total)

@@ -50,9 +50,9 @@ result gives zero torque and fault=True, theta_hat unchanged.
 
 Avoid tasks (open outward; task_variable's module docstring): the reference drops the hand's
 velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds
-the return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the caller's, by default
-where the tool is) and the retreat from an approaching hand v_away = g(r) p(e . xdot_d) e
-(retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e =
+the return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n;
+x_rest the caller's, by default where the tool is) and the retreat from an approaching hand
+v_away = g(r) p(e . xdot_d) e (retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e =
 (1 - sigma) a delta_eps + J+^T g_B / Kp and w = f xdot_f + a (v_rest + v_away) - xdot_d
 (ArmOutput.reference_offset; `lyapunov_rate` is the prediction, the monitor's).
 
@@ -119,9 +119,10 @@ class ArmGains:
     model's per-joint effort limits the law may use; max_effort_rate (N m/s): the callers'
     rate limit (effort_rate); effort_limit (N m) or None: a cap on every joint's effort limit
     besides the model's; initial_estimate (> 0): the share of the model's nominal theta a
-    controller node starts its estimate from when given none; damping: J+ damping (threshold w0: m^2 for a 2-row J, m^3 for 3);
-    posture_gain k_n (1/s, >= 0) and posture_speed (rad/s, > 0): the null-space pull towards
-    home, each joint's speed capped smoothly; limit_band (rad, > 0), barrier_torque kb (N m,
+    controller node starts its estimate from when given none; damping: J+ damping
+    (threshold w0: m^2 for a 2-row J, m^3 for 3); posture_gain k_n (1/s, >= 0) and
+    posture_speed (rad/s, > 0): the null-space pull towards home, each joint's speed capped
+    smoothly; limit_band (rad, > 0), barrier_torque kb (N m,
     >= 0): the barrier; limit_speed v_B (rad/s, >= 0): the null-space push off a limit.
     Raises ValueError with the reason for a value out of range.
     """
@@ -338,21 +339,18 @@ def task_term_along(dx: np.ndarray, u: np.ndarray,
     step's path, in plain floats where no entry of H_Q needs its bound (|Q''|, |Q'/r| <=
     MAX_TASK_HESSIAN: then every entry is, H_Q being a blend of the two), else through
     task_term's bounded matrix."""
-    d, v = dx.tolist(), u.tolist()
-    r = math.sqrt(sum(value * value for value in d))
+    r = math.sqrt(float(dx @ dx))
     slope, curvature = radial_drive(r, drive)
     if r == 0.0:
-        return np.zeros(len(d)), curvature * u
+        return np.zeros(dx.size), curvature * u
     tangential = slope / r
     if not (-MAX_TASK_HESSIAN <= curvature <= MAX_TASK_HESSIAN
             and -MAX_TASK_HESSIAN <= tangential <= MAX_TASK_HESSIAN):
         gradient, hessian = task_term(dx, drive)
         return gradient, hessian @ u
-    e = [value / r for value in d]
-    along = (curvature - tangential) * sum(a * b for a, b in zip(e, v, strict=True))
-    return (np.array([slope * value for value in e]),
-            np.array([along * value + tangential * rate for value, rate in zip(e, v,
-                                                                               strict=True)]))
+    # H_Q u = (Q'' - Q'/r) (e . u) e + Q'/r u, e = dx / r: two array expressions.
+    along = (curvature - tangential) * float(dx @ u) / (r * r)
+    return (slope / r) * dx, along * dx + tangential * u
 
 
 def predicted_lyapunov_rate(s, weighted_task_variable, weight_rate: float,
@@ -446,9 +444,10 @@ class ArmController(TaskDrives):
             raise ValueError(f'{model.name} has a joint without an effort limit > 0: '
                              f'{limits.effort.tolist()}')
         self._inverse_effort = 1.0 / self._effort
-        # Where no barrier acts (the barrier's bands start here): checked first each step.
-        self._inner_lower = self._lower + gains.limit_band
-        self._inner_upper = self._upper - gains.limit_band
+        # Where no barrier acts (the barrier's bands start here): checked first each step, in
+        # floats (two numpy comparisons cost more for a few joints).
+        self._inner = tuple(zip((self._lower + gains.limit_band).tolist(),
+                                (self._upper - gains.limit_band).tolist(), strict=True))
         self._ks = np.asarray(gains.ks, dtype=float)
         self._home = np.clip(model.home, self._lower + gains.limit_band,
                              self._upper - gains.limit_band)
@@ -481,8 +480,11 @@ class ArmController(TaskDrives):
         kernels.joint_reference(zeros_n, zeros_n, jac, jac, pinv, pinv_rate, zeros_k, zeros_k,
                                 (0.0, 0.0, 0.0), zeros_n, zeros_n, zeros_n, *self._posture,
                                 True)
-        kernels.torque(np.zeros((n, self.model.theta.size)), np.zeros(self.model.theta.size),
-                       zeros_n, zeros_n, zeros_n, jac, zeros_k, zeros_n, zeros_n)
+        p = self.model.theta.size
+        kernels.torque(np.zeros((n, p)), np.zeros(p), zeros_n, zeros_n, zeros_n, jac, zeros_k,
+                       zeros_n, zeros_n)
+        kernels.adapt(np.zeros((n, p)), zeros_n, np.zeros(p), 0.0, np.zeros(p),
+                      self.model.theta_lower, self.model.theta_upper)
 
     @property
     def gains(self) -> ArmGains:
@@ -715,7 +717,8 @@ class ArmController(TaskDrives):
             feed, feed_rate = (1.0 - a, -da) if avoid else (1.0, 0.0)
             ff, ff_rate = self._feed_forward(
                 feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
-            if (q >= self._inner_lower).all() and (q <= self._inner_upper).all():
+            if all(low <= value <= high for value, (low, high) in zip(q.tolist(), self._inner,
+                                                                       strict=True)):
                 g_b = g_b_rate = None  # outside every band (the usual case)
                 near = 0.0
             else:
@@ -804,6 +807,13 @@ class ArmController(TaskDrives):
             return True
         regressor, s, pace = self._pending
         self._pending = None
+        if self._compiled:
+            theta_next, finite = self._kernels.adapt(regressor, s, self._rates, pace, self._theta,
+                                                     self.model.theta_lower,
+                                                     self.model.theta_upper)
+            if finite:
+                self._theta = theta_next
+            return finite
         # In place in one new array (np.clip costs 3 us more than the two ufuncs; NaN passes
         # both, caught by the sum).
         theta_next = regressor.T @ s  # Y^T s

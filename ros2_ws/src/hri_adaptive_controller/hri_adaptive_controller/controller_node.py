@@ -260,7 +260,7 @@ def gains_from(values: dict, model: RobotModel) -> ArmGains:
     the robot's (arm_law.default_gains); the task, speed, rate-limit and barrier parameters
     from the values. ValueError with the reason if invalid."""
     robot = default_gains(model)
-    ks, adaptation = values['ks'], values['adaptation_gain']
+    ks, adaptation = values.get('ks'), values.get('adaptation_gain')
     if ks is not None and len(ks) != model.dof:
         raise ValueError(f'ks must have {model.dof} values for {model.name}, got {len(ks)}')
     if adaptation is not None and len(adaptation) != len(model.adaptation_kinds):
@@ -281,7 +281,7 @@ def gains_from(values: dict, model: RobotModel) -> ArmGains:
 def initial_estimate(values: dict, model: RobotModel, gains: ArmGains):
     """theta_hat(0) (p,): theta_hat0 if set, else the gains' initial_estimate share of the
     model's nominal theta. ValueError with the reason."""
-    theta = values['theta_hat0']
+    theta = values.get('theta_hat0')
     if theta is None:
         return gains.initial_estimate * model.theta
     if len(theta) != model.theta.size:
@@ -294,7 +294,7 @@ def initial_estimate(values: dict, model: RobotModel, gains: ArmGains):
 def rest_position_from(values: dict, model: RobotModel) -> tuple[float, ...] | None:
     """The fixed rest position of avoid tasks (m, one per task axis of `model`), or None when
     unset. ValueError with the reason."""
-    fixed = values['rest_position']
+    fixed = values.get('rest_position')
     if fixed is None:
         return None
     axes = model.task_axes

@@ -49,11 +49,11 @@ that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is. A no
 result gives zero torque and fault=True, theta_hat unchanged.
 
 Avoid tasks (open outward; task_variable's module docstring): the reference drops the hand's
-velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds
-the return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n;
-x_rest the caller's, by default where the tool is) and the retreat from an approaching hand
-v_away = g(r) p(e . xdot_d) e (retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e =
-(1 - sigma) a delta_eps + J+^T g_B / Kp and w = f xdot_f + a (v_rest + v_away) - xdot_d
+velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds the
+return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the
+caller's, by default where the tool is) and the retreat from an approaching hand v_away = g(r) p(e
+. xdot_d) e (retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e = (1
+- sigma) a delta_eps + J+^T g_B / Kp and w = f xdot_f + a (v_rest + v_away) - xdot_d
 (ArmOutput.reference_offset; `lyapunov_rate` is the prediction, the monitor's).
 
 Reach-round (follow tasks): where a joint sits in its barrier band while the goal is far

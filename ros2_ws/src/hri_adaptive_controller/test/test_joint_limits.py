@@ -1,5 +1,6 @@
-"""Unit tests of joint_limits and of the joint limits in the pure closed loop: the barrier,
-the feed-forward gate, the reach-round blend and theta_hat's bounds."""
+"""Unit tests of joint_limits and of the joint limits in the pure closed loop on the SCARA
+(arm_law.ArmController over hri_core.robot_model.ScaraModel, whose limits are scara_sim's):
+the barrier, the feed-forward gate, the reach-round blend and theta_hat's bounds."""
 
 import dataclasses
 import math
@@ -9,46 +10,60 @@ import numpy as np
 import pytest
 import yaml
 
-from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
+from hri_adaptive_controller.arm_law import (
+    SCARA_GAINS,
+    ActiveTask,
+    ArmController,
+    HandState,
+)
 from hri_adaptive_controller.closed_loop import LoopConditions, path_target, simulate
-from hri_adaptive_controller.controller_node import limits_mismatch, narrower_limits
 from hri_adaptive_controller.joint_limits import (
-    JointLimits,
-    ReachRound,
+    PlanarReachRound,
     ReachRoundSettings,
     barrier,
     barrier_energy,
     gate_feed_forward,
     inverse_kinematics,
+    reach_round,
     workspace_radii,
 )
 from hri_core.dynamics import ScaraParameters, dynamic_parameters, forward_kinematics
 from hri_core.potential import TaskShape
+from hri_core.robot_model import SCARA_LIMITS, JointLimits, ScaraModel
 
-LIMITS = JointLimits()
+PARAMS = ScaraParameters()
+SCARA = ScaraModel(PARAMS)
+L1, L2 = SCARA.link_lengths
+LOWER, UPPER = SCARA.limits.lower, SCARA.limits.upper
+BAND, BARRIER_TORQUE = SCARA_GAINS.limit_band, SCARA_GAINS.barrier_torque
+EFFORT_LIMIT = float(SCARA.limits.effort[0])
 FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)
 FOLLOW_SAFE = TaskShape(1, 1.576, 30.78, 0.183, 0.271)
-WRONG_THETA = dynamic_parameters(ScaraParameters()) * np.array(
-    [0.5, 1.6, 2.0, 0.3, 2.0, 1.0, 1.0])
+AVOID = TaskShape(1, 0.056, 25.46, 0.183, 2.0)
+WRONG_THETA = dynamic_parameters(PARAMS) * np.array([0.5, 1.6, 2.0, 0.3, 2.0, 1.0, 1.0])
 # The law alone: the rate limit after the clamp would hold every step bound by construction.
-UNLIMITED = dataclasses.replace(DEFAULT_GAINS, max_effort_rate=1e9)
-NO_LIMITS = dataclasses.replace(UNLIMITED, joint_limits=None)
+UNLIMITED = dataclasses.replace(SCARA_GAINS, max_effort_rate=1e9)
+# A controller that knows no joint limits (its model's are unbounded: no barrier, no gate)
+# and does not reach round; the arm it drives keeps scara_sim's stops.
+UNBOUNDED = ScaraModel(PARAMS, dataclasses.replace(
+    SCARA_LIMITS, lower=np.full(2, -math.inf), upper=np.full(2, math.inf)))
+NO_LIMITS = dataclasses.replace(UNLIMITED, reach_round=ReachRoundSettings(enabled=False))
 SRC = Path(__file__).resolve().parents[2]
 # The hand crosses over the base to the far side and stays there, reachable only by swinging
 # joint 1 round (the straight task-space path runs through the hole round the base).
 CROSSING = path_target([0.40, 0.20], [(3.0, [0.02, 0.05], 0.3), (6.5, [-0.35, -0.15], 0.3)])
 
 
-def run(target, duration, gains=UNLIMITED, task=FOLLOW, **changes):
+def run(target, duration, gains=UNLIMITED, task=FOLLOW, model=None):
     # The task fades in from t = 0 (eq. 13), as the event_manager starts it.
     return simulate({'task': task}, [(0.0, 'task')], target, duration, LoopConditions(
-        gains=gains, theta_hat0=WRONG_THETA, monitor=False, target_period=0.01, **changes))
+        arm=SCARA, model=model, gains=gains, theta_hat0=WRONG_THETA, monitor=False,
+        target_period=0.01))
 
 
 @pytest.fixture(scope='module')
 def crossing():
-    return {name: run(CROSSING, 16.0, gains) for name, gains in
-            (('limits', UNLIMITED), ('none', NO_LIMITS))}
+    return {'limits': run(CROSSING, 16.0), 'none': run(CROSSING, 16.0, NO_LIMITS, model=UNBOUNDED)}
 
 
 def longest_run(mask, dt=1e-3) -> float:
@@ -57,67 +72,72 @@ def longest_run(mask, dt=1e-3) -> float:
     return float(np.max(ends - starts, initial=0)) * dt
 
 
-def test_the_defaults_are_the_sims_and_the_controller_yamls():
+def test_the_models_limits_are_the_sims_and_the_band_the_controller_yamls():
     sim = yaml.safe_load((SRC / 'scara_sim/config/scara_sim.yaml').read_text())
     node = yaml.safe_load((SRC / 'hri_adaptive_controller/config/controller.yaml').read_text())
-    for values in (sim['scara_sim']['ros__parameters'], node['controller']['ros__parameters']):
-        assert tuple(values['joint_lower_limits']) == LIMITS.lower
-        assert tuple(values['joint_upper_limits']) == LIMITS.upper
-    assert node['controller']['ros__parameters']['joint_limit_band'] == LIMITS.band
-
-
-def test_the_node_compares_its_limits_with_the_sims_and_keeps_the_narrower():
-    ours = (LIMITS.lower, LIMITS.upper)
-    assert limits_mismatch(ours, ((-2.30, -2.46), (2.30, 2.46))) == ''
-    problem = limits_mismatch(ours, ((-2.0, -2.46), (2.30, 2.5)))
-    assert 'differ' in problem and 'scara_sim' in problem
-    assert narrower_limits(ours, ((-2.0, -2.5), (2.5, 2.4))) == ((-2.0, -2.46), (2.30, 2.4))
+    values = sim['scara_sim']['ros__parameters']
+    assert tuple(values['joint_lower_limits']) == tuple(LOWER)
+    assert tuple(values['joint_upper_limits']) == tuple(UPPER)
+    node_values = node['controller']['ros__parameters']
+    assert node_values['joint_limit_band'] == BAND
+    assert node_values['barrier_torque'] == BARRIER_TORQUE
 
 
 def test_bad_limits_are_refused():
+    narrow = ScaraModel(PARAMS, dataclasses.replace(SCARA_LIMITS, lower=np.array([-0.1, -2.0]),
+                                                    upper=np.array([0.1, 2.0])))
     with pytest.raises(ValueError, match='wider than'):
-        JointLimits((-0.1, -2.0), (0.1, 2.0), band=0.1)
+        ArmController(narrow, SCARA_GAINS, compiled=False)
     with pytest.raises(ValueError, match='barrier_torque'):
-        JointLimits(barrier_torque=-1.0)
-    with pytest.raises(ValueError, match='finite'):
-        JointLimits((-math.nan, -2.0), (2.0, 2.0))
+        dataclasses.replace(SCARA_GAINS, barrier_torque=-1.0)
+    with pytest.raises(ValueError, match='limit_band'):
+        dataclasses.replace(SCARA_GAINS, limit_band=0.0)
+    with pytest.raises(ValueError, match='must be <= upper'):
+        JointLimits(np.array([-math.nan, -2.0]), np.array([2.0, 2.0]), np.ones(2), np.ones(2))
     with pytest.raises(ValueError, match='gain'):
         ReachRoundSettings(gain=0.0)
 
 
 def test_barrier_is_zero_outside_the_band_and_pushes_off_each_limit():
-    assert barrier(0.0, 1.0, 0.3, 0.3, LIMITS) == (0.0, 0.0, 0.0, 0.0, 0.0)
-    assert barrier_energy(2.0, -2.0, LIMITS) == 0.0
-    g1, g2, _, _, near = barrier(LIMITS.upper[0], LIMITS.lower[1], 0.0, 0.0, LIMITS)
-    assert g1 == pytest.approx(LIMITS.barrier_torque) and g2 == pytest.approx(-g1)
+    g, rate, near = barrier(np.array([0.0, 1.0]), np.array([0.3, 0.3]), LOWER, UPPER, BAND,
+                            BARRIER_TORQUE)
+    assert np.all(g == 0.0) and np.all(rate == 0.0) and near == 0.0
+    assert barrier_energy(np.array([2.0, -2.0]), LOWER, UPPER, BAND, BARRIER_TORQUE) == 0.0
+    g, _, near = barrier(np.array([UPPER[0], LOWER[1]]), np.zeros(2), LOWER, UPPER, BAND,
+                         BARRIER_TORQUE)
+    assert g[0] == pytest.approx(BARRIER_TORQUE) and g[1] == pytest.approx(-g[0])
     assert near == 1.0
 
 
 @pytest.mark.parametrize('q', [(2.25, 0.3), (-2.27, -2.40), (0.1, 2.43), (2.29, -2.37)])
 def test_barrier_gradient_and_rate_are_exact(q):
     h = 1e-7
-    dq = (0.7, -0.4)
-    g1, g2, gd1, gd2, _ = barrier(*q, *dq, LIMITS)
-    for i, g in ((0, g1), (1, g2)):
-        up, down = list(q), list(q)
-        up[i] += h
-        down[i] -= h
-        slope = (barrier_energy(*up, LIMITS) - barrier_energy(*down, LIMITS)) / (2 * h)
-        assert slope == pytest.approx(g, abs=1e-6)
-    later = barrier(q[0] + h * dq[0], q[1] + h * dq[1], *dq, LIMITS)
-    earlier = barrier(q[0] - h * dq[0], q[1] - h * dq[1], *dq, LIMITS)
-    assert (later[0] - earlier[0]) / (2 * h) == pytest.approx(gd1, abs=1e-5)
-    assert (later[1] - earlier[1]) / (2 * h) == pytest.approx(gd2, abs=1e-5)
+    q, dq = np.array(q), np.array([0.7, -0.4])
+    g, rate, _ = barrier(q, dq, LOWER, UPPER, BAND, BARRIER_TORQUE)
+    for i in range(2):
+        step = h * np.eye(2)[i]
+        slope = (barrier_energy(q + step, LOWER, UPPER, BAND, BARRIER_TORQUE)
+                 - barrier_energy(q - step, LOWER, UPPER, BAND, BARRIER_TORQUE)) / (2 * h)
+        assert slope == pytest.approx(g[i], abs=1e-6)
+    later = barrier(q + h * dq, dq, LOWER, UPPER, BAND, BARRIER_TORQUE)[0]
+    earlier = barrier(q - h * dq, dq, LOWER, UPPER, BAND, BARRIER_TORQUE)[0]
+    np.testing.assert_allclose((later - earlier) / (2 * h), rate, atol=1e-5)
+
+
+def gate(q, dq, v, rate):
+    return gate_feed_forward(np.array(q, dtype=float), np.array(dq, dtype=float),
+                             np.array(v, dtype=float), np.array(rate, dtype=float), LOWER,
+                             UPPER, BAND)
 
 
 def test_the_gate_stops_feed_forward_into_a_limit_only():
-    at_limit = LIMITS.upper[0]
-    towards, away = gate_feed_forward(at_limit, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0, LIMITS), \
-        gate_feed_forward(at_limit, 0.0, 0.0, 0.0, -0.5, 0.5, 0.0, 0.0, LIMITS)
+    at_limit = UPPER[0]
+    towards, _ = gate([at_limit, 0.0], [0.0, 0.0], [0.5, 0.5], [0.0, 0.0])
+    away, _ = gate([at_limit, 0.0], [0.0, 0.0], [-0.5, 0.5], [0.0, 0.0])
     assert towards[0] == 0.0 and towards[1] == 0.5
     assert away[0] == -0.5
-    free = gate_feed_forward(0.0, 0.0, 0.0, 0.0, 0.5, -0.5, 1.0, 2.0, LIMITS)
-    assert free == (0.5, -0.5, 1.0, 2.0)
+    free, free_rate = gate([0.0, 0.0], [0.0, 0.0], [0.5, -0.5], [1.0, 2.0])
+    assert free.tolist() == [0.5, -0.5] and free_rate.tolist() == [1.0, 2.0]
 
 
 def test_the_gated_feed_forwards_rate_is_its_time_derivative():
@@ -127,32 +147,30 @@ def test_the_gated_feed_forwards_rate_is_its_time_derivative():
     for _ in range(50):
         q, dq = rng.uniform(2.2, 2.3), rng.uniform(-0.5, 0.5)
         v, a = rng.uniform(-0.08, 0.08), rng.uniform(-2.0, 2.0)
-        _, _, rate, _ = gate_feed_forward(q, 0.0, dq, 0.0, v, 0.0, a, 0.0, LIMITS)
-        later = gate_feed_forward(q + h * dq, 0.0, dq, 0.0, v + h * a, 0.0, a, 0.0, LIMITS)
-        earlier = gate_feed_forward(q - h * dq, 0.0, dq, 0.0, v - h * a, 0.0, a, 0.0, LIMITS)
-        assert (later[0] - earlier[0]) / (2 * h) == pytest.approx(rate, abs=1e-5)
+        _, rate = gate([q, 0.0], [dq, 0.0], [v, 0.0], [a, 0.0])
+        later, _ = gate([q + h * dq, 0.0], [dq, 0.0], [v + h * a, 0.0], [a, 0.0])
+        earlier, _ = gate([q - h * dq, 0.0], [dq, 0.0], [v - h * a, 0.0], [a, 0.0])
+        assert (later[0] - earlier[0]) / (2 * h) == pytest.approx(rate[0], abs=1e-5)
 
 
 def test_inverse_kinematics_reaches_and_prefers_the_elbow_the_box_allows():
-    l1, l2 = 0.35, 0.30
     for point in ((0.4, 0.2), (-0.35, -0.15), (0.0, -0.5), (0.3, -0.1)):
-        q = inverse_kinematics(*point, 0.0, 1.0, l1, l2, LIMITS)
-        np.testing.assert_allclose(forward_kinematics(np.array(q), l1, l2), point, atol=1e-9)
-        assert all(low < v < high for v, low, high in zip(q, LIMITS.lower, LIMITS.upper,
-                                                                   strict=True))
-    inner, outer = workspace_radii(l1, l2, LIMITS)
+        q = inverse_kinematics(*point, 0.0, 1.0, L1, L2, LOWER, UPPER, BAND)
+        np.testing.assert_allclose(forward_kinematics(np.array(q), L1, L2), point, atol=1e-9)
+        assert all(low < v < high for v, low, high in zip(q, LOWER, UPPER, strict=True))
+    inner, outer = workspace_radii(L1, L2, SCARA.limits)
     assert inner == pytest.approx(0.2223, abs=1e-4) and outer == pytest.approx(0.65)
 
 
 def test_the_arm_no_longer_pushes_into_joint_2s_stop(crossing):
-    # Before: joint 2 folded onto its stop (2.46 rad) and pushed up to the full 20 N m while
-    # the hand was on the far side; theta_hat drifted (pi1 2-5 times its value).
+    # Without limits joint 2 folds onto its stop (2.46 rad) and pushes up to the full 20 N m
+    # while the hand is on the far side; theta_hat drifted (pi1 2-5 times its value).
     before, after = crossing['none'], crossing['limits']
-    assert longest_run(before.q[:, 1] >= LIMITS.upper[1] - 1e-6) > 1.0
+    assert longest_run(before.q[:, 1] >= UPPER[1] - 1e-6) > 1.0
     assert np.max(np.abs(before.tau)) >= 15.0
-    assert np.max(np.abs(after.q[:, 1])) <= LIMITS.upper[1] - 0.03
-    assert np.max(np.abs(after.q[:, 0])) <= LIMITS.upper[0] - 0.03
-    assert np.max(np.abs(after.tau)) <= 0.25 * DEFAULT_GAINS.effort_limit
+    assert np.max(np.abs(after.q[:, 1])) <= UPPER[1] - 0.03
+    assert np.max(np.abs(after.q[:, 0])) <= UPPER[0] - 0.03
+    assert np.max(np.abs(after.tau)) <= 0.25 * EFFORT_LIMIT
     steps = np.max(np.abs(np.diff(after.tau, axis=0)))
     assert steps <= 1.0  # the law alone: no effort step from the barrier or the blend
 
@@ -166,8 +184,8 @@ def test_the_arm_reaches_round_to_a_hand_on_the_far_side(crossing):
     # in its box.
     accel = np.abs(np.diff(after.dq, axis=0)) / 1e-3
     assert np.max(accel) < 100.0
-    lower, upper = np.array(DEFAULT_GAINS.theta_lower), np.array(DEFAULT_GAINS.theta_upper)
-    assert np.all((after.theta_hat >= lower) & (after.theta_hat <= upper))
+    assert np.all((after.theta_hat >= SCARA.theta_lower)
+                  & (after.theta_hat <= SCARA.theta_upper))
 
 
 def test_a_hand_out_of_reach_is_held_at_the_nearest_reachable_point_without_jitter():
@@ -175,7 +193,7 @@ def test_a_hand_out_of_reach_is_held_at_the_nearest_reachable_point_without_jitt
     result = run(far, 8.0)
     last = result.time >= 6.0
     reach = np.linalg.norm(result.position[last], axis=1)
-    _, outer = workspace_radii(0.35, 0.30, LIMITS)
+    _, outer = workspace_radii(L1, L2, SCARA.limits)
     goal = outer - ReachRoundSettings().outer_margin
     assert np.all(np.abs(reach - goal) <= 0.01)  # held just inside the stretched reach
     assert np.max(np.abs(result.dq[last])) <= 0.01  # still: no stretched-arm jitter
@@ -194,11 +212,27 @@ def test_follow_safe_reaches_its_annulus_on_the_far_side():
 
 
 def test_reach_round_blend_is_off_for_avoid_tasks_and_without_a_task():
-    rr = ReachRound(ReachRoundSettings(), LIMITS, 0.35, 0.30)
+    # Joint 2 in its band (near 0.9) and the hand on the far side: a follow task would
+    # engage; without a region (no task, or an avoid task) sigma stays at 0.
+    blend = reach_round(ReachRoundSettings(), SCARA, LOWER, UPPER, BAND, L1 + L2)
+    assert isinstance(blend, PlanarReachRound)
+    q, dq = np.array([0.0, 2.4]), np.zeros(2)
+    x = np.array(forward_kinematics(q, L1, L2))
     for _ in range(100):
-        out = rr.update(0.0, 2.4, 0.0, 0.0, 0.2, 0.2, (-0.3, -0.1), None, 0.9, 1e-3)
-        assert out == (0.0,) * 6
-    assert not rr.engaged
+        assert blend.update(q, dq, x, np.array([-0.3, -0.1]), None, 0.9, 1e-3) is None
+    assert not blend.engaged
+    # The law passes no region for an avoid task, nor without one.
+    hand = HandState(np.array([-0.3, -0.1]), np.zeros(2), np.zeros(2))
+    for task in (None, ActiveTask(AVOID, 1.0)):
+        law = ArmController(SCARA, SCARA_GAINS, compiled=False)
+        for _ in range(100):
+            out = law.step(q, dq, hand, task, 1e-3)
+            assert not out.fault and out.near > 0.0 and out.blend == 0.0
+        assert not law.reaching_round
+    # ... where a follow task does.
+    law = ArmController(SCARA, SCARA_GAINS, compiled=False)
+    outputs = [law.step(q, dq, hand, ActiveTask(FOLLOW, 1.0), 1e-3) for _ in range(100)]
+    assert law.reaching_round and outputs[-1].blend > 0.0
 
 
 def test_theta_hat_stays_bounded_with_the_hand_out_of_reach_half_the_time():
@@ -209,9 +243,9 @@ def test_theta_hat_stays_bounded_with_the_hand_out_of_reach_half_the_time():
         moves += [(t, [1.0, 0.25], 0.4), (t + 7.5, [0.45, 0.1], 0.4)]
         t += 15.0
     hand = path_target([0.45, 0.1], moves)
-    result = run(hand, 60.0, gains=DEFAULT_GAINS)
-    lower, upper = np.array(DEFAULT_GAINS.theta_lower), np.array(DEFAULT_GAINS.theta_upper)
-    assert np.all((result.theta_hat >= lower) & (result.theta_hat <= upper))
+    result = run(hand, 60.0, gains=SCARA_GAINS)
+    assert np.all((result.theta_hat >= SCARA.theta_lower)
+                  & (result.theta_hat <= SCARA.theta_upper))
     # theta_hat does not run away: within a factor 2.5 of the true inertias and frictions.
     ratio = result.theta_hat[-1, :5] / result.theta_true[:5]
     assert np.all((ratio > 0.4) & (ratio < 2.5)), ratio

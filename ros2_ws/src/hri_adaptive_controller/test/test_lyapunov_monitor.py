@@ -1,9 +1,11 @@
 """The Lyapunov monitor (dV/dt predicted from the state) against V itself, in a pure loop.
 
 An avoid task's reference drops eq. 14's hand-velocity feed-forward, so dV/dt has the term
--Kp a^2 delta_eps^T xdot_d besides eq. 22's (adaptive_law's docstring). These tests run the
-control step on the simulated arm (RK4 at 1 ms, the true friction) while a hand reaches in,
-and compare the monitor with a central difference of V along the run.
+Kp v_e^T w besides eq. 22's (arm_law's docstring). These tests run the law's step
+(arm_law.ArmController on the SCARA, hri_core.robot_model.ScaraModel) on the simulated arm
+(RK4 at 1 ms, the true friction) while a hand reaches in, and compare the monitor
+(ArmController.lyapunov_rate) with a central difference of V (ArmController.lyapunov) along
+the run.
 """
 
 import math
@@ -11,22 +13,21 @@ import math
 import numpy as np
 import pytest
 
-from hri_adaptive_controller.adaptive_law import (
-    DEFAULT_GAINS,
-    AdaptiveController,
+from hri_adaptive_controller.arm_law import (
+    SCARA_GAINS,
+    ActiveTask,
+    ArmController,
+    HandState,
     predicted_lyapunov_rate,
+    rk4_step,
 )
 from hri_adaptive_controller.closed_loop import minimum_jerk_target
-from hri_core.dynamics import (
-    ScaraParameters,
-    dynamic_parameters,
-    float_constants,
-    forward_kinematics_pair,
-    rk4_step_floats,
-)
+from hri_core.dynamics import ScaraParameters, dynamic_parameters
 from hri_core.potential import TaskShape
+from hri_core.robot_model import ScaraModel
 
 PARAMS = ScaraParameters()
+ARM = ScaraModel(PARAMS)
 THETA = dynamic_parameters(PARAMS)
 AVOID = TaskShape(1, 0.056, 25.46, 0.183, 2.0)  # Table I
 FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)  # Table I
@@ -40,26 +41,24 @@ def pure_loop(shape, start, end, duration, hand_speed=HAND_SPEED):
     the end-effector, m; minimum jerk from t = 0.2 s at `hand_speed` peak), the task active
     with a = 1 throughout. Returns (V, predicted dV/dt, distance, undamped and unlimited,
     hand speed) per 1 ms step."""
-    controller = AdaptiveController(DEFAULT_GAINS, THETA, PARAMS.l1, PARAMS.l2)
-    tip = np.array(forward_kinematics_pair(*Q0, PARAMS.l1, PARAMS.l2))
+    controller = ArmController(ARM, SCARA_GAINS, THETA)
+    q, dq = np.array(Q0), np.zeros(2)
+    tip = ARM.task_kinematics(q, dq)[0]
     start, end = tip + np.asarray(start), tip + np.asarray(end)
     move_time = 1.875 * float(np.linalg.norm(end - start)) / hand_speed
     hand = minimum_jerk_target(start, end, 0.2, move_time)
-    constants = float_constants(PARAMS)
-    friction = (PARAMS.b1, PARAMS.b2)
-    state = (*Q0, 0.0, 0.0)
+    friction = ARM.friction_torque(np.ones(2))  # (b1, b2): F's diagonal
+    task = ActiveTask(shape, 1.0, 0.0)
     rows = []
     for i in range(int(round(duration / DT))):
         x_d, xdot_d, xddot_d = hand(i * DT)
-        out = controller.step_lean(
-            state[:2], state[2:], tuple(x_d.tolist()), tuple(xdot_d.tolist()),
-            tuple(xddot_d.tolist()), 1.0, 0.0, shape, DT, monitor=True, theta_true=THETA,
-            friction=friction, rest=tuple(tip.tolist()))
+        out = controller.step(q, dq, HandState(x_d, xdot_d, xddot_d), task, DT, rest=tip)
         assert not out.fault
         exact = out.damping == 0.0 and not out.torque_limited
-        rows.append((out.lyapunov, out.lyapunov_rate, out.distance, exact,
+        rows.append((controller.lyapunov(out, q, task, ARM),
+                     controller.lyapunov_rate(out, task, friction), out.distance, exact,
                      float(np.linalg.norm(xdot_d))))
-        state = rk4_step_floats(state, out.tau, DT, constants)
+        q, dq = rk4_step(ARM, q, dq, out.tau, DT)
     return np.array(rows, dtype=float).T
 
 
@@ -99,6 +98,10 @@ def test_monitor_matches_the_change_of_v_while_a_follow_task_follows_a_hand():
 def test_predicted_rate_adds_kp_times_the_task_velocity_along_the_reference_offset():
     s, task = np.array([0.1, -0.3]), np.array([0.05, 0.02])
     offset = np.array([-0.2, 0.1])
-    base = predicted_lyapunov_rate(s, task, 0.7, 0.4, (20.0, 4.0), 10.0, (1.0, 0.5))
+    base = predicted_lyapunov_rate(s, task, 0.7, 0.4, (20.0, 4.0), 10.0, (1.0, 0.5),
+                                   np.zeros(2))
     rate = predicted_lyapunov_rate(s, task, 0.7, 0.4, (20.0, 4.0), 10.0, (1.0, 0.5), offset)
     assert rate - base == pytest.approx(10.0 * (0.05 * -0.2 + 0.02 * 0.1))
+    # eq. 22 without the offset: -s^T (Ks + F) s - Kp |a delta_eps|^2 + Kp (da/dt) Q.
+    assert base == pytest.approx(-(21.0 * 0.01 + 4.5 * 0.09) - 10.0 * (0.0025 + 0.0004)
+                                 + 10.0 * 0.7 * 0.4)

@@ -18,19 +18,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS
+from hri_adaptive_controller.arm_law import SCARA_GAINS
 from hri_adaptive_controller.closed_loop import LoopConditions, recorded_target, simulate
 from hri_adaptive_controller.joint_limits import workspace_radii
 from hri_adaptive_controller.run_metrics import TakeCriteria, take_metrics
 from hri_core.dynamics import ScaraParameters
 from hri_core.potential import TaskShape
 from hri_core.recorded_motion import ReachAnnulus, choose_placement, read_vicon_csv
+from hri_core.robot_model import ScaraModel
 from hri_core.task_file import load_task_file
 
 TAKES = sorted((Path(__file__).resolve().parents[4] / 'data' / 'human-motion').glob('*.csv'))
 TASKS_DIR = Path(__file__).resolve().parents[1] / 'tasks'
 PARAMS = ScaraParameters()
-REACH = ReachAnnulus(*workspace_radii(PARAMS.l1, PARAMS.l2, DEFAULT_GAINS.joint_limits))
+ARM = ScaraModel(PARAMS)  # scara_sim's arm, its joint limits and its 20 N m effort limit
+REACH = ReachAnnulus(*workspace_radii(PARAMS.l1, PARAMS.l2, ARM.limits))
+EFFORT_LIMIT = float(ARM.limits.effort.min())
 CROP = 12.0  # s of each take
 HAND_PERIOD = 0.01  # s, the takes' 100 Hz
 MAX_EFFORT_STEP = 2.0  # N m between consecutive steps
@@ -52,12 +55,12 @@ def replay(path: Path, name: str):
     times, positions = motion.times[keep], motion.positions[keep]
     shape = task(name)
     result = simulate({name: shape}, [(0.0, name)], recorded_target(times, positions),
-                      float(times[-1]), LoopConditions(params=PARAMS, monitor=False,
+                      float(times[-1]), LoopConditions(arm=ARM, monitor=False,
                                                        target_period=HAND_PERIOD))
     index = np.clip(np.searchsorted(times, result.time, side='right') - 1, 0, len(times) - 1)
     hand = positions[index, :2]
-    criteria = TakeCriteria(d1=shape.d1, effort_limit=DEFAULT_GAINS.effort_limit,
-                            task_speed=DEFAULT_GAINS.max_task_speed, reach=REACH)
+    criteria = TakeCriteria(d1=shape.d1, effort_limit=EFFORT_LIMIT,
+                            task_speed=SCARA_GAINS.max_task_speed, reach=REACH)
     return take_metrics(result.time, hand, result.position, result.tau, criteria), result
 
 
@@ -74,7 +77,7 @@ def test_a_recorded_hand_is_followed_or_avoided_with_small_smooth_effort(path, n
     metrics, result = replay(path, name)
     label = f'{path.stem} {name}: {metrics}'
     assert np.all(np.isfinite(result.tau)) and not result.fault.any(), label
-    assert np.max(np.abs(result.tau)) <= DEFAULT_GAINS.effort_limit + 1e-12, label
+    assert np.max(np.abs(result.tau)) <= EFFORT_LIMIT + 1e-12, label
     assert metrics.largest_effort_step <= MAX_EFFORT_STEP, label
     assert metrics.longest_high_effort_hold <= HIGH_EFFORT_HOLD, label
     assert metrics.considered > 0.1 * len(result.time), label  # the check means something
@@ -82,5 +85,5 @@ def test_a_recorded_hand_is_followed_or_avoided_with_small_smooth_effort(path, n
         assert metrics.follow_median_distance <= FOLLOW_MEDIAN, label
     else:
         assert metrics.close_fraction <= CLOSE_FRACTION, label
-    lower, upper = np.array(DEFAULT_GAINS.theta_lower), np.array(DEFAULT_GAINS.theta_upper)
-    assert np.all((result.theta_hat >= lower) & (result.theta_hat <= upper)), label
+    assert np.all((result.theta_hat >= ARM.theta_lower)
+                  & (result.theta_hat <= ARM.theta_upper)), label

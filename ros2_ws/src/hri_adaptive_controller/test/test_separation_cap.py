@@ -1,5 +1,5 @@
 """Unit tests of separation_cap (the controller's ISO/TS 15066 speed cap) and of the pull limit
-it sets on the task term (task_variable, adaptive_law)."""
+it sets on the task term (task_variable, arm_law on the SCARA)."""
 
 import dataclasses
 import math
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hri_adaptive_controller.adaptive_law import DEFAULT_GAINS, AdaptiveController
+from hri_adaptive_controller.arm_law import SCARA_GAINS, ActiveTask, ArmController, HandState
 from hri_adaptive_controller.separation_cap import (
     DROP_RATE,
     LOOKAHEAD,
@@ -18,6 +18,7 @@ from hri_adaptive_controller.separation_cap import (
 )
 from hri_adaptive_controller.task_variable import CAP_BAND, radial_drive, task_drive
 from hri_core.potential import TaskShape
+from hri_core.robot_model import ScaraModel
 from hri_core.separation import ProtectiveSeparation
 
 SETTINGS = ProtectiveSeparation(reaction_time=0.1, stopping_time=0.3, stopping_distance=0.05,
@@ -28,6 +29,14 @@ V_MAX = 0.25
 FOLLOW = TaskShape(1, 1.291, 13.66, 0.0, 0.041)
 AVOID = TaskShape(1, 0.056, 25.46, 0.183, 2.0)
 REACH = 0.65
+THETA_HAT = [0.66, 0.19, 0.13, 1.0, 0.5, 1.75, 0.54]
+Q, DQ = np.array([0.3, 1.2]), np.zeros(2)
+STILL_HAND = HandState(np.array([0.1, 0.3]), np.zeros(2), np.zeros(2))  # 0.27 m from the tip
+
+
+def follow_step(law, dt=1e-3):
+    """One step of the law at Q, still, with the follow task at a = 1 and the still hand."""
+    return law.step(Q, DQ, STILL_HAND, ActiveTask(FOLLOW, 1.0, 0.0), dt)
 
 
 def test_knee_is_the_iso_limit_through_the_soft_band():
@@ -114,15 +123,14 @@ def test_pull_limit_caps_only_speeds_towards_the_hand():
 
 
 def test_controller_applies_the_pull_limit_and_refuses_a_bad_one():
-    law = AdaptiveController(DEFAULT_GAINS, [0.66, 0.19, 0.13, 1.0, 0.5, 1.75, 0.54])
-    q, dq, hand = (0.3, 1.2), (0.0, 0.0), (0.1, 0.3)
-    free = law.step_lean(q, dq, hand, (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, 1e-3)
+    law = ArmController(ScaraModel(), SCARA_GAINS, THETA_HAT)
+    free = follow_step(law)
     law.limit_pull_speed(0.0)
-    stopped = law.step_lean(q, dq, hand, (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, 1e-3)
+    stopped = follow_step(law)
     assert math.hypot(*free.qdot_r) > 0.1
-    assert stopped.qdot_r == (0.0, 0.0)  # a still hand, no pull: no reference motion
+    assert stopped.qdot_r.tolist() == [0.0, 0.0]  # a still hand, no pull: no reference motion
     law.limit_pull_speed(math.inf)
-    again = law.step_lean(q, dq, hand, (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, 1e-3)
+    again = follow_step(law)
     assert again.qdot_r == pytest.approx(free.qdot_r)
     for bad in (-0.1, math.nan):
         with pytest.raises(ValueError, match='pull speed limit must be >= 0'):
@@ -133,25 +141,23 @@ def test_a_falling_knee_changes_the_torque_gradually():
     """The knee falling at DROP_RATE from max_task_speed to 0 under a follow task that pulls
     at full speed keeps the torque's change per 1 ms step below the continuity bar
     (max_effort_rate dt = 1 N m), which the same fall in one step breaks."""
-    law = AdaptiveController(DEFAULT_GAINS, [0.66, 0.19, 0.13, 1.0, 0.5, 1.75, 0.54])
+    law = ArmController(ScaraModel(), SCARA_GAINS, THETA_HAT)
     cap = SeparationCap(SETTINGS, V_MAX)
     dt = 1e-3
     for step in range(600):  # the knee rises to max_task_speed (0.5 s at RISE_RATE)
         cap.observe(step * dt, 5.0, 0.0, 0.0)
         cap.knee(step * dt)
     assert cap.value == V_MAX
-    q, dq, hand = (0.3, 1.2), (0.0, 0.0), (0.1, 0.3)
     torques, knees = [], []
     for step in range(600, 700):
         cap.observe(step * dt, SETTINGS.distance(0.0, 0.0), 0.0, 0.0)  # no room: target 0
         knees.append(cap.knee(step * dt))
         law.limit_pull_speed(knees[-1])
-        out = law.step_lean(q, dq, hand, (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, dt)
-        torques.append(out.tau)
+        torques.append(follow_step(law, dt).tau)
     assert knees[-1] == 0.0
     steps = np.max(np.abs(np.diff(np.array(torques), axis=0)))
-    bar = DEFAULT_GAINS.max_effort_rate * dt
+    bar = SCARA_GAINS.max_effort_rate * dt
     law.limit_pull_speed(math.inf)
-    full = law.step_lean(q, dq, hand, (0.0, 0.0), (0.0, 0.0), 1.0, 0.0, FOLLOW, dt).tau
+    full = follow_step(law, dt).tau
     jump = np.max(np.abs(np.array(full) - np.array(torques[-1])))
     assert 0.0 < steps < 0.5 * bar < bar < jump, (steps, jump)

@@ -1,10 +1,23 @@
-"""Unit tests of hri_adaptive_controller.task_variable: eq. 12', 14 and the exact qddot_r."""
+"""Unit tests of hri_adaptive_controller.task_variable: eq. 12', 14 and the exact qddot_r.
 
+The joint-velocity reference (eq. 14) and its exact derivative (eq. 18) are arm_law's for
+every arm; they are checked here on the SCARA (hri_core.robot_model.ScaraModel, task axes x,
+y), through the law's numpy reference (ArmController(..., compiled=False).command)."""
+
+import copy
 import math
 
 import numpy as np
 import pytest
 
+from hri_adaptive_controller.arm_law import (
+    SCARA_GAINS,
+    ActiveTask,
+    ArmController,
+    HandState,
+    task_term,
+    task_term_along,
+)
 from hri_adaptive_controller.task_variable import (
     ANCHOR_SPACING,
     CAP_BAND,
@@ -14,21 +27,18 @@ from hri_adaptive_controller.task_variable import (
     _approach_floor,
     _approach_floor_values,
     damped_pseudo_inverse,
-    damped_pseudo_inverse_derivative,
-    joint_velocity_reference,
-    pseudo_inverse_damping,
     radial_drive,
     radial_potential_slope,
-    rest_term,
+    rest_term_n,
     speed_cap,
     task_drive,
     task_potential,
-    task_variable,
 )
-from hri_core.dynamics import jacobian, jacobian_derivative
 from hri_core.potential import TaskShape, default_task_gain, log_potential_slope, potential
+from hri_core.robot_model import ScaraModel
 
-L1, L2 = 0.35, 0.30
+SCARA = ScaraModel()
+L1, L2 = SCARA.link_lengths
 TABLE_I = {
     'follow': TaskShape(1, 1.291, 13.66, 0.0, 0.041),
     'avoid': TaskShape(1, 0.056, 25.46, 0.183, 2.0),
@@ -36,7 +46,8 @@ TABLE_I = {
 }
 TRAP = TaskShape(-1, 4.0, 12.0, 0.1, 0.25)  # S = -1: desired region r <= d1 or r >= d2
 V_MAX, APPROACH_SPEED, MARGIN, REST_GAIN, REACH = 0.25, 0.1, 0.02, 2.0, L1 + L2
-DAMPING = DampingSettings(threshold=0.05, max_damping=0.15)
+DAMPING = SCARA_GAINS.damping
+THRESHOLD2, MAX_DAMPING2 = DAMPING.threshold ** 2, DAMPING.max_damping ** 2
 # Table I's rows (no K: the default gain), follow with a1, a2 x 4, and the rows the demo
 # learned (README's Table I), with their K.
 SHAPES = {
@@ -58,20 +69,45 @@ def direction(angle):
     return np.array([math.cos(angle), math.sin(angle)])
 
 
+def random_direction(rng, axes):
+    """A unit vector (axes,): in the plane by its angle, in 3-D from a normal sample."""
+    if axes == 2:
+        return direction(rng.uniform(-math.pi, math.pi))
+    vector = rng.normal(size=axes)
+    return vector / np.linalg.norm(vector)
+
+
+def radial_slope(dx, task):
+    """dQ/dr (m/s) at dx (k,) m: delta_eps along e = dx / |dx| (task_term)."""
+    dx = np.asarray(dx, dtype=float)
+    return float(task_term(dx, task)[0] @ dx) / float(np.linalg.norm(dx))
+
+
+def jacobians(q, dq=(0.0, 0.0)):
+    """The SCARA's J (2, 2) and dJ/dt at q, dq (the law's task_kinematics)."""
+    _, jac, rate = SCARA.task_kinematics(np.asarray(q, dtype=float),
+                                         np.asarray(dq, dtype=float))
+    return jac, rate
+
+
+def pseudo_inverse(q, dq=(0.0, 0.0)):
+    """(J+, dJ+/dt, lambda^2) of the SCARA at q, dq with its gains' damping."""
+    return damped_pseudo_inverse(*jacobians(q, dq), THRESHOLD2, MAX_DAMPING2)
+
+
 def test_pseudo_inverse_is_the_inverse_away_from_singularities():
     rng = np.random.default_rng(0)
     for _ in range(50):
         q = np.array([rng.uniform(-3, 3), rng.uniform(0.6, 2.4) * rng.choice([-1, 1])])
-        jac = jacobian(q, L1, L2)
-        pinv, lam2 = damped_pseudo_inverse(jac, DAMPING)
+        jac, _ = jacobians(q)
+        pinv, _, lam2 = pseudo_inverse(q)
         assert lam2 == 0.0
         np.testing.assert_allclose(pinv, np.linalg.inv(jac), rtol=1e-10, atol=1e-10)
 
 
 def test_damping_grows_smoothly_towards_the_singularity():
     q2 = np.linspace(0.0, 1.0, 20001)
-    lam2 = np.array([pseudo_inverse_damping(jacobian(np.array([0.3, x]), L1, L2), DAMPING)[0]
-                     for x in q2])
+    lam2 = np.array([pseudo_inverse((0.3, x))[2] for x in q2])
     # w = l1 l2 |sin q2| < w0 = 0.05 m^2 below q2 = asin(0.05 / 0.105).
     start = math.asin(0.05 / (L1 * L2))
     assert np.all(lam2[q2 > start + 1e-6] == 0.0)
@@ -83,12 +119,17 @@ def test_damping_grows_smoothly_towards_the_singularity():
 
 def test_pseudo_inverse_at_the_singularity_is_finite_and_bounded():
     for q2 in (0.0, 1e-9, -1e-4):
-        jac = jacobian(np.array([0.4, q2]), L1, L2)
-        pinv, _ = damped_pseudo_inverse(jac, DAMPING)
-        assert np.all(np.isfinite(pinv))
+        jac, _ = jacobians((0.4, q2))
+        pinv, pinv_rate, _ = pseudo_inverse((0.4, q2), (0.3, -0.2))
+        assert np.all(np.isfinite(pinv)) and np.all(np.isfinite(pinv_rate))
         # sigma / (sigma^2 + lambda^2) <= 1 / (2 lambda) in the singular direction.
         assert np.linalg.norm(pinv, 2) <= max(1.0 / (2 * DAMPING.max_damping),
                                               1.0 / np.linalg.svd(jac)[1][0]) + 1e-9
+    # Without damping the stretched arm (J J^T exactly singular at q = 0) has no
+    # pseudo-inverse: refused, not inf.
+    jac, rate = jacobians((0.0, 0.0))
+    with pytest.raises(ValueError, match='singular Jacobian and no damping'):
+        damped_pseudo_inverse(jac, rate, THRESHOLD2, 0.0)
 
 
 @pytest.mark.parametrize('q_mid', [(0.2, 1.2), (0.5, 0.52), (1.0, 0.3), (-0.7, -0.05)])
@@ -103,30 +144,29 @@ def test_pseudo_inverse_derivative_matches_finite_difference(q_mid):
 
     h = 1e-6
     for t in np.linspace(0.0, 3.0, 13):
-        jac, jac_dot = jacobian(q_of(t), L1, L2), jacobian_derivative(q_of(t), dq_of(t), L1, L2)
-        analytic = damped_pseudo_inverse_derivative(jac, jac_dot, DAMPING)
-        numeric = (damped_pseudo_inverse(jacobian(q_of(t + h), L1, L2), DAMPING)[0]
-                   - damped_pseudo_inverse(jacobian(q_of(t - h), L1, L2), DAMPING)[0]) / (2 * h)
+        _, analytic, _ = pseudo_inverse(q_of(t), dq_of(t))
+        numeric = (pseudo_inverse(q_of(t + h))[0] - pseudo_inverse(q_of(t - h))[0]) / (2 * h)
         scale = max(1.0, float(np.max(np.abs(analytic))))
         assert np.max(np.abs(analytic - numeric)) <= 1e-6 * scale
 
 
+@pytest.mark.parametrize('axes', [2, 3])
 @pytest.mark.parametrize('name', sorted(TABLE_I))
-def test_task_variable_points_to_the_region_and_is_bounded(name):
+def test_task_variable_points_to_the_region_and_is_bounded(name, axes):
     task = drive(name)
     d1, d2 = task.region()
     rng = np.random.default_rng(1)
     for r in np.concatenate([rng.uniform(0.001, 0.9, 200), [0.5 * (d1 + d2)]]):
-        e = direction(rng.uniform(-math.pi, math.pi))
-        value = task_variable(r * e, task)
-        norm = np.linalg.norm(value.gradient)
+        e = random_direction(rng, axes)
+        gradient, _ = task_term(r * e, task)
+        norm = np.linalg.norm(gradient)
         assert norm <= (1.0 + CAP_BAND) * V_MAX * (1 + 1e-12)
         if d1 <= r <= d2:
             assert norm == 0.0
         elif r > d2 and name != 'avoid':  # moving along -gradient brings the arm closer
-            assert value.gradient @ e > 0.0
+            assert gradient @ e > 0.0
         elif r < d1:  # too close: -gradient pushes it away
-            assert value.gradient @ e < 0.0
+            assert gradient @ e < 0.0
 
 
 @pytest.mark.parametrize('name', [*sorted(TABLE_I), 'follow_x4', 'learned_follow',
@@ -139,7 +179,7 @@ def test_below_the_cap_the_task_speed_is_k_times_the_gradient(name):
     checked = 0
     for r in np.linspace(0.001, 0.9, 400):
         pull = math.exp(log_k + float(log_potential_slope(r, shape)))
-        speed = abs(task_variable(np.array([0.0, r]), task).radial_slope)
+        speed = abs(radial_slope([0.0, r], task))
         if pull <= V_MAX:
             assert speed == pytest.approx(pull, rel=1e-12, abs=1e-300)
             checked += pull > 1e-4
@@ -151,7 +191,7 @@ def test_below_the_cap_the_task_speed_is_k_times_the_gradient(name):
     for r in np.linspace(0.001, 0.9, 400):
         pull = math.exp(log_k + float(log_potential_slope(r, shape)))
         if APPROACH_SPEED <= pull <= V_MAX:
-            speed = abs(task_variable(np.array([r, 0.0]), floored).radial_slope)
+            speed = abs(radial_slope([r, 0.0], floored))
             assert speed == pytest.approx(pull, rel=1e-12)
 
 
@@ -184,11 +224,11 @@ def test_approach_term_enters_the_region_and_stops_inside_it():
     assert (d1, d2) == pytest.approx((0.183 + MARGIN, 0.271 - MARGIN))
     # At the learned boundaries the arm still moves in at about approach_speed.
     for r in (0.183, 0.271):
-        assert abs(task_variable(np.array([0.0, r]), task).radial_slope) == pytest.approx(
+        assert abs(radial_slope([0.0, r], task)) == pytest.approx(
             APPROACH_SPEED, rel=0.01)
     for r, moving in ((d1 - 1e-4, True), (d1 + 1e-4, False), (d2 - 1e-4, False),
                       (d2 + 1e-4, True)):
-        assert (task_variable(np.array([0.0, r]), task).radial_slope != 0.0) == moving
+        assert (radial_slope([0.0, r], task) != 0.0) == moving
     # The avoid row's region is open outward: no approach from outside, no floor at 2 m.
     avoid = drive('avoid')
     assert avoid.open_outward and avoid.region()[1] == 2.0
@@ -203,18 +243,25 @@ def test_approach_term_enters_the_region_and_stops_inside_it():
     ('avoid', (0.005, 0.05, 0.12, 0.185)),
     ('trap', (0.05, 0.11, 0.2, 0.245)),
 ])
-def test_task_variable_hessian_matches_finite_difference(name, radii):
+@pytest.mark.parametrize('axes', [2, 3])
+def test_task_variable_hessian_matches_finite_difference(name, radii, axes):
     task = drive(name)
     rng = np.random.default_rng(2)
     h = 1e-7
     for r in radii:
-        dx = r * direction(rng.uniform(-math.pi, math.pi))
-        hessian = task_variable(dx, task).hessian
+        dx = r * random_direction(rng, axes)
+        gradient, hessian = task_term(dx, task)
         numeric = np.column_stack([
-            (task_variable(dx + h * unit, task).gradient
-             - task_variable(dx - h * unit, task).gradient) / (2 * h) for unit in np.eye(2)])
+            (task_term(dx + h * unit, task)[0] - task_term(dx - h * unit, task)[0]) / (2 * h)
+            for unit in np.eye(axes)])
         scale = max(1.0, float(np.max(np.abs(hessian))))
         assert np.max(np.abs(hessian - numeric)) <= 1e-5 * scale
+        # The control step's path (H_Q u without the matrix) is the same.
+        u = rng.normal(size=axes)
+        along, hessian_u = task_term_along(dx, u, task)
+        np.testing.assert_allclose(along, gradient, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(hessian_u, hessian @ u, rtol=1e-9,
+                                   atol=1e-12 * scale * np.linalg.norm(u))
 
 
 @pytest.mark.parametrize('name', [*sorted(TABLE_I), 'trap'])
@@ -223,7 +270,7 @@ def test_task_potential_integrates_the_radial_slope(name):
     h = 1e-6
     for r in (0.02, 0.1, 0.17, 0.2, 0.28, 0.4, 0.7):
         numeric = (task_potential(r + h, task) - task_potential(r - h, task)) / (2 * h)
-        slope = task_variable(np.array([r, 0.0]), task).radial_slope
+        slope = radial_slope([r, 0.0], task)
         # Monitoring accuracy: the cap's knee and the approach blends are C2 only, which the
         # fixed Gauss-Legendre panels resolve to a few per cent.
         assert numeric == pytest.approx(slope, rel=3e-2, abs=1e-4)
@@ -329,12 +376,19 @@ def test_rest_term_returns_to_rest_outside_the_edge_only():
     task = drive('avoid')
     start = task.rest_gate_start()
     assert start == pytest.approx(0.183 + MARGIN)
-    for r, gate in ((start - 0.01, 0.0), (start + task.rest_gate + 0.01, 1.0)):
-        v1, v2, c1, c2, *_ = rest_term(r, 0.0, 0.1, 0.0, task)
-        assert (v1, v2) == pytest.approx((gate * c1, gate * c2))
-    _, _, c1, c2, *_ = rest_term(0.5, 0.0, 0.1, 0.0, task)
-    assert (c1, c2) == pytest.approx((-REST_GAIN * 0.1, 0.0))
-    assert rest_term(0.5, 0.0, 0.1, 0.0, drive('follow')) == (0.0,) * 9
+    still = [0.0, 0.0]
+    # Inside the gate's start: no return at all.
+    assert rest_term_n([start - 0.01, 0.0], [0.1, 0.0], still, still, task) is None
+    # c(y) = -k_rest y below the cap, weighted by the gate: 1/2 halfway, 1 beyond it.
+    for r, gate in ((start + 0.5 * task.rest_gate, 0.5), (start + task.rest_gate + 0.01, 1.0),
+                    (0.5, 1.0)):
+        velocity, rate = rest_term_n([r, 0.0], [0.1, 0.0], still, still, task)
+        assert velocity == pytest.approx([gate * -REST_GAIN * 0.1, 0.0])
+        assert rate == pytest.approx([0.0, 0.0])  # a still arm and hand: no change
+    # The same on three task axes.
+    velocity, _ = rest_term_n([0.0, 0.0, 0.5], [0.0, 0.1, 0.0], [0.0] * 3, [0.0] * 3, task)
+    assert velocity == pytest.approx([0.0, -REST_GAIN * 0.1, 0.0])
+    assert rest_term_n([0.5, 0.0], [0.1, 0.0], still, still, drive('follow')) is None
 
 
 def test_bad_task_arguments_are_rejected():
@@ -349,62 +403,102 @@ def test_bad_task_arguments_are_rejected():
         task_drive(shape, float('inf'), V_MAX, REACH)
     with pytest.raises(ValueError, match='threshold'):
         DampingSettings(threshold=0.0)
-    with pytest.raises(ValueError, match='dx'):
-        task_variable(np.array([np.nan, 0.0]), drive('follow'))
 
 
-def trajectory(t, q_mid):
-    """Smooth joint motion, target motion and weight with exact derivatives."""
+HAND_LINE = np.array([-0.03, 0.035])  # m/s: a straight hand's velocity
+
+
+def trajectory(t, q_mid, straight=False):
+    """Smooth joint motion, target motion and weight with exact derivatives: the hand
+    circles (0.05 m, 0.9 rad/s) or, straight, passes the circle's centre at t = 1.5 s at a
+    constant HAND_LINE."""
     amplitude, omega = np.array([0.3, 0.2]), np.array([1.1, 1.7])
     q = np.asarray(q_mid) + amplitude * np.sin(omega * t)
     dq = amplitude * omega * np.cos(omega * t)
     centre, radius, w = np.array([0.35, 0.25]), 0.05, 0.9
-    x_d = centre + radius * direction(w * t)
-    xdot_d = radius * w * np.array([-math.sin(w * t), math.cos(w * t)])
-    xddot_d = -radius * w * w * direction(w * t)
+    if straight:
+        x_d, xdot_d, xddot_d = centre + (t - 1.5) * HAND_LINE, HAND_LINE.copy(), np.zeros(2)
+    else:
+        x_d = centre + radius * direction(w * t)
+        xdot_d = radius * w * np.array([-math.sin(w * t), math.cos(w * t)])
+        xddot_d = -radius * w * w * direction(w * t)
     weight = 0.5 + 0.45 * math.sin(2.0 * t)
     weight_rate = 0.9 * math.cos(2.0 * t)
     return q, dq, x_d, xdot_d, xddot_d, weight, weight_rate
 
 
+def command(law, t, q_mid, shape, k, dt, rest=None, straight=False):
+    """The law's command (its numpy reference: no adaptation) at time t of `trajectory`, the
+    task's weight and rate from it; shape None: no task."""
+    q, dq, x_d, xdot_d, xddot_d, weight, weight_rate = trajectory(t, q_mid, straight)
+    task = None if shape is None else ActiveTask(shape, weight, weight_rate, k)
+    return law.command(q, dq, HandState(x_d, xdot_d, xddot_d), task, dt, rest)
+
+
 @pytest.mark.parametrize('name', [*sorted(TABLE_I), 'trap'])
 @pytest.mark.parametrize('q_mid', [(0.3, 1.6), (-0.2, 0.9), (0.8, 0.45)])
 def test_qddot_r_matches_finite_difference_of_qdot_r(name, q_mid):
-    task = drive(name)
+    """The law's qddot_r is the time derivative of its qdot_r along a trajectory of the arm,
+    the hand and a(t). The law has state (an avoid task reads the hand's velocity through a
+    filter; the reach-round blend): it walks the trajectory at 1 ms from t = -1 s (the
+    filter settled), and at each check a copy takes two steps of h on, so that qdot_r at t,
+    t + h, t + 2h are the law's own along one path (qddot_r checked at t + h).
+
+    An avoid task's hand moves straight at a constant speed: the filter's estimate is then
+    the hand's velocity. (Where the hand turns, the estimate lags it and the law's qddot_r,
+    which takes the estimate for dx's rate, differs from d qdot_r/dt by H_Q times the lag,
+    as the former adaptive_law's step did: 1.4e-2 rad/s^2 here with a circling hand.)"""
+    shape, k = SHAPES[name]
     rest = np.array([0.3, 0.4])
-
-    def reference(t):
-        return joint_velocity_reference(*trajectory(t, q_mid), task, L1, L2, DAMPING, rest)
-
-    h = 1e-6
+    law = ArmController(SCARA, SCARA_GAINS, compiled=False)
+    task = law.drive(shape, k)
+    assert task == drive(name)  # the gains' task drive is this file's
+    straight = task.open_outward
+    h, dt = 1e-6, 1e-3
+    checks = set(range(1000, 5001, 100))  # t = 0, 0.1, ..., 4 s
     checked = 0
-    for t in np.linspace(0.0, 4.0, 41):
-        ref = reference(t)
-        numeric = (reference(t + h).qdot_r - reference(t - h).qdot_r) / (2 * h)
-        scale = max(1.0, float(np.max(np.abs(ref.qddot_r))))
-        assert np.max(np.abs(ref.qddot_r - numeric)) <= 1e-5 * scale
+    for step in range(5001):
+        t = -1.0 + step * dt
+        out = command(law, t, q_mid, shape, k, dt, rest, straight)
+        assert not out.fault
+        if step not in checks:
+            continue
+        ahead = copy.deepcopy(law)
+        middle = command(ahead, t + h, q_mid, shape, k, h, rest, straight)
+        last = command(ahead, t + 2 * h, q_mid, shape, k, h, rest, straight)
+        numeric = (last.qdot_r - out.qdot_r) / (2 * h)
+        scale = max(1.0, float(np.max(np.abs(middle.qddot_r))))
+        assert np.max(np.abs(middle.qddot_r - numeric)) <= 1e-5 * scale, (t, middle, numeric)
         checked += 1
     assert checked >= 30
 
 
 def test_reference_without_a_task_only_follows_the_target():
-    q, dq, x_d, xdot_d, xddot_d, weight, rate = trajectory(0.7, (0.3, 1.6))
-    ref = joint_velocity_reference(q, dq, x_d, xdot_d, xddot_d, weight, rate, None, L1, L2,
-                                   DAMPING)
-    np.testing.assert_allclose(ref.qdot_r, np.linalg.solve(jacobian(q, L1, L2), xdot_d))
-    assert ref.task is None and np.all(ref.weighted_task_variable == 0.0)
+    law = ArmController(SCARA, SCARA_GAINS, compiled=False)
+    q, dq, _, xdot_d, xddot_d, _, _ = trajectory(0.7, (0.3, 1.6))
+    out = command(law, 0.7, (0.3, 1.6), None, 0.0, 1e-3)
+    jac, jac_rate = jacobians(q, dq)
+    inverse = np.linalg.inv(jac)
+    np.testing.assert_allclose(out.qdot_r, inverse @ xdot_d)
+    # d/dt (J^-1 xdot_d) = J^-1 (xddot_d - Jdot J^-1 xdot_d).
+    np.testing.assert_allclose(out.qddot_r, inverse @ (xddot_d - jac_rate @ inverse @ xdot_d))
+    assert out.task_gain == 0.0 and np.all(out.weighted_task_variable == 0.0)
 
 
-def test_reference_rejects_bad_input():
-    args = list(trajectory(0.0, (0.3, 1.6)))
-    task = drive('follow')
-    args[5] = 1.5
-    with pytest.raises(ValueError, match='weight'):
-        joint_velocity_reference(*args, task, L1, L2, DAMPING)
-    args[5] = 0.5
-    args[0] = np.array([np.inf, 0.0])
-    with pytest.raises(ValueError, match='q must be 2 finite values'):
-        joint_velocity_reference(*args, task, L1, L2, DAMPING)
+@pytest.mark.parametrize('compiled', [False, True])
+def test_a_non_finite_state_or_hand_gives_a_fault_not_a_reference(compiled):
+    """The law's per-cycle inputs are unchecked (the caller checks them where they enter): a
+    non-finite joint state or hand ends in a fault, zero torque and theta_hat unchanged."""
+    law = ArmController(SCARA, SCARA_GAINS, compiled=compiled)
+    theta = law.theta_hat
+    q, dq, x_d, xdot_d, xddot_d, weight, rate = trajectory(0.0, (0.3, 1.6))
+    task = ActiveTask(TABLE_I['follow'], weight, rate)
+    for bad_q, bad_hand in ((np.array([np.inf, 0.0]), x_d), (q, np.array([np.nan, 0.0]))):
+        out = law.step(bad_q, dq, HandState(bad_hand, xdot_d, xddot_d), task, 1e-3)
+        assert out.fault and out.fault_reason
+        assert np.all(out.tau == 0.0) and out.distance is None
+        np.testing.assert_array_equal(law.theta_hat, theta)
+    assert not law.step(q, dq, HandState(x_d, xdot_d, xddot_d), task, 1e-3).fault
 
 
 def test_task_drive_is_hashable_per_task():

@@ -177,6 +177,11 @@ class Distances:
         length = float(np.linalg.norm(between))
         return between / length if length >= 1e-12 else np.array([0.0, 0.0, 1.0])
 
+    def parameters(self, i: int, j: int) -> tuple[float, float]:
+        """(s, t) in [0, 1] of pair (i, j): where its closest points lie along the robot's
+        capsule (a + s (b - a)) and the person's (a + t (b - a))."""
+        return float(self._s[i, j]), float(self._t[i, j])
+
     def pair(self, i: int, j: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """(distance m, robot_point (3,) m, human_point (3,) m, normal (3,)) of pair (i, j)."""
         robot, human = self.robot, self.human

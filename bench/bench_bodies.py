@@ -5,8 +5,11 @@ Times `hri_core.bodies.capsule_distances` for the Panda's capsules (robot_body, 
 example-robot-data's collision meshes) against the ten capsules of a standing person
 (hri_core.human_body.standing_body), on seeded random configurations (q uniform within home
 +- 0.6 rad) and hands (0.3-0.7 m in front of the base), each call timed alone with
-time.perf_counter_ns after a warm-up; beside it the placing of the capsules
-(`RobotBody.capsules(q)`) and one point Jacobian, and the cost of one small numpy ufunc call
+time.perf_counter_ns after a warm-up: the distances (R, H) alone, with the closest
+pair's points and normal (`Distances.pair`), and with every pair's points; beside it the
+placing of the capsules
+(`RobotBody.capsules(q)`)
+and one point Jacobian, and the cost of one small numpy ufunc call
 (x * x on a (9, 10) array) as the host's yardstick: a loaded host slows every numpy call
 alike, so compare the ratio. Reported: median, p99 in µs, and the load average.
 
@@ -21,7 +24,13 @@ import time
 
 import numpy as np
 
-from hri_core.bodies import capsule_distances, human_capsules, panda_package_dirs, robot_body
+from hri_core.bodies import (
+    Capsules,
+    capsule_distances,
+    human_capsules,
+    panda_package_dirs,
+    robot_body,
+)
 from hri_core.human_body import BODY_POINTS, standing_body
 from hri_core.robot_model import robot_model
 
@@ -56,13 +65,30 @@ def main() -> None:
             [hand[0] + 0.45, hand[1] - 0.15], np.pi, 0.0, hand)))
     pairs = [(robots[k % 200], humans[(7 * k) % 200]) for k in range(options.calls)]
     figures = {'robot_capsules': len(robots[0]), 'human_capsules': len(humans[0])}
-    distances = timed(capsule_distances, pairs)
+    # A fresh robot Capsules each call, as each cycle's q gives (its own terms are computed
+    # in the call); the person's is one object per body message, reused.
+    def cycle(robot, human):
+        return capsule_distances(Capsules(robot.names, robot.a, robot.b, robot.radius), human)
+
+    def cycle_with_pair(robot, human):
+        distances = cycle(robot, human)
+        return distances.pair(*distances.closest())
+
+    def cycle_all_points(robot, human):
+        distances = cycle(robot, human)
+        return distances.robot_point, distances.human_point
+
+    distances = timed(cycle, pairs)
+    with_pair = timed(cycle_with_pair, pairs)
+    all_points = timed(cycle_all_points, pairs)
     placing = timed(body.capsules, [(configurations[k % 200],) for k in range(5000)])
     jacobian = timed(body.point_jacobian, [(configurations[k % 200], 5, robots[k % 200].a[5])
                                            for k in range(5000)])
     x = rng.uniform(size=(9, 10))
     yardstick = timed(np.multiply, [(x, x)] * 20000)
-    for name, values in (('capsule_distances', distances), ('robot_capsules_at_q', placing),
+    for name, values in (('capsule_distances', distances),
+                         ('distances_closest_pair', with_pair),
+                         ('distances_all_points', all_points), ('robot_capsules_at_q', placing),
                          ('point_jacobian', jacobian), ('numpy_multiply_9x10', yardstick)):
         figures[f'{name}_median_us'] = round(float(np.median(values)), 2)
         figures[f'{name}_p99_us'] = round(float(np.percentile(values, 99)), 2)
@@ -72,8 +98,8 @@ def main() -> None:
         return
     print(f"Panda {figures['robot_capsules']} capsules x person "
           f"{figures['human_capsules']} capsules, load average {figures['load_average_1min']}")
-    for name in ('capsule_distances', 'robot_capsules_at_q', 'point_jacobian',
-                 'numpy_multiply_9x10'):
+    for name in ('capsule_distances', 'distances_closest_pair', 'distances_all_points',
+                 'robot_capsules_at_q', 'point_jacobian', 'numpy_multiply_9x10'):
         print(f"  {name:22s} median {figures[f'{name}_median_us']:8.2f} us   "
               f"p99 {figures[f'{name}_p99_us']:8.2f} us")
 

@@ -139,7 +139,7 @@ class PandaDemo(Demo):
         overrides = super().loop_overrides(initial_task, hand, detector)
         overrides['arm_sim'] = {**overrides.pop('scara_sim'), 'robot': 'panda'}
         overrides['controller']['robot'] = 'panda'
-        overrides['event_detector'] = {'dimension': 3, 'robot': 'panda'}
+        overrides['event_detector'] = {'dimension': 3}
         if hand.get('profile') == 'recording':  # effort_shares takes the joints from the bag
             recorder = overrides['recorder']
             overrides['recorder'] = {**recorder,

@@ -163,7 +163,7 @@ class HandSim(Node):
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on '
                                f'{self._publisher.topic_name}, the body on '
-                               f'{self._body_publisher.topic_name}')
+                               f'{self._body_publisher.topic_name} ({self._describe_body()})')
 
     def _restart_clock(self) -> None:
         self._started = time.monotonic()
@@ -220,7 +220,7 @@ class HandSim(Node):
                        value('at_end'), placement), replace(body, points=placed))
 
     def _describe(self) -> str:
-        p, body = self._source, self._body
+        p = self._source
         if isinstance(p, Replay):
             m = p.motion
             where = p.placement
@@ -240,8 +240,14 @@ class HandSim(Node):
                                 f'{list(p.segment_speeds) or p.speed} m/s'
                                 + (f', pauses {list(p.pauses)} s' if p.pauses else '')}
         return (f'{p.name} ({details[p.name]}, start delay {p.start_delay} s, '
-                f'{p.dimension}-D; body at {list(body.place)} m, height {body.height} m, '
-                f'facing {body.yaw:.3f} rad)')
+                f'{p.dimension}-D)')
+
+    def _describe_body(self) -> str:
+        body = self._body
+        if isinstance(body, RecordedBody):
+            return 'every segment of the take'
+        return (f'standing at {list(body.place)} m, height {body.height} m, facing '
+                f'{body.yaw:.3f} rad')
 
     def _trunk_clearance(self) -> float:
         """The least horizontal distance (m) of the replayed take's trunk from the base."""
@@ -260,7 +266,8 @@ class HandSim(Node):
         if any(p.name in PROFILE_PARAMETERS for p in parameters):
             self._source, self._body = self._source_from({})
             self._restart_clock()
-            self.get_logger().info(f'hand profile restarted: {self._describe()}')
+            self.get_logger().info(f'hand profile restarted: {self._describe()}; body '
+                                   f'{self._describe_body()}')
 
     def _publish(self) -> None:
         if isinstance(self._source, Replay):

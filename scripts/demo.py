@@ -51,7 +51,7 @@ from hri_bringup.processes import (  # noqa: E402
 )
 from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
-from hri_core.recorded_motion import ReachAnnulus  # noqa: E402
+from hri_core.recorded_motion import BODY_CLEARANCE, ReachAnnulus  # noqa: E402
 from hri_core.robot_model import robot_model  # noqa: E402
 from hri_core.separation import ProtectiveSeparation, separation_verdict  # noqa: E402
 from hri_core.task_file import TaskRecord, load_task_file  # noqa: E402
@@ -497,6 +497,10 @@ class Demo:
         """The reach hand_sim's auto_place puts a recorded person's path in."""
         return ReachAnnulus(*load_defaults('scara_sim', 'hand_sim')['reach'])
 
+    def body_clearance(self) -> float:
+        """How far (m) hand_sim's auto_place keeps the recorded person's trunk from the base."""
+        return BODY_CLEARANCE['scara']
+
     def points(self, messages) -> np.ndarray:
         """PointStamped messages as (N, dimension) m."""
         return np.array([(m.point.x, m.point.y, m.point.z)[:self.dimension]
@@ -550,7 +554,8 @@ class Demo:
         seconds = QUICK_RECORDED_SECONDS if self.quick else RECORDED_SECONDS
         reach = self.hand_reach()
         hand = {'profile': 'recording', 'recording': str(RECORDED_TAKE), 'auto_place': True,
-                'at_end': 'loop', 'reach': [reach.inner, reach.outer]}
+                'at_end': 'loop', 'reach': [reach.inner, reach.outer],
+                'body_clearance': self.body_clearance()}
         print(f'  a recorded person ({RECORDED_TAKE.stem}, Vicon, 100 Hz) as the hand for '
               f'{seconds:.0f} s, from follow; the event_detector switches the tasks')
         bag = self.closed_loop('recorded_person', 'follow', hand, seconds, detector=True)

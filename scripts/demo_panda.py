@@ -29,7 +29,7 @@ from demo import (
 )
 
 from hri_bringup.processes import READY_LINES, NodeProcess, not_logged, wait_until_logged
-from hri_core.recorded_motion import ReachAnnulus
+from hri_core.recorded_motion import BODY_CLEARANCE, ReachAnnulus
 from hri_core.robot_model import robot_model
 from hri_demo_learning.bag_io import read_bag
 
@@ -148,6 +148,9 @@ class PandaDemo(Demo):
 
     def hand_reach(self) -> ReachAnnulus:
         return PANDA_HAND_REACH
+
+    def body_clearance(self) -> float:
+        return BODY_CLEARANCE['panda']
 
     effort_topics = ['/joint_states']
 

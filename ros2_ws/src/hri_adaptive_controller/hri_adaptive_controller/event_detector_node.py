@@ -18,6 +18,15 @@ cost no callback each), estimates both velocities (hri_core.velocity_estimator),
   below it: hri_core.separation) while both the hand and the tool are known (their newest samples
   no older than input_timeout); nothing otherwise, never a NaN.
 
+The whole body (`robot` set: scara or panda): with a person on /human/body (hri_interfaces/
+HumanBody) and the arm's /joint_states, the separation is the least distance between the
+robot's capsules and the person's (hri_core.bodies; fitted once at start), the speeds those of
+the pair's two closest points along its normal (the robot's through the point Jacobian, the
+person's from successive body messages), and the message names the pair (robot_link,
+body_part) and its points. Until a body has come, or once the newest is older than
+`body_timeout` (one warning; one line when it is back), it falls back to the tool and the
+hand with empty names. The rules keep watching the hand and the tool.
+
 A bad rule set or parameter ends the node at start with a one-line reason (exit 1). A hand or
 tool position that is not finite or cannot be read is dropped with a throttled warning.
 """
@@ -31,10 +40,12 @@ from hri_interfaces.msg import SeparationState, TaskEvent, TaskState
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
 
 from hri_adaptive_controller.event_rules import EventDetector, RuleError, load_rules
-from hri_adaptive_controller.separation_monitor import SeparationMonitor
+from hri_adaptive_controller.separation_monitor import BodySeparation, SeparationMonitor
 from hri_core import topics
+from hri_core.bodies import panda_package_dirs, robot_body
 from hri_core.cdr import LayoutReader, point3_layout, point_stamped_layout, read_stamp
 from hri_core.node_common import (
     ParameterSpec,
@@ -44,6 +55,7 @@ from hri_core.node_common import (
     run_node,
     take_raw,
 )
+from hri_core.robot_model import ROBOT_NAMES, robot_model
 from hri_core.separation import ProtectiveSeparation
 
 PACKAGE = 'hri_adaptive_controller'
@@ -85,6 +97,14 @@ PARAMETERS = {
                                 low=1e-3, high=10.0, read_only=True),
     'assume_iso_speed': ParameterSpec(bool, 'v_h of S_p is at least the ISO 13855 speed '
                                       '(false: the measured speed alone)', read_only=True),
+    'robot': ParameterSpec(str, 'the arm whose capsules meet the person on /human/body: '
+                           + ', '.join(ROBOT_NAMES) + '; "" for the tool and the hand only',
+                           choices=('', *ROBOT_NAMES), read_only=True),
+    'body_timeout': ParameterSpec(float, 'a /human/body older than this is stale: the '
+                                  'separation falls back to the tool and the hand (s)',
+                                  low=0.01, high=10.0, read_only=True),
+    'body_padding': ParameterSpec(float, 'added to every fitted robot capsule radius (m)',
+                                  low=0.0, high=0.5, read_only=True),
 }
 
 
@@ -104,6 +124,18 @@ class EventDetectorNode(Node):
                                           values['tool_filter_time'], values['input_timeout'],
                                           values['dimension'])
         self._dimension = values['dimension']
+        self._body = None
+        if values['robot']:
+            try:
+                model = robot_model(values['robot'])
+                body = robot_body(model, panda_package_dirs() if values['robot'] == 'panda'
+                                  else (), values['body_padding'])
+            except ValueError as error:
+                raise StartupError(f'bad parameter robot: {error}') from None
+            self._body = BodySeparation(body, settings, values['body_timeout'],
+                                        values['input_timeout'])
+            self._joint_index = None
+        self._body_state = 'none'  # none (never had one), fresh, stale
         self._current_task: str | None = None
         self._frame = ''
         self._tool_reader = LayoutReader(point_stamped_layout if self._dimension == 2
@@ -127,6 +159,13 @@ class EventDetectorNode(Node):
         self._tool_sub = self._intake.create_subscription(
             PointStamped, self.resolve_topic_name(topics.EE_POSITION.name), lambda _: None,
             topics.EE_POSITION.qos, raw=True)
+        if self._body is not None:
+            self._body_sub = self._intake.create_subscription(
+                topics.HUMAN_BODY.type, self.resolve_topic_name(topics.HUMAN_BODY.name),
+                lambda _: None, topics.HUMAN_BODY.qos, raw=True)
+            self._joint_sub = self._intake.create_subscription(
+                JointState, self.resolve_topic_name(topics.JOINT_STATES.name), lambda _: None,
+                topics.LATEST_SAMPLE_QOS, raw=True)
         self.create_timer(1.0 / values['publish_rate_hz'], self._tick)
         listed = ', '.join(f'{rule.name} ({rule.kind} -> {rule.task or "none"})'
                            for rule in rules)
@@ -136,7 +175,10 @@ class EventDetectorNode(Node):
             f'({settings.reaction_time:g} + {settings.stopping_time:g}) + v_r '
             f'{settings.reaction_time:g} + {settings.stopping_distance:g} + '
             f'{settings.intrusion_distance:g} + {settings.human_uncertainty:g} + '
-            f'{settings.robot_uncertainty:g} m')
+            f'{settings.robot_uncertainty:g} m'
+            + (f'; whole body: {values["robot"]} ({len(self._body.robot.names)} capsules, '
+               f'tool {self._body.robot.tool}) against /human/body'
+               if self._body is not None else ''))
 
     def _warn(self, kind: str, text: str) -> None:
         """`text` as a warning, at most once per WARNING_THROTTLE s for each `kind`."""
@@ -189,11 +231,60 @@ class EventDetectorNode(Node):
                 continue
             self._monitor.tool(values, stamp, now)
 
+    def _take_body(self, now: float) -> None:
+        for data, _ in take_raw(self._body_sub):
+            try:
+                msg = deserialize_message(data, topics.HUMAN_BODY.type)
+                points = [(p.x, p.y, p.z) for p in msg.points]
+                stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+                self._body.body(list(msg.names), points, stamp, now)
+            except Exception as error:  # noqa: BLE001 the deserialiser's or ours (ValueError)
+                self._warn('body_bad', f'human body dropped: {error}')
+        latest = None
+        for data, _ in take_raw(self._joint_sub):
+            latest = data
+        if latest is None:
+            return
+        try:
+            msg = deserialize_message(latest, JointState)
+        except Exception as error:  # noqa: BLE001 whatever the deserialiser raises
+            self._warn('joints_cdr', f'joint state dropped: unreadable ({error})')
+            return
+        names = self._body.robot.model.joint_names
+        try:
+            index = [list(msg.name).index(name) for name in names]
+            q = [msg.position[k] for k in index]
+            dq = [msg.velocity[k] if len(msg.velocity) > k else 0.0 for k in index]
+        except (ValueError, IndexError):
+            self._warn('joints_names', f'joint state dropped: it lacks {", ".join(names)}')
+            return
+        if not all(math.isfinite(v) for v in (*q, *dq)):
+            self._warn('joints_non_finite', 'joint state dropped: non-finite values')
+            return
+        self._body.joints(q, dq, now)
+
+    def _body_sample(self, now: float):
+        """The whole-body sample, or None (fall back to tool and hand); a stale body is told
+        once, its return once."""
+        if self._body is None:
+            return None
+        self._take_body(now)
+        fresh = self._body.body_fresh(now)
+        if fresh and self._body_state != 'fresh':
+            self.get_logger().info('human body on /human/body: separation over the whole body')
+            self._body_state = 'fresh'
+        elif not fresh and self._body_state == 'fresh':
+            self.get_logger().warning('human body stale (none for body_timeout): separation '
+                                      'of the tool and the hand until it is back')
+            self._body_state = 'stale'
+        return self._body.observe(now) if fresh else None
+
     def _tick(self) -> None:
         now = time.monotonic()
         self._take_hand(now)
         self._take_tool(now)
         observation, sample = self._monitor.observe(now)
+        body = self._body_sample(now)
         stamp = self.get_clock().now().to_msg()
         for firing in self._detector.update(observation, self._current_task):
             rule = firing.rule
@@ -203,6 +294,8 @@ class EventDetectorNode(Node):
             self.get_logger().info(
                 f'event {rule.event!r} -> task {rule.task or "none"!r} (rule {rule.name}, task '
                 f'{self._current_task!r}): {firing.reason}')
+        if body is not None:
+            sample = body.sample
         if sample is None:
             return
         msg = SeparationState(separation=sample.separation, human_speed=sample.human_speed,
@@ -210,6 +303,11 @@ class EventDetectorNode(Node):
                               human_speed_used=sample.human_speed_used,
                               protective_distance=sample.protective_distance,
                               below_protective=sample.below_protective)
+        if body is not None:
+            msg.robot_link, msg.body_part = body.robot_link, body.body_part
+            msg.robot_point.x, msg.robot_point.y, msg.robot_point.z = map(float,
+                                                                          body.robot_point)
+            msg.body_point.x, msg.body_point.y, msg.body_point.z = map(float, body.body_point)
         msg.header.stamp = stamp
         msg.header.frame_id = self._frame
         self._separation_pub.publish(msg)

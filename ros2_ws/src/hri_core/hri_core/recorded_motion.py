@@ -90,8 +90,24 @@ def read_vicon_csv(path, segment: str = 'right_hand', placement: Placement = Pla
     take at half speed). Raises ValueError with a one-line reason for a file that is not such
     an export (wrong header, missing segment, no frames, non-numeric cells, bad frame rate).
     """
+    return read_vicon_segments(path, (segment,), placement, time_scale)[segment]
+
+
+def read_vicon_segments(path, segments, placement: Placement = Placement(),
+                        time_scale: float = 1.0, optional: bool = False
+                        ) -> dict[str, RecordedMotion]:
+    """Read several segments' paths from one Vicon Nexus CSV export in one pass.
+
+    segments: names as in `read_vicon_csv`; the rest as there. Returns {segment:
+    RecordedMotion} sharing one times array. Raises ValueError as `read_vicon_csv` does,
+    naming the first segment that is missing or never seen; with `optional`, a segment the
+    file does not have is left out of the result and one never seen is all NaN rows.
+    """
     if not (math.isfinite(time_scale) and time_scale > 0.0):
         raise ValueError(f'time_scale must be a positive finite number, got {time_scale}')
+    segments = tuple(segments)
+    if not segments:
+        raise ValueError('no segment asked for')
     path = Path(path)
     try:
         with path.open(newline='', encoding='utf-8-sig') as stream:
@@ -107,23 +123,36 @@ def read_vicon_csv(path, segment: str = 'right_hand', placement: Placement = Pla
         raise ValueError(f'{path.name}: line 2 must be the frame rate in Hz') from None
     if not (math.isfinite(rate_hz) and rate_hz > 0.0):
         raise ValueError(f'{path.name}: frame rate must be positive, got {rate_hz}')
-    column = _segment_column(_header_line(rows, 2, 'segment-name', path.name), segment)
+    names = _header_line(rows, 2, 'segment-name', path.name)
+    if optional:
+        wanted = {f'{SEGMENT_PREFIX}{segment}:{segment}' for segment in segments}
+        present = {cell.strip() for cell in names} & wanted
+        segments = tuple(s for s in segments if f'{SEGMENT_PREFIX}{s}:{s}' in present)
+        if not segments:
+            raise ValueError(f'{path.name} has none of the segments {", ".join(wanted)}')
+    columns = [_segment_column(names, segment) for segment in segments]
     labels = [c.strip() for c in _header_line(rows, 3, 'column-label', path.name)]
-    if labels[:1] != ['Frame'] or tuple(labels[column:column + 6]) != SEGMENT_COLUMNS:
-        raise ValueError(f"{path.name}: line 4 must read 'Frame,Sub Frame' and "
-                         f"{','.join(SEGMENT_COLUMNS)} under segment '{segment}'")
-    units = [c.strip() for c in _header_line(rows, 4, 'unit', path.name)][column + 3:column + 6]
-    if units != ['mm'] * 3:
-        raise ValueError(f"{path.name}: positions of '{segment}' must be in mm, got {units}")
+    unit_line = [c.strip() for c in _header_line(rows, 4, 'unit', path.name)]
+    for segment, column in zip(segments, columns, strict=True):
+        if labels[:1] != ['Frame'] or tuple(labels[column:column + 6]) != SEGMENT_COLUMNS:
+            raise ValueError(f"{path.name}: line 4 must read 'Frame,Sub Frame' and "
+                             f"{','.join(SEGMENT_COLUMNS)} under segment '{segment}'")
+        units = unit_line[column + 3:column + 6]
+        if units != ['mm'] * 3:
+            raise ValueError(f"{path.name}: positions of '{segment}' must be in mm, "
+                             f"got {units}")
     frames, points = [], []
     for line_number, row in enumerate(rows[5:], start=6):
         if not any(cell.strip() for cell in row):
             continue                                   # a trailing blank line
-        cells = [c.strip() for c in row[column + 3:column + 6]]
         try:
             frames.append(float(row[0]))
-            points.append([float(c) if c else math.nan for c in cells]
-                          if len(cells) == 3 else [math.nan] * 3)
+            frame_points = []
+            for column in columns:
+                cells = [c.strip() for c in row[column + 3:column + 6]]
+                frame_points.append([float(c) if c else math.nan for c in cells]
+                                    if len(cells) == 3 else [math.nan] * 3)
+            points.append(frame_points)
         except ValueError:
             raise ValueError(f'{path.name} line {line_number}: non-numeric cell') from None
     if not frames:
@@ -131,12 +160,20 @@ def read_vicon_csv(path, segment: str = 'right_hand', placement: Placement = Pla
     frames = np.asarray(frames)
     if not np.all(np.isfinite(frames)) or np.any(np.diff(frames) <= 0.0):
         raise ValueError(f'{path.name}: frame numbers must increase')
-    positions = np.asarray(points) * MM
-    positions[~np.all(np.isfinite(positions), axis=1)] = math.nan   # partly lost = lost
-    if not np.any(np.isfinite(positions[:, 0])):
-        raise ValueError(f"{path.name}: segment '{segment}' is never seen")
     times = (frames - frames[0]) / rate_hz * time_scale
-    return RecordedMotion(times, placement.apply(positions), rate_hz, segment)
+    motions = {}
+    for index, segment in enumerate(segments):
+        positions = np.asarray(points)[:, index, :] * MM
+        positions[~np.all(np.isfinite(positions), axis=1)] = math.nan  # partly lost = lost
+        if not optional and not np.any(np.isfinite(positions[:, 0])):
+            raise ValueError(f"{path.name}: segment '{segment}' is never seen")
+        motions[segment] = RecordedMotion(times, placement.apply(positions), rate_hz, segment)
+    return motions
+
+
+# auto_place's default clearance (m) of a person's trunk from each arm's base
+# (docs/design.md, "A placement a person could stand in").
+BODY_CLEARANCE = {'scara': 0.40, 'panda': 0.45}
 
 
 @dataclass(frozen=True)
@@ -172,19 +209,41 @@ def _cleaned_horizontal(positions: np.ndarray, max_step: float, width: int = 31)
     return xy[np.linalg.norm(xy - median, axis=1) <= max_step]
 
 
-def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
-                     max_points: int = 600) -> Placement:
-    """A room-to-base transform that puts most of a take's horizontal path inside `reach`.
+def body_clearances(centres, body) -> np.ndarray:
+    """The least horizontal distance (C,) m from each of `centres` (C, 2) m to any seen point
+    of `body` (N, 3) m (NaN rows skipped; every seen frame counts, marker swaps included):
+    how close a person's trunk comes to a robot base standing there. inf without a seen
+    point."""
+    from scipy.spatial import cKDTree  # only placement needs it
 
-    positions: (N, 3) room-frame path, m (NaN rows allowed). The base is placed on a grid
-    (`grid` m) round the path; for each place, the yaw turns the path's circular-mean
-    bearing onto +x, and the score is the fraction of the path inside the annulus (with
-    its margin) and the sector; ties go to the path nearest the annulus's mid-radius and
-    the +x axis (the least swinging round the base).
-    Marker-swap frames are dropped first; at most `max_points` frames are scored. The
-    translation's z is 0 (heights stay as recorded). Raises ValueError if no frame is seen.
+    body = np.asarray(body, dtype=float).reshape(-1, 3)
+    xy = body[np.all(np.isfinite(body), axis=1), :2]
+    centres = np.asarray(centres, dtype=float).reshape(-1, 2)
+    if len(xy) == 0:
+        return np.full(len(centres), math.inf)
+    return cKDTree(xy).query(centres)[0]
+
+
+def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
+                     max_points: int = 600, body=None, clearance: float = 0.0) -> Placement:
+    """A room-to-base transform that puts most of a take's horizontal path inside `reach`
+    while the person's trunk keeps `clearance` from the base.
+
+    positions: (N, 3) room-frame path, m (NaN rows allowed). body: (M, 3) room-frame points
+    that must stay at least `clearance` m (horizontally) from the base through the whole
+    take, e.g. the hip, collar and head of every frame stacked (NaN rows allowed; None:
+    no such rule). The base is placed on a grid (`grid` m) round the path; places closer
+    than `clearance` to any body point are ruled out; for each remaining place, the yaw
+    turns the path's circular-mean bearing onto +x, and the score is the fraction of the
+    path inside the annulus (with its margin) and the sector; ties go to the path nearest
+    the annulus's mid-radius and the +x axis (the least swinging round the base).
+    Marker-swap frames of the path are dropped first; at most `max_points` frames are
+    scored. The translation's z is 0 (heights stay as recorded). Raises ValueError if no
+    frame is seen, for a negative clearance, or if no place on the grid keeps it.
     """
     positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    if not (math.isfinite(clearance) and clearance >= 0.0):
+        raise ValueError(f'clearance must be a finite number >= 0 m, got {clearance}')
     xy = _cleaned_horizontal(positions, max_step=0.3)
     if len(xy) == 0:
         raise ValueError('the path has no seen frame to place')
@@ -193,10 +252,17 @@ def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
     gx = np.arange(low[0], high[0] + grid, grid)
     gy = np.arange(low[1], high[1] + grid, grid)
     centres = np.stack(np.meshgrid(gx, gy, indexing='ij'), axis=-1).reshape(-1, 2)
+    if body is not None and clearance > 0.0:
+        centres = centres[body_clearances(centres, body) >= clearance]
+        if len(centres) == 0:
+            raise ValueError(f'no base place within reach of the path keeps the body '
+                             f'{clearance} m away')
     inner, outer = reach.inner + reach.margin, reach.outer - reach.margin
     middle = 0.5 * (inner + outer)
     best = (-math.inf, None, 0.0)
     for chunk in np.array_split(centres, max(1, len(centres) // 2000)):
+        if len(chunk) == 0:
+            continue
         offset = xy[None, :, :] - chunk[:, None, :]           # (C, M, 2)
         radius = np.hypot(offset[..., 0], offset[..., 1])
         bearing = np.arctan2(offset[..., 1], offset[..., 0])

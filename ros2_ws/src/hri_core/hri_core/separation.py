@@ -205,3 +205,19 @@ def separation_verdict(d1: float, arm_speed: float,
         # A still hand whatever assume_iso_speed says (with it, 0 m/s would be raised to K).
         arm_speed_limit_still_hand=replace(settings, assume_iso_speed=False).arm_speed_limit(
             d1, 0.0))
+
+
+def pair_separation_sample(distance: float, normal, robot_velocity, human_velocity,
+                           settings: ProtectiveSeparation) -> SeparationSample:
+    """S_p for the closest pair of the robot's and the person's capsules (hri_core.bodies):
+    distance between their surfaces (m; below 0, overlapping, taken as 0), normal (3,) the
+    unit vector from the robot's closest point towards the person's, robot_velocity and
+    human_velocity (3,) m/s of those two points. The speeds are taken along the normal:
+    human_speed = -v_h . n (towards the robot), robot_speed = v_r . n (towards the person)."""
+    normal = np.asarray(normal, dtype=float)
+    separation = max(float(distance), 0.0)
+    human_speed = 0.0 - float(np.asarray(human_velocity, dtype=float) @ normal)
+    robot_speed = float(np.asarray(robot_velocity, dtype=float) @ normal)
+    used = settings.human_speed_used(human_speed, separation)
+    return SeparationSample(separation, human_speed, robot_speed, used,
+                            settings.distance(used, robot_speed))

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from hri_interfaces.msg import (
     ControllerState,
+    HumanBody,
     SeparationState,
     TaskEvent,
     TaskParameters,
@@ -68,6 +69,8 @@ VELOCITY_COMMANDS = Topic('/velocity_controller/commands', Float64MultiArray, CO
 HUMAN_WRENCH = Topic('/human/wrench', WrenchStamped, COMMAND_QOS)
 DEMO_REFERENCE = Topic('/demo/reference', PointStamped, SENSOR_STREAM_QOS)
 TARGET = Topic('/target', PointStamped, SENSOR_STREAM_QOS)
+# The person's body as REP-155-named points (m, base frame): hand_sim, a body tracker.
+HUMAN_BODY = Topic('/human/body', HumanBody, SENSOR_STREAM_QOS)
 TASK = Topic('/hri/task', TaskParameters, LEARNED_TASKS_QOS)
 EVENTS = Topic('/hri/events', TaskEvent, EVENT_QOS)
 TASK_STATE = Topic('/hri/task_state', TaskState, TASK_STATE_QOS)
@@ -78,4 +81,4 @@ ROBOT_DESCRIPTION = Topic('/robot_description', String, ROBOT_DESCRIPTION_QOS)
 # What the recorder writes by default: everything the learner and the reports read, and the
 # arm that made the demonstration (its URDF, latched: the recorder gets it however late it joins).
 DEMONSTRATION_TOPICS = (JOINT_STATES, EE_POSITION, DEMO_REFERENCE, TARGET, HUMAN_WRENCH,
-                        ROBOT_DESCRIPTION)
+                        ROBOT_DESCRIPTION, HUMAN_BODY)

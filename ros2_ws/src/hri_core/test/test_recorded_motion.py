@@ -7,12 +7,15 @@ import numpy as np
 import pytest
 
 from hri_core.recorded_motion import (
+    BODY_CLEARANCE,
     Placement,
     ReachAnnulus,
     Replay,
+    body_clearances,
     choose_placement,
     reach_fraction,
     read_vicon_csv,
+    read_vicon_segments,
 )
 
 TAKES = sorted((Path(__file__).resolve().parents[4] / 'data' / 'human-motion').glob('*.csv'))
@@ -202,3 +205,69 @@ def test_placement_ignores_a_long_marker_swap():
     swapped[200:212] += (4.0, 3.0, 0.0)                      # 12 frames metres away
     placement = choose_placement(swapped, SCARA_REACH)
     assert reach_fraction(placement.apply(arc), SCARA_REACH) == 1.0
+
+
+# -- a placement a person could stand in ---------------------------------------------------
+# Each arm's reach annulus as hand_sim gets it: the SCARA's default (hand_sim.yaml) and the
+# Panda's demo (scripts/demo_panda.py's PANDA_HAND_REACH).
+ARM_REACH = {'scara': SCARA_REACH, 'panda': ReachAnnulus(0.30, 0.75)}
+# Share of each take's hand path in reach with the trunk kept clear, at least: the least over
+# the eight takes and both arms is 0.68 (CollaborativeHammering_1, SCARA).
+MIN_IN_REACH = 0.65
+
+
+@pytest.mark.parametrize('arm', sorted(ARM_REACH))
+@pytest.mark.parametrize('take', TAKES, ids=lambda path: path.stem)
+def test_auto_place_keeps_the_trunk_clear_and_most_of_the_hand_in_reach(take, arm):
+    from hri_core.human_body import BODY_POINTS, read_recorded_body
+
+    body = read_recorded_body(take)
+    hand = body.points[:, BODY_POINTS.index('r_wrist')]
+    reach, clearance = ARM_REACH[arm], BODY_CLEARANCE[arm]
+    placement = choose_placement(hand, reach, body=body.trunk(), clearance=clearance)
+    trunk = placement.apply(body.trunk())
+    trunk = trunk[np.all(np.isfinite(trunk), axis=1)]
+    assert len(trunk) > 0.9 * 3 * len(body.times)
+    assert np.min(np.hypot(trunk[:, 0], trunk[:, 1])) >= clearance
+    assert reach_fraction(placement.apply(hand), reach) >= MIN_IN_REACH
+
+
+def test_without_a_clearance_two_takes_put_the_hip_by_the_panda():
+    # What the clearance is for: the placement by reach alone.
+    from hri_core.human_body import BODY_POINTS, read_recorded_body
+
+    for name, closest in (('RobotHumanHandover_1', 0.05), ('CollaborativeHammering_1', 0.3)):
+        body = read_recorded_body(next(t for t in TAKES if t.stem == name))
+        hip = body.points[:, BODY_POINTS.index('body')]
+        placed = choose_placement(body.points[:, BODY_POINTS.index('r_wrist')],
+                                  ARM_REACH['panda']).apply(hip)
+        assert np.nanmin(np.hypot(placed[:, 0], placed[:, 1])) < closest
+
+
+def test_a_clearance_no_place_keeps_is_refused_in_one_line():
+    path = np.column_stack([np.linspace(0.0, 1.0, 50), np.zeros(50), np.zeros(50)])
+    body = np.column_stack([np.linspace(-3.0, 3.0, 301), np.zeros(301), np.zeros(301)])
+    body = np.vstack([body, body[:, [1, 0, 2]]])  # a cross 6 m wide round the path
+    with pytest.raises(ValueError, match='no base place within reach of the path keeps'):
+        choose_placement(path, SCARA_REACH, body=body, clearance=1.5)
+    with pytest.raises(ValueError, match='clearance must be a finite number >= 0 m'):
+        choose_placement(path, SCARA_REACH, body=body, clearance=-0.1)
+
+
+def test_body_clearances_is_the_least_horizontal_distance():
+    body = np.array([[1.0, 0.0, 5.0], [np.nan, np.nan, np.nan], [0.0, 2.0, -1.0]])
+    np.testing.assert_allclose(body_clearances([[0.0, 0.0], [1.0, 1.0]], body), [1.0, 1.0])
+    assert body_clearances([[0.0, 0.0]], np.full((2, 3), np.nan))[0] == math.inf
+
+
+def test_read_vicon_segments_reads_several_in_one_pass(tmp_path):
+    rows = [(1, {'head': (0, 0, 1500), 'right_hand': (100.0, -200.0, 900.0)}),
+            (2, {'head': (0, 0, 1510)})]
+    motions = read_vicon_segments(write(tmp_path, vicon_text(rows)), ('head', 'right_hand'))
+    np.testing.assert_allclose(motions['head'].positions[:, 2], [1.5, 1.51])
+    assert motions['right_hand'].valid.tolist() == [True, False]
+    optional = read_vicon_segments(write(tmp_path, vicon_text(rows)), ('hip', 'head'),
+                                   optional=True)
+    assert list(optional) == ['head']
+    with pytest.raises(ValueError, match="no segment 'hip'"):
+        read_vicon_segments(write(tmp_path, vicon_text(rows)), ('hip', 'head'))

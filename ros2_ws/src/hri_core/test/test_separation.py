@@ -118,3 +118,16 @@ def test_verdict_at_its_own_limit_is_met():
 def test_verdict_refuses_bad_values(d1, speed, match):
     with pytest.raises(ValueError, match=match):
         separation_verdict(d1, speed, SETTINGS)
+
+
+def test_the_pair_sample_takes_the_speeds_along_the_normal():
+    from hri_core.separation import pair_separation_sample
+
+    settings = ProtectiveSeparation(0.1, 0.95, 0.18, 0.1, 0.01, 0.001, 2.0, 1.6, 0.5, False)
+    normal = np.array([1.0, 0.0, 0.0])  # from the robot's point towards the person's
+    sample = pair_separation_sample(0.3, normal, [0.2, 0.5, 0.0], [-0.4, 0.0, 1.0], settings)
+    assert sample.separation == 0.3
+    assert sample.robot_speed == pytest.approx(0.2) and sample.human_speed == pytest.approx(0.4)
+    assert sample.protective_distance == pytest.approx(0.4 * 1.05 + 0.2 * 0.1 + 0.291)
+    overlapping = pair_separation_sample(-0.02, normal, [0, 0, 0], [0, 0, 0], settings)
+    assert overlapping.separation == 0.0 and overlapping.below_protective

@@ -11,20 +11,29 @@ switch `dimension`, set it and the points the profile uses in one call).
 
 `profile: recording` replays a Vicon Nexus CSV export (`recording`, hri_core.recorded_motion)
 at its recorded pace: the segment `segment`, moved into the base frame by p_base =
-Rz(`yaw`) p_room + `translation` (or, with `auto_place`, by the placement that puts most of
-the take's horizontal path within the `reach` annulus), its times multiplied by `time_scale`;
+Rz(`yaw`) p_room + `translation` (or, with `auto_place`, by the placement that keeps the
+person's hip, collar and head `body_clearance` m from the base through the whole take and,
+among those, puts most of the take's horizontal path within the `reach` annulus), its times
+multiplied by `time_scale`;
 at the end it loops, stops or holds the last frame (`at_end`). Each tick publishes the newest
 frame due, stamped with the time it was recorded at (the replay's start plus the frame's
 time), x, y and z; a lost frame publishes nothing. A file that cannot be read ends the node
 at start with one line and exit code 1 (refused at run time with the reason).
+
+With every /target the node publishes the person on /human/body (hri_interfaces/HumanBody,
+REP-155 names, hri_core.human_body): for a recording every segment of that frame, placed as
+the hand, a segment lost in it left out; for a scripted profile a standing body whose body
+point is at `body_place` [x, y] and `body_height` m, facing `body_yaw` (unset: the base),
+whose right wrist is the scripted hand (elbow by two-link inverse kinematics).
 """
 
 import math
 import sys
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
-from geometry_msgs.msg import PointStamped
+import numpy as np
+from geometry_msgs.msg import Point, PointStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.experimental import EventsExecutor
@@ -32,6 +41,12 @@ from rclpy.node import Node
 
 from hri_core import topics
 from hri_core.cdr import point_stamped_template
+from hri_core.human_body import (
+    BODY_POINTS,
+    RecordedBody,
+    read_recorded_body,
+    standing_body,
+)
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -92,12 +107,33 @@ PARAMETERS = {
                                 'speed)', 0.01, 100.0),
     'at_end': ParameterSpec(str, 'recording profile: at the end ' + ' | '.join(AT_END),
                             choices=AT_END),
+    'body_clearance': ParameterSpec(float, 'recording profile: auto_place keeps the person\'s '
+                                    'hip, collar and head at least this far from the base, '
+                                    'horizontally, through the whole take (m; the Panda: '
+                                    '0.45)', 0.0, 2.0),
+    'body_place': ParameterSpec(list, 'scripted profiles: where the person stands, [x, y] of '
+                                'the point between the hips (m) on /human/body', size=2),
+    'body_height': ParameterSpec(float, 'scripted profiles: z of the point between the hips '
+                                 '(m)', -2.0, 2.0),
+    'body_yaw': ParameterSpec(float, 'scripted profiles: the direction the person faces '
+                              '(rad about z); unset: towards the base', -2.0 * math.pi,
+                              2.0 * math.pi, optional=True),
 }
 RECORDING_PARAMETERS = ('recording', 'segment', 'translation', 'yaw', 'auto_place', 'reach',
-                        'time_scale', 'at_end')
+                        'time_scale', 'at_end', 'body_clearance')
+BODY_PARAMETERS = ('body_place', 'body_height', 'body_yaw')
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
                       'waypoints', 'dimension', 'segment_speeds', 'pauses',
-                      *RECORDING_PARAMETERS)
+                      *RECORDING_PARAMETERS, *BODY_PARAMETERS)
+
+
+@dataclass(frozen=True)
+class StandingPlace:
+    """Where the scripted profiles' person stands: place (2,) m, height m, yaw rad."""
+
+    place: tuple[float, float]
+    height: float
+    yaw: float
 
 
 class HandSim(Node):
@@ -109,7 +145,7 @@ class HandSim(Node):
         rate_hz = values['rate_hz']
         self._frame = values['base_frame']
         try:
-            self._source = self._source_from({})
+            self._source, self._body = self._source_from({})
         except ValueError as error:
             what = 'recording' if values['profile'] == RECORDING else 'parameters'
             raise StartupError(f'bad {what}: {error}') from None
@@ -118,19 +154,24 @@ class HandSim(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publisher = self.create_publisher(PointStamped, topics.TARGET.name,
                                                 topics.TARGET.qos)
+        self._body_publisher = self.create_publisher(topics.HUMAN_BODY.type,
+                                                     topics.HUMAN_BODY.name,
+                                                     topics.HUMAN_BODY.qos)
         # Published as serialized CDR from a template: the node's 100 Hz tick runs beside the
         # 1 kHz loop on the same cores, so the less it holds a CPU the better.
         self._template = point_stamped_template(self._frame)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on '
-                               f'{self._publisher.topic_name}')
+                               f'{self._publisher.topic_name}, the body on '
+                               f'{self._body_publisher.topic_name} ({self._describe_body()})')
 
     def _restart_clock(self) -> None:
         self._started = time.monotonic()
         self._started_ns = self.get_clock().now().nanoseconds
         self._last_frame_time = None  # the recorded time of the last frame published
 
-    def _source_from(self, overrides: dict) -> HandProfile | Replay:
+    def _source_from(self, overrides: dict
+                     ) -> tuple[HandProfile | Replay, RecordedBody | StandingPlace]:
         def value(name):
             if name in overrides:
                 return overrides[name]
@@ -141,29 +182,42 @@ class HandSim(Node):
 
         if value('profile') == RECORDING:
             return self._replay_from(value)
+        place = tuple(float(v) for v in value('body_place'))
+        if not all(math.isfinite(v) for v in place):
+            raise ValueError(f'body_place must be finite, got {list(place)}')
+        yaw = value('body_yaw')
+        if yaw is None:
+            if math.hypot(*place) == 0.0:
+                raise ValueError('body_place [0, 0] is the base itself: set body_yaw or '
+                                 'stand elsewhere')
+            yaw = math.atan2(-place[1], -place[0])
         return HandProfile(
             name=value('profile'), start=tuple(value('start')), end=tuple(value('end')),
             speed=value('speed'), period=value('period'), radius=value('radius'),
             start_delay=value('start_delay'), waypoints=tuple(value('waypoints')),
             segment_speeds=tuple(value('segment_speeds') or ()),
-            pauses=tuple(value('pauses') or ()), dimension=value('dimension'))
+            pauses=tuple(value('pauses') or ()), dimension=value('dimension')), \
+            StandingPlace(place, float(value('body_height')), float(yaw))
 
     @staticmethod
-    def _replay_from(value) -> Replay:
+    def _replay_from(value) -> tuple[Replay, RecordedBody]:
         """The replay the recording parameters ask for; ValueError with the reason."""
         if not value('recording'):
             raise ValueError('profile recording needs the parameter recording (a Vicon CSV '
                              'export)')
         motion = read_vicon_csv(value('recording'), value('segment'),
                                 time_scale=value('time_scale'))
+        body = read_recorded_body(value('recording'), time_scale=value('time_scale'))
         if value('auto_place'):
             inner, outer = value('reach')
-            placement = choose_placement(motion.positions, ReachAnnulus(inner, outer))
+            placement = choose_placement(motion.positions, ReachAnnulus(inner, outer),
+                                         body=body.trunk(), clearance=value('body_clearance'))
         else:
             placement = Placement(tuple(float(v) for v in value('translation')),
                                   float(value('yaw')))
-        return Replay(replace(motion, positions=placement.apply(motion.positions)),
-                      value('at_end'), placement)
+        placed = placement.apply(body.points.reshape(-1, 3)).reshape(body.points.shape)
+        return (Replay(replace(motion, positions=placement.apply(motion.positions)),
+                       value('at_end'), placement), replace(body, points=placed))
 
     def _describe(self) -> str:
         p = self._source
@@ -173,7 +227,8 @@ class HandSim(Node):
             return (f'recording ({self.get_parameter("recording").value}, {m.segment}, '
                     f'{len(m.times)} frames over {m.times[-1]:.1f} s, '
                     f'{100.0 * (1.0 - m.valid.mean()):.1f} % lost; translation '
-                    f'{[round(v, 3) for v in where.translation]} m, yaw {where.yaw:.3f} rad; '
+                    f'{[round(v, 3) for v in where.translation]} m, yaw {where.yaw:.3f} rad, '
+                    f'trunk at least {self._trunk_clearance():.3f} m from the base; '
                     f'at end {p.at_end})')
         details = {'hold': f'at {list(p.start)}',
                    'approach': f'{list(p.start)} -> {list(p.end)} at {p.speed} m/s',
@@ -187,6 +242,19 @@ class HandSim(Node):
         return (f'{p.name} ({details[p.name]}, start delay {p.start_delay} s, '
                 f'{p.dimension}-D)')
 
+    def _describe_body(self) -> str:
+        body = self._body
+        if isinstance(body, RecordedBody):
+            return 'every segment of the take'
+        return (f'standing at {list(body.place)} m, height {body.height} m, facing '
+                f'{body.yaw:.3f} rad')
+
+    def _trunk_clearance(self) -> float:
+        """The least horizontal distance (m) of the replayed take's trunk from the base."""
+        trunk = self._body.trunk()
+        trunk = trunk[np.all(np.isfinite(trunk), axis=1)]
+        return float(np.min(np.hypot(trunk[:, 0], trunk[:, 1]))) if len(trunk) else math.inf
+
     def _validate_parameters(self, parameters) -> SetParametersResult:
         try:
             self._source_from({p.name: p.value for p in parameters})
@@ -196,9 +264,10 @@ class HandSim(Node):
 
     def _apply_parameters(self, parameters) -> None:
         if any(p.name in PROFILE_PARAMETERS for p in parameters):
-            self._source = self._source_from({})
+            self._source, self._body = self._source_from({})
             self._restart_clock()
-            self.get_logger().info(f'hand profile restarted: {self._describe()}')
+            self.get_logger().info(f'hand profile restarted: {self._describe()}; body '
+                                   f'{self._describe_body()}')
 
     def _publish(self) -> None:
         if isinstance(self._source, Replay):
@@ -207,8 +276,24 @@ class HandSim(Node):
         position = hand_position(self._source, time.monotonic() - self._started).tolist()
         if len(position) == 2:
             position.append(0.0)  # the planar arm's plane
-        stamp = self.get_clock().now().seconds_nanoseconds()
+        now = self.get_clock().now()
+        stamp = now.seconds_nanoseconds()
         self._publisher.publish(self._template.encode(tuple(position), stamp=stamp))
+        where = self._body
+        self._publish_body(BODY_POINTS, standing_body(where.place, where.yaw, where.height,
+                                                      position), stamp)
+
+    def _publish_body(self, names, points, stamp: tuple[int, int]) -> None:
+        """names (K,) and points (K, 3) m on /human/body, stamped (sec, nanosec); nothing
+        for K = 0."""
+        if not len(names):
+            return
+        msg = topics.HUMAN_BODY.type()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = stamp
+        msg.header.frame_id = self._frame
+        msg.names = list(names)
+        msg.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in points]
+        self._body_publisher.publish(msg)
 
     def _publish_frame(self) -> None:
         """The newest recorded frame due, once, stamped when it was recorded; nothing for a
@@ -220,12 +305,13 @@ class HandSim(Node):
         index, frame_time = due
         self._last_frame_time = frame_time
         motion = self._source.motion
-        if not motion.valid[index]:
-            return
         stamp = started + int(round(frame_time * 1e9))
-        x, y, z = motion.positions[index]
-        self._publisher.publish(self._template.encode(
-            (float(x), float(y), float(z)), stamp=(stamp // 1_000_000_000, stamp % 1_000_000_000)))
+        stamp = (stamp // 1_000_000_000, stamp % 1_000_000_000)
+        if motion.valid[index]:
+            x, y, z = motion.positions[index]
+            self._publisher.publish(self._template.encode((float(x), float(y), float(z)),
+                                                          stamp=stamp))
+        self._publish_body(*self._body.frame(index), stamp)
 
 
 def main(args=None):

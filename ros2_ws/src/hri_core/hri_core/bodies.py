@@ -1,0 +1,435 @@
+"""The robot and the person as capsules, their distances, and the point Jacobian to push
+the robot through.
+
+No ROS here. A capsule is a segment a-b (m) swept by a ball of radius r (m); a sphere is a
+capsule with a = b. Everything is in the robot's base frame.
+
+**The person** (`human_capsules`): capsules between the REP-155 points of a HumanBody
+(hri_core.human_body) with `HUMAN_RADII`, half the DIN 33402-2 95th-percentile thicknesses
+(as TUM's sara-shield uses them): upper arm 0.20, forearm 0.132, hand 0.206, torso 0.434,
+head 0.434 m. `HUMAN_CAPSULES` lists the ten: the head a sphere round `head`, the torso from
+`body` to `torso`, a shoulder from `torso` to each shoulder and the upper arm from there to the
+elbow (upper-arm radius), the forearm from elbow to wrist, the hand a sphere round the wrist
+(the Vicon hand segment's origin). A capsule one of whose points is missing in a message is
+left out.
+
+**The robot** (`robot_body`): one capsule per link, fitted once at start. A URDF arm's from its
+collision geometry, loaded through pinocchio with coal (meshes as coal BVH models, boxes,
+spheres, cylinders): each link's collision points (mesh vertices, box corners, points on
+spheres and cylinders) in its moving joint's frame, the capsule's axis their principal axis,
+its radius and ends the least that hold every point. Links on joints that are locked in the
+model (a gripper's fingers) join the link they hang from; a link without collision geometry
+has no capsule; the base link rides on no joint. The capsule of the link the tool frame hangs
+on is the tool's (`RobotBody.tool`). The SCARA's two capsules come from its link lengths (base
+to elbow, elbow to tool point) with `SCARA_LINK_RADIUS`; it moves in the plane z = 0 and its
+distances are measured in that plane (`RobotBody.planar`: the person's capsules are projected
+onto it).
+
+**Distances** (`capsule_distances`): for every robot capsule i (R of them) and every human
+capsule j (H), vectorised in numpy: the distance between their surfaces (R, H) m (negative:
+they overlap by that much), the closest points on each surface (R, H, 3) m and the unit
+normal (R, H, 3) from the robot's point towards the person's. `Distances.closest()` is the
+pair with the least distance. Equal to coal's capsule distances (unit test, 1e-9 m).
+
+**Point Jacobian** (`RobotBody.point_jacobian(q, capsule, point)`): J (3, n) with
+v_point = J dq (m/s) for a point (3,) m moving with the capsule's link: pinocchio's joint
+Jacobian (LOCAL_WORLD_ALIGNED) with the point's offset from the joint, J_v - [p - o]x J_w;
+the SCARA's analytically. Zero for a capsule on the base.
+"""
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from hri_core.robot_model import PinocchioModel, RobotModel, ScaraModel
+
+# m: half of DIN 33402-2's 95th-percentile thickness of each part (sara-shield's table).
+HUMAN_RADII = {'upper_arm': 0.20 / 2, 'forearm': 0.132 / 2, 'hand': 0.206 / 2,
+               'torso': 0.434 / 2, 'head': 0.434 / 2}
+# (capsule name, from point, to point, radius key); a sphere has from == to.
+HUMAN_CAPSULES = (
+    ('head', 'head', 'head', 'head'),
+    ('torso', 'body', 'torso', 'torso'),
+    ('l_shoulder', 'torso', 'l_shoulder', 'upper_arm'),
+    ('r_shoulder', 'torso', 'r_shoulder', 'upper_arm'),
+    ('l_upper_arm', 'l_shoulder', 'l_elbow', 'upper_arm'),
+    ('r_upper_arm', 'r_shoulder', 'r_elbow', 'upper_arm'),
+    ('l_forearm', 'l_elbow', 'l_wrist', 'forearm'),
+    ('r_forearm', 'r_elbow', 'r_wrist', 'forearm'),
+    ('l_hand', 'l_wrist', 'l_wrist', 'hand'),
+    ('r_hand', 'r_wrist', 'r_wrist', 'hand'),
+)
+SCARA_LINK_RADIUS = 0.05  # m, the SCARA's links (no collision geometry of its own)
+_TINY = 1e-300  # a divisor floor: degenerate segments (spheres) never divide by zero
+_ONES = np.ones(3)
+_FLAT = np.array([1.0, 1.0, 0.0])
+
+
+@dataclass(frozen=True)
+class Capsules:
+    """K capsules: names (K,), ends a and b (K, 3) m, radius (K,) m. What the distances need
+    of one set alone (axes, their dot products) is computed once per set and kept."""
+
+    names: tuple[str, ...]
+    a: np.ndarray
+    b: np.ndarray
+    radius: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @cached_property
+    def axis(self) -> np.ndarray:
+        """b - a (K, 3) m."""
+        return self.b - self.a
+
+    @cached_property
+    def stacked(self) -> np.ndarray:
+        """[axis; a] (2K, 3) m: one matmul gives every cross dot product of two sets."""
+        return np.concatenate((self.axis, self.a))
+
+    @cached_property
+    def axis_dots(self) -> tuple[np.ndarray, np.ndarray]:
+        """(axis . axis, axis . a) (K,) m^2, each floored at _TINY for the first."""
+        axis = self.axis
+        return np.maximum((axis * axis) @ _ONES, _TINY), (axis * self.a) @ _ONES
+
+    @cached_property
+    def flat(self) -> 'Capsules':
+        """The capsules projected onto the plane z = 0."""
+        return Capsules(self.names, self.a * _FLAT, self.b * _FLAT, self.radius)
+
+
+def human_capsules(names, points, radii=None) -> Capsules:
+    """The person's capsules (HUMAN_CAPSULES) from REP-155 names (K,) and points (K, 3) m;
+    radii: {part: m} overriding HUMAN_RADII. A capsule with a point missing is left out.
+    ValueError (one line) for non-finite points, repeated names or a bad radius."""
+    radii = {**HUMAN_RADII, **(radii or {})}
+    for part, value in radii.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
+            raise ValueError(f'radius of {part} must be a finite number >= 0 m, got {value!r}')
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    names = tuple(names)
+    if len(names) != len(points):
+        raise ValueError(f'{len(names)} names for {len(points)} points')
+    if len(set(names)) != len(names):
+        raise ValueError(f'repeated body point names: {", ".join(names)}')
+    if not np.all(np.isfinite(points)):
+        raise ValueError('body points must be finite')
+    where = dict(zip(names, points, strict=True))
+    kept = [(name, where[start], where[end], radii[part])
+            for name, start, end, part in HUMAN_CAPSULES if start in where and end in where]
+    if not kept:
+        return Capsules((), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    return Capsules(tuple(k[0] for k in kept), np.array([k[1] for k in kept]),
+                    np.array([k[2] for k in kept]), np.array([k[3] for k in kept], float))
+
+
+class Distances:
+    """Every robot capsule (R) against every human capsule (H), m.
+
+    distance (R, H): between the surfaces (< 0: overlap depth); robot_point and human_point
+    (R, H, 3): the closest points on each surface; normal (R, H, 3): the unit vector from the
+    robot's centre line towards the person's (the direction the distance grows along). The
+    distances are computed at once; the (R, H, 3) arrays when first asked for (`pair(i, j)`
+    gives one pair's without them)."""
+
+    def __init__(self, robot: 'Capsules', human: 'Capsules', s, t, between, centre):
+        self.robot, self.human = robot, human
+        self._s, self._t, self._between, self._centre = s, t, between, centre
+        self.distance = centre - robot.radius[:, None] - human.radius
+
+    def closest(self) -> tuple[int, int]:
+        """(i, j): the robot and human capsule of the least distance. ValueError if empty."""
+        if self.distance.size == 0:
+            raise ValueError('no capsule pair to compare')
+        i, j = np.unravel_index(int(np.argmin(self.distance)), self.distance.shape)
+        return int(i), int(j)
+
+    @cached_property
+    def normal(self) -> np.ndarray:
+        centre, between = self._centre, self._between
+        if centre.min() >= 1e-12:
+            return between / centre[..., None]
+        return np.array([[self._pair_normal(i, j) for j in range(centre.shape[1])]
+                         for i in range(centre.shape[0])]).reshape(between.shape)
+
+    @cached_property
+    def robot_point(self) -> np.ndarray:
+        robot = self.robot
+        return (robot.a[:, None, :] + self._s[..., None] * robot.axis[:, None, :]
+                + robot.radius[:, None, None] * self.normal)
+
+    @cached_property
+    def human_point(self) -> np.ndarray:
+        human = self.human
+        return human.a + self._t[..., None] * human.axis - human.radius[:, None] * self.normal
+
+    def _pair_normal(self, i: int, j: int) -> np.ndarray:
+        """The normal of pair (i, j) (3,): along the centre lines' closest points, or where
+        they meet between the segments' midpoints, or +z if those meet too."""
+        if self._centre[i, j] >= 1e-12:
+            return self._between[i, j] / self._centre[i, j]
+        robot, human = self.robot, self.human
+        between = 0.5 * (human.a[j] + human.b[j] - robot.a[i] - robot.b[i])
+        length = float(np.linalg.norm(between))
+        return between / length if length >= 1e-12 else np.array([0.0, 0.0, 1.0])
+
+    def parameters(self, i: int, j: int) -> tuple[float, float]:
+        """(s, t) in [0, 1] of pair (i, j): where its closest points lie along the robot's
+        capsule (a + s (b - a)) and the person's (a + t (b - a))."""
+        return float(self._s[i, j]), float(self._t[i, j])
+
+    def pair(self, i: int, j: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(distance m, robot_point (3,) m, human_point (3,) m, normal (3,)) of pair (i, j)."""
+        robot, human = self.robot, self.human
+        normal = self._pair_normal(i, j)
+        robot_point = robot.a[i] + self._s[i, j] * robot.axis[i] + robot.radius[i] * normal
+        human_point = human.a[j] + self._t[i, j] * human.axis[j] - human.radius[j] * normal
+        return float(self.distance[i, j]), robot_point, human_point, normal
+
+
+def segment_parameters(robot: 'Capsules', human: 'Capsules') -> tuple[np.ndarray, np.ndarray]:
+    """The closest points' parameters s, t in [0, 1] (R, H) of the robot's axes a1 + s d1
+    (R of them) and the person's a2 + t d2 (H) (Ericson, Real-Time Collision Detection
+    5.1.9, vectorised: s of the infinite lines clamped, t from it clamped, then s again from
+    the clamped t, which leaves an interior solution as it is). A zero-length segment (a
+    sphere) takes parameter 0; for parallel segments s starts at an end and the two steps
+    after it still find the least distance."""
+    r, h = len(robot), len(human)
+    products = robot.stacked @ human.stacked.T                          # (2R, 2H)
+    b = products[:r, :h]                                                # d1.d2
+    a, d1_a1 = robot.axis_dots
+    e, d2_a2 = human.axis_dots
+    a = a[:, None]
+    c = d1_a1[:, None] - products[:r, h:]                               # d1.(a1 - a2)
+    f = products[r:, :h] - d2_a2                                        # d2.(a1 - a2)
+    s = (b * f - c * e) / np.maximum(a * e - b * b, _TINY)
+    np.minimum(np.maximum(s, 0.0, out=s), 1.0, out=s)
+    t = (b * s + f) / e
+    np.minimum(np.maximum(t, 0.0, out=t), 1.0, out=t)
+    s = (b * t - c) / a
+    np.minimum(np.maximum(s, 0.0, out=s), 1.0, out=s)
+    return s, t
+
+
+def capsule_distances(robot: Capsules, human: Capsules, planar: bool = False) -> Distances:
+    """Every robot capsule against every human capsule (module docstring): shapes (R, H) and
+    (R, H, 3), m. planar: measure in the plane z = 0 (a planar arm): the human capsules'
+    ends are projected onto it (z = 0) before the distance is taken. Pass the same human
+    Capsules object each cycle: what it needs of the person alone is computed once."""
+    if planar:
+        human = human.flat
+    s, t = segment_parameters(robot, human)
+    between = ((human.a - robot.a[:, None, :]) + t[..., None] * human.axis
+               - s[..., None] * robot.axis[:, None, :])
+    centre = np.sqrt((between * between) @ _ONES)
+    return Distances(robot, human, s, t, between, centre)
+
+
+def fit_capsule(points) -> tuple[np.ndarray, np.ndarray, float]:
+    """A capsule (a (3,), b (3,), radius) m holding every point of `points` (M, 3) m: its axis
+    the points' principal axis through the centre of their least enclosing circle across it
+    (Nelder-Mead on the largest radial distance), its radius that distance, its ends the
+    least that keep every point within the radius of the segment."""
+    from scipy.optimize import minimize  # only at start
+
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(points) == 0 or not np.all(np.isfinite(points)):
+        raise ValueError('a capsule needs at least one finite point')
+    centroid = points.mean(axis=0)
+    centred = points - centroid
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    axis = axes[0] if len(axes) else np.array([0.0, 0.0, 1.0])
+    across = np.linalg.svd(np.eye(3) - np.outer(axis, axis))[0][:, :2]   # (3, 2)
+    flat = centred @ across                                              # (M, 2)
+
+    def widest(centre):
+        return float(np.max(np.hypot(*(flat - centre).T)))
+
+    centre = minimize(widest, 0.5 * (flat.min(axis=0) + flat.max(axis=0)),
+                      method='Nelder-Mead', options={'xatol': 1e-7, 'fatol': 1e-9}).x
+    radial = np.hypot(*(flat - centre).T)
+    radius = float(np.max(radial))
+    along = centred @ axis
+    slack = np.sqrt(np.maximum(radius ** 2 - radial ** 2, 0.0))
+    # A point at axial position u is within the radius of the segment [low, high] when
+    # low - slack <= u <= high + slack: the shortest segment that holds every point.
+    low, high = float(np.min(along + slack)), float(np.max(along - slack))
+    if low > high:  # a short blob: every point within the radius of one point
+        low = high = 0.5 * (low + high)
+    origin = centroid + across @ centre
+    return origin + low * axis, origin + high * axis, radius
+
+
+def _shape_points(geometry, coal) -> np.ndarray:
+    """Points (M, 3) in a coal shape's own frame whose capsule holds the shape: a mesh's
+    vertices, a box's corners, points round a sphere or a cylinder, a capsule's ends padded."""
+    if hasattr(geometry, 'vertices'):
+        return np.asarray(geometry.vertices(), dtype=float).reshape(-1, 3)
+    if isinstance(geometry, coal.Box):
+        half = np.asarray(geometry.halfSide, dtype=float)
+        return np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
+    angles = np.linspace(0.0, 2.0 * math.pi, 32, endpoint=False)
+    ring = np.column_stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)])
+    if isinstance(geometry, coal.Sphere):
+        r = geometry.radius
+        return np.vstack([r * ring, r * ring[:, [0, 2, 1]], r * ring[:, [2, 0, 1]]])
+    if isinstance(geometry, coal.Cylinder | coal.Capsule):
+        r, half = geometry.radius, geometry.halfLength
+        if isinstance(geometry, coal.Capsule):
+            half = half + r
+        return np.vstack([r * ring + (0, 0, half), r * ring - (0, 0, half)])
+    raise ValueError(f'collision shape {type(geometry).__name__} is not supported')
+
+
+class RobotBody:
+    """The robot's capsules (module docstring) in its moving joints' frames.
+
+    names (K,): link names; tool: the name of the tool's capsule; joint (K,): the model's
+    joint each rides on (0: the base); local_a, local_b (K, 3) m in that joint's frame;
+    radius (K,) m; planar: measured in the plane z = 0. `capsules(q)` places them for joint
+    positions q (n,) rad; `point_jacobian(q, k, point)` gives J (3, n)."""
+
+    def __init__(self, model: RobotModel, names, joint, local_a, local_b, radius, tool: str,
+                 planar: bool):
+        self.model = model
+        self.names = tuple(names)
+        self.joint = tuple(int(j) for j in joint)
+        self.local_a = np.asarray(local_a, dtype=float).reshape(-1, 3)
+        self.local_b = np.asarray(local_b, dtype=float).reshape(-1, 3)
+        self.radius = np.asarray(radius, dtype=float)
+        self.tool = tool
+        self.planar = planar
+        self._scara = isinstance(model, ScaraModel)
+
+    def capsules(self, q) -> Capsules:
+        """The capsules in the base frame at joint positions q (n,) rad."""
+        q = self.model.joint_position(q, 'q')
+        if self._scara:
+            l1, l2 = self.model.params.l1, self.model.params.l2
+            elbow = np.array([l1 * math.cos(q[0]), l1 * math.sin(q[0]), 0.0])
+            tool = elbow + l2 * np.array([math.cos(q[0] + q[1]), math.sin(q[0] + q[1]), 0.0])
+            return Capsules(self.names, np.array([np.zeros(3), elbow]),
+                            np.array([elbow, tool]), self.radius)
+        pin, pmodel, data = self.model._pin, self.model.model, self.model.data
+        pin.forwardKinematics(pmodel, data, q)
+        rotations = np.array([data.oMi[j].rotation for j in self.joint])       # (K, 3, 3)
+        origins = np.array([data.oMi[j].translation for j in self.joint])      # (K, 3)
+        a = np.einsum('kij,kj->ki', rotations, self.local_a) + origins
+        b = np.einsum('kij,kj->ki', rotations, self.local_b) + origins
+        return Capsules(self.names, a, b, self.radius)
+
+    def point_jacobian(self, q, capsule: int, point) -> np.ndarray:
+        """J (3, n), m/rad: the velocity (m/s) of `point` (3,) m in the base frame, moving
+        with capsule `capsule`'s link, is J dq."""
+        q = self.model.joint_position(q, 'q')
+        point = np.asarray(point, dtype=float).reshape(3)
+        n = self.model.dof
+        if self._scara:
+            jacobian = np.zeros((3, n))
+            jacobian[0, 0], jacobian[1, 0] = -point[1], point[0]
+            if capsule == 1:
+                l1 = self.model.params.l1
+                elbow = np.array([l1 * math.cos(q[0]), l1 * math.sin(q[0])])
+                jacobian[0, 1], jacobian[1, 1] = -(point[1] - elbow[1]), point[0] - elbow[0]
+            return jacobian
+        joint = self.joint[capsule]
+        if joint == 0:
+            return np.zeros((3, n))
+        pin, pmodel, data = self.model._pin, self.model.model, self.model.data
+        full = pin.computeJointJacobian(pmodel, data, q, joint)  # LOCAL: joint frame axes
+        pin.forwardKinematics(pmodel, data, q)
+        placement = data.oMi[joint]
+        rotation = placement.rotation
+        linear, angular = rotation @ full[:3], rotation @ full[3:]
+        offset = point - placement.translation
+        cross = np.array([[0.0, -offset[2], offset[1]], [offset[2], 0.0, -offset[0]],
+                          [-offset[1], offset[0], 0.0]])
+        return linear - cross @ angular
+
+
+def _scara_body(model: ScaraModel, radius: float) -> RobotBody:
+    l1, l2 = model.params.l1, model.params.l2
+    return RobotBody(model, ('link1', 'link2'), (1, 2),
+                     [[0, 0, 0], [0, 0, 0]], [[l1, 0, 0], [l2, 0, 0]], (radius, radius),
+                     tool='link2', planar=True)
+
+
+def _urdf_body(model: PinocchioModel, package_dirs, padding: float) -> RobotBody:
+    """One capsule per link of a URDF arm from its collision geometry (module docstring)."""
+    import coal
+    import pinocchio as pin
+
+    full = pin.buildModelFromXML(model.urdf)
+    try:
+        geometry = pin.buildGeomFromUrdfString(full, model.urdf, pin.COLLISION,
+                                               package_dirs=[str(d) for d in package_dirs])
+    except (ValueError, RuntimeError) as error:
+        raise ValueError(f'cannot load the collision geometry of {model.name}: '
+                         f'{str(error).splitlines()[0]}') from None
+    reduced = model.model
+    kept = set(reduced.names)
+
+    def owner(frame_id: int) -> str:
+        """The link a collision body belongs to: its own, or, on a locked joint, the first
+        link up the tree whose joint the model keeps."""
+        frame = full.frames[frame_id]
+        while frame.parentJoint != 0 and full.names[frame.parentJoint] not in kept:
+            frame = full.frames[frame.parentFrame]
+            while frame.type != pin.FrameType.BODY:
+                frame = full.frames[frame.parentFrame]
+        return frame.name
+
+    clouds: dict[str, list[np.ndarray]] = {}
+    for item in geometry.geometryObjects:
+        link = full.frames[item.parentFrame]
+        relative = link.placement.inverse() * item.placement        # shape in its link frame
+        points = _shape_points(item.geometry, coal) * np.asarray(item.meshScale)
+        if not reduced.existFrame(link.name):
+            raise ValueError(f'link {link.name!r} of {model.name} is not in its model')
+        in_joint = reduced.frames[reduced.getFrameId(link.name)].placement * relative
+        moved = points @ in_joint.rotation.T + in_joint.translation
+        clouds.setdefault(owner(item.parentFrame), []).append(moved)
+    if not clouds:
+        raise ValueError(f'the URDF of {model.name} has no collision geometry')
+    index = model.tool_frame_id  # the tool's capsule: the first link up from the tool frame
+    while reduced.frames[index].name not in clouds and index != 0:
+        index = reduced.frames[index].parentFrame
+    tool = reduced.frames[index].name if index != 0 else ''
+    names, joints, ends_a, ends_b, radii = [], [], [], [], []
+    for link, parts in clouds.items():
+        a, b, radius = fit_capsule(np.vstack(parts))
+        names.append(link)
+        joints.append(reduced.frames[reduced.getFrameId(link)].parentJoint)
+        ends_a.append(a)
+        ends_b.append(b)
+        radii.append(radius + padding)
+    if not tool:  # no link up from the tool has geometry: the last capsule's
+        tool = names[int(np.argmax(joints))]
+    return RobotBody(model, names, joints, ends_a, ends_b, radii, tool=tool, planar=False)
+
+
+def robot_body(model: RobotModel, package_dirs=(), padding: float = 0.0,
+               scara_radius: float = SCARA_LINK_RADIUS) -> RobotBody:
+    """The robot's capsules (module docstring). package_dirs: folders that hold the URDF's
+    `package://` meshes (for the Panda: `panda_package_dirs()`); padding (m) added to every
+    fitted radius; scara_radius (m) of the SCARA's links. ValueError with a one-line reason
+    (no collision geometry, a mesh that cannot be found, a shape not supported)."""
+    for name, value in (('padding', padding), ('scara_radius', scara_radius)):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
+            raise ValueError(f'{name} must be a finite number >= 0 m, got {value!r}')
+    if isinstance(model, ScaraModel):
+        return _scara_body(model, scara_radius + padding)
+    if not isinstance(model, PinocchioModel):
+        raise ValueError(f'no body for a robot model of type {type(model).__name__}')
+    return _urdf_body(model, package_dirs, padding)
+
+
+def panda_package_dirs() -> tuple[str, ...]:
+    """The folder in which the Panda's `package://example-robot-data/...` meshes resolve."""
+    from hri_core.robot_model import panda_urdf_path
+
+    return (str(panda_urdf_path().parents[4]),)

@@ -1,0 +1,212 @@
+"""Unit tests of hri_core.bodies: capsule distances against coal, the fitted robot capsules,
+the point Jacobian against finite differences, the person's capsules."""
+
+import math
+
+import coal
+import numpy as np
+import pytest
+
+from hri_core.bodies import (
+    HUMAN_CAPSULES,
+    Capsules,
+    capsule_distances,
+    fit_capsule,
+    human_capsules,
+    panda_package_dirs,
+    robot_body,
+)
+from hri_core.human_body import BODY_POINTS, standing_body
+from hri_core.robot_model import robot_model
+
+
+@pytest.fixture(scope='module')
+def panda():
+    model = robot_model('panda')
+    return model, robot_body(model, panda_package_dirs())
+
+
+def coal_capsule(a, b, radius):
+    """coal's capsule (along z) and its placement for the segment a-b."""
+    length = float(np.linalg.norm(b - a))
+    z = np.array([0.0, 0.0, 1.0])
+    axis = (b - a) / length if length > 0.0 else z
+    v, cosine = np.cross(z, axis), float(z @ axis)
+    sine = float(np.linalg.norm(v))
+    if sine < 1e-12:
+        rotation = np.eye(3) if cosine > 0.0 else np.diag([1.0, -1.0, -1.0])
+    else:
+        k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+        rotation = np.eye(3) + k + k @ k * ((1.0 - cosine) / sine ** 2)
+    return coal.Capsule(radius, length), coal.Transform3s(rotation, 0.5 * (a + b))
+
+
+def coal_distance(a1, b1, r1, a2, b2, r2):
+    request, result = coal.DistanceRequest(), coal.DistanceResult()
+    coal.distance(*coal_capsule(a1, b1, r1), *coal_capsule(a2, b2, r2), request, result)
+    return result.min_distance, np.array(result.getNearestPoint1()), \
+        np.array(result.getNearestPoint2())
+
+
+def random_capsules(rng, count, sphere_share=0.2):
+    a = rng.uniform(-0.5, 0.5, (count, 3))
+    b = a + rng.uniform(-0.4, 0.4, (count, 3))
+    spheres = rng.uniform(size=count) < sphere_share
+    b[spheres] = a[spheres]
+    return Capsules(tuple(f'c{k}' for k in range(count)), a, b, rng.uniform(0.01, 0.1, count))
+
+
+def test_capsule_distances_equal_coals_on_random_pairs():
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(40):
+        robot, human = random_capsules(rng, 9), random_capsules(rng, 10)
+        result = capsule_distances(robot, human)
+        for i in range(9):
+            for j in range(10):
+                distance, point1, point2 = coal_distance(robot.a[i], robot.b[i],
+                                                         robot.radius[i], human.a[j],
+                                                         human.b[j], human.radius[j])
+                assert result.distance[i, j] == pytest.approx(distance, abs=1e-9)
+                if distance > 1e-6:  # apart: the closest points are coal's too
+                    np.testing.assert_allclose(result.robot_point[i, j], point1, atol=1e-9)
+                    np.testing.assert_allclose(result.human_point[i, j], point2, atol=1e-9)
+                checked += 1
+    assert checked == 3600
+
+
+def test_pair_gives_one_pairs_figures_and_closest_the_least():
+    rng = np.random.default_rng(5)
+    robot, human = random_capsules(rng, 4), random_capsules(rng, 6)
+    result = capsule_distances(robot, human)
+    i, j = result.closest()
+    assert result.distance[i, j] == result.distance.min()
+    distance, robot_point, human_point, normal = result.pair(i, j)
+    assert distance == result.distance[i, j]
+    np.testing.assert_allclose(robot_point, result.robot_point[i, j])
+    np.testing.assert_allclose(human_point, result.human_point[i, j])
+    np.testing.assert_allclose(normal, result.normal[i, j])
+    assert np.linalg.norm(normal) == pytest.approx(1.0)
+
+
+def test_parallel_and_crossing_centre_lines():
+    robot = Capsules(('r',), np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([0.1]))
+    parallel = Capsules(('h',), np.array([[0.5, 0.5, 0]]), np.array([[2.0, 0.5, 0]]),
+                        np.array([0.1]))
+    assert capsule_distances(robot, parallel).distance[0, 0] == pytest.approx(0.3)
+    crossing = Capsules(('h',), np.array([[0.5, -1, 0]]), np.array([[0.5, 1, 0]]),
+                        np.array([0.1]))
+    result = capsule_distances(robot, crossing)
+    assert result.distance[0, 0] == pytest.approx(-0.2)
+    assert np.linalg.norm(result.normal[0, 0]) == pytest.approx(1.0)
+
+
+def test_a_planar_arm_measures_in_its_plane():
+    robot = Capsules(('r',), np.zeros((1, 3)), np.array([[0.5, 0, 0]]), np.array([0.05]))
+    head_high = Capsules(('head',), np.array([[0.8, 0, 1.2]]), np.array([[0.8, 0, 1.2]]),
+                         np.array([0.2]))
+    assert capsule_distances(robot, head_high, planar=True).distance[0, 0] == \
+        pytest.approx(0.8 - 0.5 - 0.05 - 0.2)
+
+
+def test_the_panda_has_a_capsule_per_link_and_the_hand_is_the_tool(panda):
+    _, body = panda
+    assert body.names == tuple(f'panda_link{k}' for k in range(8)) + ('panda_hand',)
+    assert body.tool == 'panda_hand' and body.joint[0] == 0 and not body.planar
+    assert np.all((body.radius > 0.04) & (body.radius < 0.11))
+
+
+def test_the_fitted_capsules_hold_every_collision_vertex(panda):
+    import pinocchio as pin
+
+    model, body = panda
+    q = model.home + np.random.default_rng(2).uniform(-0.5, 0.5, model.dof)
+    capsules = body.capsules(q)
+    full = pin.buildModelFromXML(model.urdf)
+    geometry = pin.buildGeomFromUrdfString(full, model.urdf, pin.COLLISION,
+                                           package_dirs=list(panda_package_dirs()))
+    full_q = np.concatenate([q, np.zeros(full.nq - model.dof)])
+    data, geometry_data = full.createData(), pin.GeometryData(geometry)
+    pin.updateGeometryPlacements(full, data, geometry, geometry_data, full_q)
+    for item, placement in zip(geometry.geometryObjects, geometry_data.oMg, strict=True):
+        if not hasattr(item.geometry, 'vertices'):
+            continue
+        link = item.name.rsplit('_', 1)[0]
+        k = body.names.index(link)
+        vertices = np.asarray(item.geometry.vertices()) @ placement.rotation.T \
+            + placement.translation
+        point_capsules = Capsules(('v',) * len(vertices), vertices, vertices,
+                                  np.zeros(len(vertices)))
+        one = Capsules((link,), capsules.a[k:k + 1], capsules.b[k:k + 1], capsules.radius[k:k + 1])
+        assert capsule_distances(one, point_capsules).distance.max() <= 1e-9, link
+
+
+def test_fit_capsule_holds_its_points_and_refuses_none():
+    rng = np.random.default_rng(4)
+    points = rng.normal(size=(200, 3)) * (0.2, 0.05, 0.05)
+    a, b, radius = fit_capsule(points)
+    one = Capsules(('c',), a[None], b[None], np.array([radius]))
+    cloud = Capsules(('p',) * 200, points, points, np.zeros(200))
+    assert capsule_distances(one, cloud).distance.max() <= 1e-9
+    assert np.linalg.norm(b - a) > 0.3  # along x, the long axis
+    with pytest.raises(ValueError, match='a capsule needs at least one finite point'):
+        fit_capsule(np.zeros((0, 3)))
+
+
+def finite_difference_check(model, body, q, rng):
+    for k in range(len(body.names)):
+        capsules = body.capsules(q)
+        weight = rng.uniform()
+        point = capsules.a[k] + weight * (capsules.b[k] - capsules.a[k])
+        jacobian = body.point_jacobian(q, k, point)
+        step = 1e-6
+        numeric = np.zeros_like(jacobian)
+        for joint in range(model.dof):
+            dq = np.zeros(model.dof)
+            dq[joint] = step
+            plus, minus = body.capsules(q + dq), body.capsules(q - dq)
+            numeric[:, joint] = ((plus.a[k] + weight * (plus.b[k] - plus.a[k]))
+                                 - (minus.a[k] + weight * (minus.b[k] - minus.a[k]))) / (2 * step)
+        np.testing.assert_allclose(jacobian, numeric, atol=1e-7, err_msg=body.names[k])
+
+
+def test_the_point_jacobian_matches_finite_differences_on_the_panda(panda):
+    model, body = panda
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        finite_difference_check(model, body, model.home + rng.uniform(-0.6, 0.6, model.dof),
+                                rng)
+
+
+def test_the_scaras_capsules_and_its_analytic_jacobian():
+    model = robot_model('scara')
+    body = robot_body(model)
+    assert body.names == ('link1', 'link2') and body.tool == 'link2' and body.planar
+    q = np.array([0.4, 1.1])
+    capsules = body.capsules(q)
+    np.testing.assert_allclose(capsules.b[1], model.tool_position(q), atol=1e-12)
+    rng = np.random.default_rng(9)
+    for _ in range(5):
+        finite_difference_check(model, body, rng.uniform(-2.0, 2.0, 2), rng)
+
+
+def test_the_persons_capsules_leave_out_what_is_missing():
+    points = standing_body([0.8, 0.0], math.pi, 0.0, [0.45, 0.0, 0.3])
+    full = human_capsules(BODY_POINTS, points)
+    assert full.names == tuple(c[0] for c in HUMAN_CAPSULES) and len(full) == 10
+    np.testing.assert_allclose(full.radius[full.names.index('torso')], 0.217)
+    keep = [k for k, name in enumerate(BODY_POINTS) if name != 'r_elbow']
+    partial = human_capsules([BODY_POINTS[k] for k in keep], points[keep])
+    assert 'r_upper_arm' not in partial.names and 'r_forearm' not in partial.names
+    assert 'r_hand' in partial.names and len(partial) == 8
+    assert len(human_capsules([], np.zeros((0, 3)))) == 0
+
+
+@pytest.mark.parametrize('names, points, reason', [
+    (['head'], [[math.nan, 0.0, 0.0]], 'body points must be finite'),
+    (['head', 'head'], [[0.0, 0, 0], [1.0, 0, 0]], 'repeated body point names'),
+    (['head'], [[0.0, 0, 0], [1.0, 0, 0]], '1 names for 2 points'),
+])
+def test_bad_body_points_are_one_line(names, points, reason):
+    with pytest.raises(ValueError, match=reason):
+        human_capsules(names, points)

@@ -1,0 +1,167 @@
+"""Topic-level tests of the event_detector's whole-body separation (/hri/separation).
+
+The detector runs alone with `robot: scara`; the test publishes the arm's /joint_states
+(a still arm), the person on /human/body (a standing body, hri_core.human_body) and, for
+the fall-back, /target and /ee_position, from a thread of its own at 100 Hz. The published
+minimum and its pair are checked against the geometry (hri_core.bodies on the same
+capsules); a body moving towards the arm gives its speed along the pair's normal; a body
+message with missing segments drops their capsules; a body that stops falls back to the
+tool and the hand after body_timeout with one warning.
+"""
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Point, PointStamped
+from hri_interfaces.msg import HumanBody, SeparationState
+from sensor_msgs.msg import JointState
+
+from hri_bringup.processes import wait_for
+from hri_core import topics
+from hri_core.bodies import capsule_distances, human_capsules, robot_body
+from hri_core.human_body import BODY_POINTS, standing_body
+from hri_core.node_common import load_defaults
+from hri_core.robot_model import robot_model
+from tests.test_event_detector import start_detector
+
+pytestmark = pytest.mark.integration
+
+Q = np.array([0.4, 1.1])  # rad, the still SCARA
+PLACE = np.array([0.80, 0.35])  # m, where the person stands
+HAND = np.array([0.55, 0.45, 0.0])  # m, the right wrist
+VELOCITY = np.array([-0.1, 0.0, 0.0])  # m/s of the moving body
+STILL = np.zeros(3)  # m/s
+RATE = 100.0  # Hz
+BODY_TIMEOUT = load_defaults('hri_adaptive_controller', 'event_detector')['body_timeout']
+MODEL = robot_model('scara')
+BODY = robot_body(MODEL)
+
+
+def body_at(t: float, velocity) -> np.ndarray:
+    """The standing body's points (9, 3) m at t s, moving at `velocity` (3,) m/s."""
+    return standing_body(PLACE, math.atan2(-PLACE[1], -PLACE[0]), -0.35, HAND) + velocity * t
+
+
+def expected(points, names=BODY_POINTS):
+    """(distance m, robot link, body part, normal (3,)) of the geometry itself."""
+    human = human_capsules(names, points)
+    distances = capsule_distances(BODY.capsules(Q), human, planar=True)
+    i, j = distances.closest()
+    distance, _, _, normal = distances.pair(i, j)
+    return max(distance, 0.0), BODY.names[i], human.names[j], normal
+
+
+class Publisher:
+    """/joint_states, /human/body (while `body_until` s; `names` kept each frame) and
+    /target + /ee_position from a thread at RATE; `sent` maps body stamps to points."""
+
+    def __init__(self, probe, duration, velocity=STILL, body_until=math.inf,
+                 names=BODY_POINTS):
+        self._probe, self._duration = probe, duration
+        self._velocity, self._body_until, self._names = velocity, body_until, names
+        self._joints = probe.publisher(topics.JOINT_STATES.name, JointState,
+                                       topics.JOINT_STATES.qos)
+        self._body = probe.publisher(topics.HUMAN_BODY.name, HumanBody, topics.HUMAN_BODY.qos)
+        self._hand = probe.publisher(topics.TARGET.name, PointStamped, topics.TARGET.qos)
+        self._tool = probe.publisher(topics.EE_POSITION.name, PointStamped,
+                                     topics.EE_POSITION.qos)
+        self.sent: list[tuple[float, np.ndarray]] = []
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> 'Publisher':
+        assert wait_for(lambda: all(p.get_subscription_count() > 0 for p in
+                                    (self._joints, self._body, self._hand, self._tool)), 15.0)
+        self._thread.start()
+        return self
+
+    def join(self) -> None:
+        self._thread.join(self._duration + 10.0)
+
+    def _run(self) -> None:
+        start = time.monotonic()
+        keep = [BODY_POINTS.index(name) for name in self._names]
+        while (t := time.monotonic() - start) < self._duration:
+            now = self._probe.now()
+            joints = JointState(name=list(MODEL.joint_names), position=Q.tolist(),
+                                velocity=[0.0, 0.0])
+            joints.header.stamp = now
+            self._joints.publish(joints)
+            for publisher, point in ((self._hand, HAND), (self._tool, MODEL.tool_position(Q))):
+                msg = PointStamped()
+                msg.header.stamp = now
+                msg.point.x, msg.point.y, msg.point.z = map(float, point)
+                publisher.publish(msg)
+            if t < self._body_until:
+                points = body_at(t, self._velocity)[keep]
+                msg = HumanBody(names=list(self._names),
+                                points=[Point(x=float(x), y=float(y), z=float(z))
+                                        for x, y, z in points])
+                msg.header.stamp = now
+                self._body.publish(msg)
+                self.sent.append((t, points))
+            time.sleep(1.0 / RATE)
+
+
+def test_the_minimum_and_its_pair_are_the_geometrys(nodes, probe, tmp_path):
+    separation = probe.collect(topics.SEPARATION.name, SeparationState, topics.SEPARATION.qos)
+    start_detector(nodes, tmp_path, robot='scara')
+    distance, link, part, _ = expected(body_at(0.0, np.zeros(3)))
+    assert distance > 0.05  # apart, so the pair is one pair
+    Publisher(probe, 2.0).start().join()
+    time.sleep(0.1)
+    body_messages = [m for m in separation if m.body_part]
+    assert len(body_messages) >= 50, len(separation)
+    for m in body_messages:
+        assert m.separation == pytest.approx(distance, abs=1e-9)
+        assert (m.robot_link, m.body_part) == (link, part)
+        assert m.human_speed == pytest.approx(0.0, abs=1e-9)
+        assert m.robot_speed == pytest.approx(0.0, abs=1e-9)
+        robot_point = np.array([m.robot_point.x, m.robot_point.y, m.robot_point.z])
+        body_point = np.array([m.body_point.x, m.body_point.y, m.body_point.z])
+        assert np.linalg.norm(body_point - robot_point) == pytest.approx(distance, abs=1e-9)
+    print(f'{len(body_messages)} messages: {distance:.4f} m between {link} and {part}')
+
+
+def test_a_body_moving_in_gives_its_speed_along_the_normal(nodes, probe, tmp_path):
+    separation = probe.collect(topics.SEPARATION.name, SeparationState, topics.SEPARATION.qos)
+    start_detector(nodes, tmp_path, robot='scara')
+    Publisher(probe, 1.5, velocity=VELOCITY).start().join()
+    time.sleep(0.1)
+    body_messages = [m for m in separation if m.body_part][5:]
+    assert len(body_messages) >= 30
+    for m in body_messages:
+        _, _, _, normal = expected(body_at(0.0, np.zeros(3)))
+        assert m.human_speed == pytest.approx(-float(VELOCITY @ normal), abs=0.02)
+    assert min(m.human_speed for m in body_messages) > 0.02  # coming towards the arm
+
+
+def test_missing_segments_and_a_stale_body(nodes, probe, tmp_path):
+    separation = probe.collect(topics.SEPARATION.name, SeparationState, topics.SEPARATION.qos)
+    detector = start_detector(nodes, tmp_path, robot='scara')
+    without_arm = tuple(name for name in BODY_POINTS if name not in ('r_wrist', 'r_elbow'))
+    points = body_at(0.0, np.zeros(3))[[BODY_POINTS.index(n) for n in without_arm]]
+    distance, link, part, _ = expected(points, without_arm)
+    assert part not in ('r_hand', 'r_forearm', 'r_upper_arm')
+    Publisher(probe, 2.5, body_until=1.0, names=without_arm).start().join()
+    time.sleep(0.1)
+    messages = list(separation)
+    body_messages = [m for m in messages if m.body_part]
+    assert len(body_messages) >= 25
+    for m in body_messages:
+        assert m.separation == pytest.approx(distance, abs=1e-9)
+        assert (m.robot_link, m.body_part) == (link, part)
+    # After the body stops: the tool and the hand, with empty names, never NaN.
+    fallback = messages[len(body_messages) + int(BODY_TIMEOUT * 50) + 2:]
+    assert len(fallback) >= 30
+    hand_tool = float(np.linalg.norm(HAND[:2] - MODEL.tool_position(Q)[:2]))
+    for m in fallback:
+        assert (m.robot_link, m.body_part) == ('', '')
+        assert m.separation == pytest.approx(hand_tool, abs=1e-9)
+        assert all(map(math.isfinite, (m.separation, m.human_speed, m.robot_speed,
+                                       m.protective_distance)))
+    log = detector.log()
+    assert log.count('human body stale') == 1, log
+    assert 'Traceback' not in log

@@ -92,6 +92,7 @@ from hri_adaptive_controller.task_variable import (
     speed_cap,
     task_potential,
 )
+from hri_core.bodies import Capsules, RobotBody, capsule_distances
 from hri_core.potential import TaskShape
 from hri_core.robot_model import RobotModel
 
@@ -106,25 +107,65 @@ _HAND_STIFFNESS, _HAND_DAMPING = HAND_RATE * HAND_RATE, 2.0 * HAND_RATE
 
 
 @dataclass(frozen=True)
+class ClearanceSettings:
+    """How the law keeps every robot capsule off every human capsule (module docstring).
+
+    clearance (m, >= 0): the distance the barrier holds; influence (m, > 0): it starts this
+    far beyond; force (N, >= 0): its push at the clearance (0: off); tracked: the human
+    capsules of the tracked hand (/target), which the tool's capsule may reach in a task
+    whose region reaches the hand (d1 below the clearance, a follow task)."""
+
+    clearance: float = 0.10
+    influence: float = 0.10
+    # 5 N at the clearance: above the task's largest pull, Kp (1 + CAP_BAND) v_max = 3 N, so
+    # the two balance before the clearance; its reference, 5 N / Kp = 0.5 m/s away, matches
+    # the hand's largest feed-forward. 10 N drove the SCARA into its effort limits.
+    force: float = 5.0
+    tracked: tuple[str, ...] = ('r_forearm', 'r_hand')
+
+    def __post_init__(self):
+        if not (math.isfinite(self.clearance) and self.clearance >= 0.0):
+            raise ValueError(f'clearance must be finite and >= 0 m, got {self.clearance}')
+        if not (math.isfinite(self.influence) and self.influence > 0.0):
+            raise ValueError(f'influence must be finite and > 0 m, got {self.influence}')
+        if not (math.isfinite(self.force) and self.force >= 0.0):
+            raise ValueError(f'clearance force must be finite and >= 0 N, got {self.force}')
+
+
+class BodyBarrier(NamedTuple):
+    """The whole-body barrier at one state: g (n,) N m = dU/dq, its rate (n,) N m/s, U (J),
+    and the nearest robot-human pair: its distance (m; inf without a body), the robot and
+    human capsules' names."""
+
+    gradient: np.ndarray | None
+    rate: np.ndarray | None
+    energy: float
+    distance: float
+    pair: tuple[str, str]
+
+
+NO_BODY = BodyBarrier(None, None, 0.0, math.inf, ('', ''))
+
+
+@dataclass(frozen=True)
 class ArmGains:
     """Gains of the n-joint law (module docstring).
 
-    ks: diagonal of Ks (n values, N m s/rad, > 0); kp: Kp (N s/m, > 0); adaptation: L's rate
-    for each kind of parameter the model names (RobotModel.adaptation_kinds: the SCARA's 7
-    parameters; a URDF arm's m, mcx, ..., Izz, damping, the same for every joint; >= 0;
-    units of theta^2 per N m s); task_gain: K (m^2/s) for every task, or None for each
-    task's own K (0 = default_task_gain); approach_speed, region_margin, max_task_speed, rest_gain,
-    rest_gate: the approach floor, the speed cap and an avoid task's return to rest
-    (task_variable.task_drive); effort_scale (0, 1]: the fraction of the
-    model's per-joint effort limits the law may use; max_effort_rate (N m/s): the callers'
-    rate limit (effort_rate); effort_limit (N m) or None: a cap on every joint's effort limit
-    besides the model's; initial_estimate (> 0): the share of the model's nominal theta a
-    controller node starts its estimate from when given none; damping: J+ damping
-    (threshold w0: m^2 for a 2-row J, m^3 for 3); posture_gain k_n (1/s, >= 0) and
+    ks: diagonal of Ks (n values, N m s/rad, > 0); kp: Kp (N s/m, > 0); adaptation: L's rate for
+    each kind of parameter the model names (RobotModel.adaptation_kinds: the SCARA's 7 parameters;
+    a URDF arm's m, mcx, ..., Izz, damping, the same for every joint; >= 0; units of theta^2 per N
+    m s); task_gain: K (m^2/s) for every task, or None for each task's own K (0 =
+    default_task_gain); approach_speed, region_margin, max_task_speed, rest_gain, rest_gate: the
+    approach floor, the speed cap and an avoid task's return to rest (task_variable.task_drive);
+    effort_scale (0, 1]: the fraction of the model's per-joint effort limits the law may use;
+    max_effort_rate (N m/s): the callers' rate limit (effort_rate); effort_limit (N m) or None: a
+    cap on every joint's effort limit besides the model's; initial_estimate (> 0): the share of the
+    model's nominal theta a controller node starts its estimate from when given none; damping: J+
+    damping (threshold w0: m^2 for a 2-row J, m^3 for 3); posture_gain k_n (1/s, >= 0) and
     posture_speed (rad/s, > 0): the null-space pull towards home, each joint's speed capped
-    smoothly; limit_band (rad, > 0), barrier_torque kb (N m,
-    >= 0): the barrier; limit_speed v_B (rad/s, >= 0): the null-space push off a limit.
-    Raises ValueError with the reason for a value out of range.
+    smoothly; limit_band (rad, > 0), barrier_torque kb (N m, >= 0): the barrier; limit_speed v_B
+    (rad/s, >= 0): the null-space push off a limit; body: the whole-body clearance
+    (ClearanceSettings). Raises ValueError with the reason for a value out of range.
     """
 
     ks: tuple[float, ...]
@@ -147,6 +188,7 @@ class ArmGains:
     reach_round: ReachRoundSettings = field(default_factory=ReachRoundSettings)
     effort_limit: float | None = None
     initial_estimate: float = 1.0
+    body: ClearanceSettings = field(default_factory=ClearanceSettings)
 
     def __post_init__(self):
         ks = np.asarray(self.ks, dtype=float)
@@ -291,7 +333,8 @@ class ArmOutput(NamedTuple):
     where a caller fills it in (None from step); blend: the reach-round weight sigma in
     [0, 1]; barrier_task_velocity J+^T g_B / Kp (k,) m/s (None off the bands), which with
     (1 - sigma) a delta_eps makes eq. 22's v_e; reference_offset w (k,) m/s: what the
-    reference adds to the hand's velocity besides the task term (eq. 22's avoid term).
+    reference adds to the hand's velocity besides the task term (eq. 22's avoid term); body:
+    the whole-body barrier (BodyBarrier; NO_BODY without a person).
     """
 
     tau: np.ndarray
@@ -314,6 +357,7 @@ class ArmOutput(NamedTuple):
     blend: float = 0.0
     barrier_task_velocity: np.ndarray | None = None
     reference_offset: np.ndarray | None = None
+    body: BodyBarrier = NO_BODY
 
 
 def task_term(dx: np.ndarray, drive: TaskDrive) -> tuple[np.ndarray, np.ndarray]:
@@ -408,6 +452,63 @@ def attained_reach(model: RobotModel, samples: int = REACH_SAMPLES) -> float:
     return farthest
 
 
+BODY_RATE_STEP = 1e-6
+"""s: the body barrier's rate is the central difference of its gradient along q +- h qdot (a
+directional derivative at a still body: the closest points and normals move with q)."""
+
+
+def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSettings,
+                   exempt) -> tuple[np.ndarray | None, float, float, tuple[int, int]]:
+    """g = dU/dq (n,) N m (None where no pair is within clearance + influence), U (J), the
+    nearest pair's distance (m) and indices, for the robot `body` at q (n,) rad and the
+    person's capsules `human`; exempt: (robot index, human indices) left out, or None.
+
+    U = sum over pairs of force influence (2.5 v^4 - 3 v^5 + v^6 + max(u - 1, 0)), u = (c +
+    i - d) / i, v = min(u, 1): dU/dd = -force w(v), w the quintic smoothstep; dd/dq = -n^T
+    J_p, n the unit normal from the robot's closest point towards the person's, J_p that
+    point's Jacobian (RobotBody.point_jacobian), so g = sum force w J_p^T n."""
+    distances = capsule_distances(body.capsules(q, checked=False), human, planar=body.planar)
+    table = distances.distance
+    if exempt is not None:
+        table = table.copy()
+        table[exempt[0], exempt[1]] = math.inf
+    nearest = np.unravel_index(int(np.argmin(table)), table.shape)
+    reach = settings.clearance + settings.influence
+    close = np.argwhere(table < reach)
+    if close.size == 0:
+        return None, 0.0, float(table[nearest]), nearest
+    gradient = np.zeros(q.size)
+    energy = 0.0
+    for i, j in close.tolist():
+        u = (reach - float(table[i, j])) / settings.influence
+        v = min(u, 1.0)
+        weight = v * v * v * (10.0 - 15.0 * v + 6.0 * v * v)
+        energy += settings.force * settings.influence * (2.5 * v ** 4 - 3.0 * v ** 5 + v ** 6
+                                                         + max(u - 1.0, 0.0))
+        _, robot_point, _, normal = distances.pair(i, j)
+        jacobian = body.point_jacobian(q, i, robot_point, checked=False)
+        gradient += (settings.force * weight) * (jacobian.T @ normal)
+    return gradient, energy, float(table[nearest]), nearest
+
+
+def body_barrier(body: RobotBody, q, dq, human: Capsules, settings: ClearanceSettings,
+                 exempt=None) -> BodyBarrier:
+    """The whole-body barrier (BodyBarrier) at q, dq (n,) for a still person `human`: g and U
+    of _body_gradient, g's rate along the motion (BODY_RATE_STEP), the nearest pair."""
+    if len(human) == 0:
+        return NO_BODY
+    gradient, energy, distance, (i, j) = _body_gradient(body, q, human, settings, exempt)
+    pair = (body.names[i], human.names[j])
+    if gradient is None:
+        return BodyBarrier(None, None, 0.0, distance, pair)
+    h = BODY_RATE_STEP
+    ahead = _body_gradient(body, q + h * dq, human, settings, exempt)[0]
+    behind = _body_gradient(body, q - h * dq, human, settings, exempt)[0]
+    zero = np.zeros(q.size)
+    rate = ((zero if ahead is None else ahead) - (zero if behind is None else behind)) / (2 * h)
+    return BodyBarrier(gradient, rate, energy, distance, pair)
+
+
 class ArmController(TaskDrives):
     """The adaptive law for the arm `model` (any RobotModel: the SCARA, the Panda, a URDF).
 
@@ -415,12 +516,17 @@ class ArmController(TaskDrives):
     default_gains(model) has them); theta_hat0 (p,): the initial estimate (default: the
     model's nominal theta), projected onto the model's box. compiled: the per-cycle
     arithmetic through arm_kernels (numba), else through numpy (the reference the kernels are
-    tested against; the same results to rounding).
+    tested against; the same results to rounding). body: the robot's capsules
+    (hri_core.bodies.RobotBody) for the whole-body clearance, or None.
     """
 
     def __init__(self, model: RobotModel, gains: ArmGains | None = None, theta_hat0=None,
-                 compiled: bool = True):
+                 compiled: bool = True, body: RobotBody | None = None):
         self.model = model
+        # The robot as capsules (hri_core.bodies.robot_body) for the whole-body clearance;
+        # None: the law keeps off no person's body (the tool-hand task alone).
+        self.body = body
+        self._tool_capsule = None if body is None else body.names.index(body.tool)
         gains = default_gains(model) if gains is None else gains
         n, axes = model.dof, model.task_axes
         if n < axes:
@@ -544,7 +650,7 @@ class ArmController(TaskDrives):
 
     def lyapunov(self, output: ArmOutput, q, task: ActiveTask | None, true_model=None,
                  with_task: bool = True) -> float:
-        """V of eq. 21 with the barrier (J): 1/2 s^T M s + Kp a Q + B (+ 1/2 dtheta^T L^-1
+        """V of eq. 21 with the barriers (J): 1/2 s^T M s + Kp a Q + B + U (+ 1/2 dtheta^T L^-1
         dtheta with the true model's theta, in simulation). M from true_model if given,
         else from the nominal model. with_task=False leaves out Kp a Q (for a caller that
         adds it later, for many steps at once)."""
@@ -556,6 +662,7 @@ class ArmController(TaskDrives):
             value += self._gains.kp * task.weight * task_potential(output.distance, drive)
         value += barrier_energy(q, self._lower, self._upper, self._gains.limit_band,
                                 self._gains.barrier_torque)
+        value += output.body.energy  # the whole-body barrier's U
         if true_model is not None:
             active = self._rates > 0.0
             error = true_model.theta - output.theta_hat
@@ -610,8 +717,8 @@ class ArmController(TaskDrives):
             qdot_r = (1.0 - sigma) * qdot_r + sigma * u
             blend = (sigma, sigma_rate)
         barrier_task = None
-        if near != 0.0:
-            # The barrier's task-space velocity J+^T g_B / Kp and its rate.
+        if g_b is not None:
+            # The barriers' task-space velocity J+^T g_B / Kp and its rate.
             barrier_task = (pinv.T @ g_b) / gains.kp
             barrier_task_rate = (pinv_rate.T @ g_b + pinv.T @ g_b_rate) / gains.kp
             qdot_r = qdot_r - pinv @ barrier_task
@@ -660,21 +767,22 @@ class ArmController(TaskDrives):
         return ratio * velocity, ratio * acceleration + along * direction
 
     def step(self, q, dq, hand: HandState, task: ActiveTask | None, dt: float,
-             rest=None) -> ArmOutput:
+             rest=None, human: Capsules | None = None) -> ArmOutput:
         """The torque at (q, dq) (n,) for the hand and task, and theta_hat advanced by dt (s).
 
-        rest (k,) m: an avoid task's rest position (None: where the tool is, so no return).
-        Inputs are finite and of the right shapes (the caller checks them where they enter);
-        a non-finite result still gives zero torque and fault=True, theta_hat unchanged.
-        `command` then `adapt`, in one call.
+        rest (k,) m: an avoid task's rest position (None: where the tool is, so no return). human:
+        the person's capsules (hri_core.bodies.human_capsules; None: no body), which every robot
+        capsule keeps `gains.body.clearance` from. Inputs are finite and of the right shapes (the
+        caller checks them where they enter); a non-finite result still gives zero torque and
+        fault=True, theta_hat unchanged. `command` then `adapt`, in one call.
         """
-        output = self.command(q, dq, hand, task, dt, rest)
+        output = self.command(q, dq, hand, task, dt, rest, human)
         if not output.fault and not self.adapt():
             return self._fault('non-finite torque or parameter update')
         return output
 
     def command(self, q, dq, hand: HandState, task: ActiveTask | None, dt: float,
-                rest=None) -> ArmOutput:
+                rest=None, human: Capsules | None = None) -> ArmOutput:
         """step's torque (eq. 14-18), with theta_hat's update (eq. 19) kept for `adapt`: a
         controller sends the torque first (the update serves the next cycle only)."""
         self._pending = None
@@ -724,6 +832,14 @@ class ArmController(TaskDrives):
             else:
                 g_b, g_b_rate, near = barrier(q, dq, self._lower, self._upper,
                                               gains.limit_band, gains.barrier_torque)
+            body = NO_BODY
+            if human is not None and self.body is not None and gains.body.force > 0.0:
+                body = body_barrier(self.body, q, dq, human, gains.body,
+                                    self._exempt(drive, avoid, human))
+                if body.gradient is not None:
+                    # The person's barrier joins the joint limits' (one g_B in V and eq. 22).
+                    g_b = body.gradient if g_b is None else g_b + body.gradient
+                    g_b_rate = body.rate if g_b_rate is None else g_b_rate + body.rate
             region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
             blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
             scale = 1.0
@@ -733,7 +849,7 @@ class ArmController(TaskDrives):
                 blend = (sigma, sigma_rate, a * u, da * u + a * u_rate)
                 scale = 1.0 - sigma
             barrier_task = None
-            if near == 0.0 and self._compiled:
+            if g_b is None and self._compiled:
                 # The usual case, compiled: J+ (ff + v), the blend and N z in one call.
                 if blend is None:
                     on, u, u_rate = (0.0, 0.0, 0.0), self._zero_joints, self._zero_joints
@@ -779,7 +895,17 @@ class ArmController(TaskDrives):
         return ArmOutput(tau, tau_requested, s, qdot_r, qddot_r, x, distance, k, theta,
                          limited, False, '', lam2, near, g_b, weighted,
                          blend=0.0 if blend is None else blend[0],
-                         barrier_task_velocity=barrier_task, reference_offset=offset)
+                         barrier_task_velocity=barrier_task, reference_offset=offset, body=body)
+
+    def _exempt(self, drive, avoid: bool, human: Capsules):
+        """(the tool's capsule, the tracked hand's capsules) where the task's region reaches
+        the hand (a follow task with d1 below the clearance: there the learned task governs),
+        else None."""
+        settings = self._gains.body
+        if drive is None or avoid or drive.shape.d1 >= settings.clearance:
+            return None
+        hand = [j for j, name in enumerate(human.names) if name in settings.tracked]
+        return (self._tool_capsule, hand) if hand else None
 
     def gravity_hold(self, q) -> np.ndarray:
         """The torque (n,) N m that holds the arm at q (n,) rad against gravity with theta_hat:

@@ -41,11 +41,13 @@ from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_adaptive_controller.task_variable import task_potentials
+from hri_core.bodies import Capsules, RobotBody, capsule_distances, human_capsules
 from hri_core.potential import TaskShape
 from hri_core.robot_model import RobotModel, ScaraModel
 
 TargetSample = tuple[np.ndarray, np.ndarray, np.ndarray]
 TargetTrajectory = Callable[[float], TargetSample]
+BodyTrajectory = Callable[[float], Capsules | None]
 
 PEAK_RATIO = 1.875  # peak speed of a minimum-jerk move over its mean speed
 
@@ -129,7 +131,8 @@ class SimulationResult:
     NaN when the run was not monitored, and distance is NaN on a fault); weight a and
     weight_rate da/dt (N,); phase (N,) str; active_task (N,) object (name or None);
     theta_hat (N, p); torque_limited, fault (N,) bool; damping lambda^2 (N,);
-    theta_true (p,); task_gains: k (m^2/s) per task name.
+    theta_true (p,); task_gains: k (m^2/s) per task name; body_distance (N,) m: the smallest
+    distance between a robot capsule and a human capsule (None without a body).
     """
 
     time: np.ndarray
@@ -153,6 +156,7 @@ class SimulationResult:
     damping: np.ndarray
     theta_true: np.ndarray
     task_gains: dict
+    body_distance: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -175,7 +179,10 @@ class LoopConditions:
     presence weight (a lost hand fades the task out); None: the exact target. command_delay
     (periods >= 0): the torque computed from the state at step k acts from step k +
     command_delay on (zero before the first). stops: an inelastic stop at the arm's joint
-    limits as the simulators': a joint at a limit keeps only velocity that leaves it.
+    limits as the simulators': a joint at a limit keeps only velocity that leaves it. body: the
+    person over time (still_body, recorded_body; None: none), which the law keeps every robot
+    capsule clear of when robot_body (hri_core.bodies.RobotBody of the model) is given; the
+    smallest robot-person distance is recorded either way (SimulationResult.body_distance).
     """
 
     arm: RobotModel = field(default_factory=ScaraModel)
@@ -197,6 +204,34 @@ class LoopConditions:
     command_delay: int = 0
     target_filter: TargetFilterSettings = field(default_factory=TargetFilterSettings)
     stops: bool = True
+    body: BodyTrajectory | None = None
+    robot_body: RobotBody | None = None
+
+
+def still_body(names, points) -> BodyTrajectory:
+    """A person standing still: REP-155 body point names (K,) and points (K, 3) m."""
+    capsules = human_capsules(names, points)
+    return lambda t: capsules
+
+
+def recorded_body(times, names, points) -> BodyTrajectory:
+    """A recorded person: the latest frame at or before t of `points` (N, K, 3) m at `times`
+    (N,) s, named `names` (K,); a point lost in a frame (NaN) is left out of it (and with it
+    its capsules), as hand_sim's /human/body leaves it out."""
+    times = np.asarray(times, dtype=float)
+    points = np.asarray(points, dtype=float)
+    cache: dict[int, Capsules] = {}
+
+    def sample(t: float) -> Capsules:
+        index = max(int(np.searchsorted(times, t, side='right')) - 1, 0)
+        if index not in cache:
+            cache.clear()
+            seen = np.all(np.isfinite(points[index]), axis=1)
+            cache[index] = human_capsules([n for n, k in zip(names, seen, strict=True) if k],
+                                          points[index][seen])
+        return cache[index]
+
+    return sample
 
 
 def recorded_target(times, positions) -> TargetTrajectory:
@@ -248,7 +283,8 @@ class _Run:
         n, self.axes = arm.dof, model.task_axes
         self.theta_true = arm.theta.copy()
         self.gains = gains = default_gains(model) if c.gains is None else c.gains
-        self.controller = ArmController(model, gains, c.theta_hat0, compiled=c.compiled)
+        self.controller = ArmController(model, gains, c.theta_hat0, compiled=c.compiled,
+                                        body=c.robot_body)
         self.conditions, self.tasks, self.target = c, tasks, target
         self.hand = None if c.target_period is None else FilteredHand(dataclasses.replace(
             c.target_filter, filter_time=c.target_filter_time,
@@ -276,6 +312,7 @@ class _Run:
                         ('distance', 'lyapunov', 'lyapunov_rate', 'task_potential', 'weight',
                          'weight_rate', 'damping')}
         self.theta_hat = np.zeros((steps, self.theta_true.size))
+        self.body_distance = None if c.body is None else np.full(steps, np.inf)
         self.torque_limited = np.zeros(steps, dtype=bool)
         self.fault = np.zeros(steps, dtype=bool)
         self.phase = np.empty(steps, dtype=object)
@@ -327,7 +364,13 @@ class _Run:
                 shape = None
         k = self.gains_k.get(name, 0.0)
         task = None if shape is None else ActiveTask(shape, weight.weight, weight.rate, k)
-        out = controller.step(q, dq, HandState(x_d, xdot_d, xddot_d), task, dt, self.rest)
+        human = None if c.body is None else c.body(t)
+        out = controller.step(q, dq, HandState(x_d, xdot_d, xddot_d), task, dt, self.rest,
+                              human if c.robot_body is not None else None)
+        if human is not None and len(human) and c.robot_body is not None:
+            body = c.robot_body
+            self.body_distance[i] = float(capsule_distances(
+                body.capsules(q, checked=False), human, planar=body.planar).distance.min())
         # The rate limit after the clamp; a fault's zero torque bypasses it (as in the node).
         if out.fault:
             self.limiter.reset()
@@ -388,7 +431,7 @@ class _Run:
             time=self.time, **self.rows, **scalars, phase=self.phase,
             active_task=self.active_task, theta_hat=self.theta_hat,
             torque_limited=self.torque_limited, fault=self.fault,
-            theta_true=self.theta_true,
+            theta_true=self.theta_true, body_distance=self.body_distance,
             task_gains={name: self.controller.task_gain(shape, self.gains_k.get(name, 0.0))
                         for name, shape in self.tasks.items()})
 

@@ -305,9 +305,10 @@ class RobotBody:
         self.planar = planar
         self._scara = isinstance(model, ScaraModel)
 
-    def capsules(self, q) -> Capsules:
-        """The capsules in the base frame at joint positions q (n,) rad."""
-        q = self.model.joint_position(q, 'q')
+    def capsules(self, q, checked: bool = True) -> Capsules:
+        """The capsules in the base frame at joint positions q (n,) rad (checked: finite and
+        within the joint limits; unchecked: the caller's finite (n,) floats, the 1 kHz path)."""
+        q = self.model.joint_position(q, 'q') if checked else np.asarray(q, dtype=float)
         if self._scara:
             l1, l2 = self.model.params.l1, self.model.params.l2
             elbow = np.array([l1 * math.cos(q[0]), l1 * math.sin(q[0]), 0.0])
@@ -322,10 +323,10 @@ class RobotBody:
         b = np.einsum('kij,kj->ki', rotations, self.local_b) + origins
         return Capsules(self.names, a, b, self.radius)
 
-    def point_jacobian(self, q, capsule: int, point) -> np.ndarray:
+    def point_jacobian(self, q, capsule: int, point, checked: bool = True) -> np.ndarray:
         """J (3, n), m/rad: the velocity (m/s) of `point` (3,) m in the base frame, moving
-        with capsule `capsule`'s link, is J dq."""
-        q = self.model.joint_position(q, 'q')
+        with capsule `capsule`'s link, is J dq (q checked as in `capsules`)."""
+        q = self.model.joint_position(q, 'q') if checked else np.asarray(q, dtype=float)
         point = np.asarray(point, dtype=float).reshape(3)
         n = self.model.dof
         if self._scara:

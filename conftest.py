@@ -1,4 +1,11 @@
-"""Settings every test of the repository shares.
+"""Settings every test of the repository shares: the tiers, and hypothesis's profile.
+
+Tiers (markers, pytest.ini): `pure` (no ROS process: the packages' unit tests and the plain
+ones in tests/), `topic` (starts ROS processes; `integration` is its older name and stays an
+alias, so either selects the same tests), `exclusive` (a 1 kHz loop with timing checks, run
+one at a time; always `topic` too) and `slow` (not in the default run). A test file marks only
+what it starts (`integration` or `topic`) and `exclusive` / `slow`; the hook below adds the
+rest, so a new test cannot fall outside every tier of scripts/test.sh.
 
 Property tests (hypothesis) run derandomized: the same examples on every run and machine, so a
 red run can be repeated, and nothing is stored between runs (no example database).
@@ -7,9 +14,12 @@ red run can be repeated, and nothing is stored between runs (no example database
 import os
 from pathlib import Path
 
+import pytest
 from hypothesis import settings
 
 PACKAGE_SOURCES = Path(__file__).resolve().parent / 'ros2_ws' / 'src'
+# The markers that say a test starts ROS processes (one implies the others).
+TOPIC_MARKERS = ('topic', 'integration', 'exclusive')
 
 settings.register_profile('repository', derandomize=True, database=None, deadline=None,
                           print_blob=True)
@@ -17,10 +27,24 @@ settings.load_profile('repository')
 
 
 def pytest_ignore_collect(collection_path: Path, config) -> bool | None:
-    """With HRI_TEST_SCOPE=integration (scripts/test.sh's two topic-level phases) the packages'
-    unit tests are not collected: they hold no topic-level test, and collecting them (their
-    imports: scipy, hypothesis and all) took each pytest process about 4 s of CPU."""
-    if os.environ.get('HRI_TEST_SCOPE') == 'integration' and \
+    """With HRI_TEST_SCOPE=topic (or its older value integration: scripts/test.sh's two
+    topic-level phases) the packages' unit tests are not collected: they hold no topic-level
+    test, and collecting them (their imports: scipy, hypothesis and all) took each pytest
+    process about 4 s of CPU."""
+    if os.environ.get('HRI_TEST_SCOPE') in ('topic', 'integration') and \
             collection_path.is_relative_to(PACKAGE_SOURCES):
         return True
     return None
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Every test gets its tier: `topic` and `integration` both when it has either or is
+    `exclusive`, else `pure`. tryfirst: before pytest's own hook deselects by `-m`."""
+    for item in items:
+        if any(item.get_closest_marker(name) for name in TOPIC_MARKERS):
+            for name in ('topic', 'integration'):
+                if item.get_closest_marker(name) is None:
+                    item.add_marker(name)
+        else:
+            item.add_marker('pure')

@@ -5,11 +5,13 @@
 #                                       numpy reference on seeded random states, per task
 #   learning  bench/bench_learning.py   fits on the fixtures (Gauss-Newton vs trf), fit time vs
 #                                       samples, learning from a replayed 1M-message bag
-#   loop      bench/bench_loop.py       the trivial rclpy echo floor, then scara_sim +
-#                                       event_manager + controller + hand_sim, 20 s each: joint
-#                                       state -> command latency and its ratio to the echo's
-#                                       round trip, deadline misses, CPU (and its ratio to
-#                                       the echo's)
+#   loop      bench/bench_loop.py       the trivial rclpy echo floor and scara_sim +
+#                                       event_manager + controller + hand_sim in alternating
+#                                       windows (5 rounds of an echo window, then a loop
+#                                       window; 20 s of each in all): joint state -> command
+#                                       latency and its ratio to the echo's round trip (pooled,
+#                                       and its spread over the rounds), deadline misses, CPU
+#                                       (and its ratio to the echo's)
 #   loop_load the same with N busy processes (`--load N`, started and ended by the bench)
 #   recorder  bench/bench_recorder.py   60 s of JointState at 1 kHz: published vs recorded
 #   sim       bench/bench_sim.py        scara_sim alone, 10 s
@@ -24,15 +26,24 @@
 # learning, recorder and sim are skipped. Without --robot (or --robot scara): as before.
 # Each piece ends the processes it started; a piece that fails is reported and the others
 # still run; the exit code is non-zero if any piece failed (the recorder's also if it lost a
-# message). ROS domains: BENCH_DOMAIN_BASE (default 90) .. +3.
+# message). ROS domains: BENCH_DOMAIN_BASE (default 90) .. +5.
+# `--tree PATH` benchmarks the nodes of another checkout (set up: its .venv and install/)
+# with this checkout's bench scripts: the loop pieces start that checkout's nodes (its
+# `scripts/env.sh` environment); step, learning, recorder and sim are run with its Python and
+# packages. Given twice or more (e.g. an old main and a new main), the loop pieces alternate
+# the checkouts window by window in one run, each loop window after an echo window of its own,
+# and the table has a row per checkout; the other pieces run for the first --tree only.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
-usage() { echo "usage: scripts/bench.sh [--quick] [--load N] [--robot scara|panda]"; }
+usage() {
+  echo "usage: scripts/bench.sh [--quick] [--load N] [--robot scara|panda] [--tree PATH]..."
+}
 quick=0
 load=0
 robot=scara
+trees=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --quick) quick=1 ;;
@@ -45,6 +56,11 @@ while [ $# -gt 0 ]; do
       robot=${2:-}
       shift
       [[ "$robot" =~ ^(scara|panda)$ ]] || { echo "--robot needs scara or panda" >&2; exit 2; }
+      ;;
+    --tree)
+      [ -n "${2:-}" ] && [ -d "$2" ] || { echo "--tree needs a checkout's folder" >&2; exit 2; }
+      trees+=("$(cd "$2" && pwd)")
+      shift
       ;;
     -h | --help) usage; exit 0 ;;
     *) usage >&2; exit 2 ;;
@@ -60,6 +76,20 @@ if command -v flock >/dev/null 2>&1; then
 fi
 # shellcheck disable=SC1091
 source "$root/scripts/env.sh"
+# The pieces that are not the loop run in the first --tree's environment (its .venv, its
+# install/), with this checkout's bench scripts; the loop pieces stay in this one's and start
+# each tree's nodes themselves (bench_loop.py --tree).
+tree_args=()
+other=()
+if [ "${#trees[@]}" -gt 0 ]; then
+  for tree in "${trees[@]}"; do
+    [ -f "$tree/install/setup.bash" ] && [ -x "$tree/.venv/bin/python" ] || {
+      echo "[bench] $tree is not set up: run its scripts/setup.sh first" >&2; exit 2; }
+    tree_args+=(--tree "$tree")
+  done
+  other=(env -i HOME="$HOME" PATH=/usr/local/bin:/usr/bin:/bin HRI_SKIP_SETUP=1 bash -c
+         'source "$1/scripts/env.sh" >/dev/null && shift && exec "$@"' bash "${trees[0]}")
+fi
 
 domain=${BENCH_DOMAIN_BASE:-90}
 if [ "$quick" = 1 ]; then
@@ -98,23 +128,31 @@ skip_piece() {
   cut -d' ' -f1-3 /proc/loadavg > "$work/$1.load"
 }
 
-run_piece step 600 python bench/bench_step.py --json --calls "$step_calls" --robot "$robot"
+run_piece step 600 "${other[@]}" python "$root/bench/bench_step.py" --json \
+  --calls "$step_calls" --robot "$robot"
 if [ "$robot" = panda ]; then
   skip_piece learning '--robot panda: the robot pieces only'
 else
-  run_piece learning 1800 python bench/bench_learning.py --json "${learning_args[@]}"
+  run_piece learning 1800 "${other[@]}" python "$root/bench/bench_learning.py" --json \
+    "${learning_args[@]}"
 fi
-run_piece loop $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
-  --duration "$loop_seconds" --domain-id "$domain"
+# A loop piece's time: its windows (3 per round and tree: echo, loop, loop probed) and about
+# 15 s a round and tree to start and stop the loop.
+loop_limit=$(( (3 * loop_seconds + 15 * 5) * (${#trees[@]} > 0 ? ${#trees[@]} : 1) + 120 ))
+run_piece loop "$loop_limit" python bench/bench_loop.py --json \
+  --duration "$loop_seconds" --domain-id "$domain" --echo-domain-id $((domain + 5)) \
+  "${tree_args[@]}"
 if [ "$robot" = panda ]; then
-  run_piece loop_panda $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
-    --duration "$loop_seconds" --domain-id $((domain + 4)) --robot panda
+  run_piece loop_panda "$loop_limit" python bench/bench_loop.py --json \
+    --duration "$loop_seconds" --domain-id $((domain + 4)) --echo-domain-id $((domain + 5)) \
+    --robot panda "${tree_args[@]}"
 else
   skip_piece loop_panda 'no --robot panda given'
 fi
 if [ "$load" -gt 0 ]; then
-  run_piece loop_load $((2 * loop_seconds + 120)) python bench/bench_loop.py --json \
-    --duration "$loop_seconds" --domain-id $((domain + 3)) --load "$load"
+  run_piece loop_load "$loop_limit" python bench/bench_loop.py --json \
+    --duration "$loop_seconds" --domain-id $((domain + 3)) --echo-domain-id $((domain + 5)) \
+    --load "$load" "${tree_args[@]}"
 else
   skip_piece loop_load 'no --load N given'
 fi
@@ -122,10 +160,11 @@ if [ "$robot" = panda ]; then
   skip_piece recorder '--robot panda: the robot pieces only'
   skip_piece sim '--robot panda: the robot pieces only'
 else
-  run_piece recorder $((recorder_seconds + 180)) python bench/bench_recorder.py --json \
-    --seconds "$recorder_seconds" --domain-id $((domain + 1))
-  run_piece sim $((sim_seconds + 120)) python bench/bench_sim.py --json \
-    --duration "$sim_seconds" --domain-id $((domain + 2))
+  run_piece recorder $((recorder_seconds + 180)) "${other[@]}" python \
+    "$root/bench/bench_recorder.py" --json --seconds "$recorder_seconds" \
+    --domain-id $((domain + 1))
+  run_piece sim $((sim_seconds + 120)) "${other[@]}" python "$root/bench/bench_sim.py" \
+    --json --duration "$sim_seconds" --domain-id $((domain + 2))
 fi
 
 results_file=$root/bench/results.json
@@ -272,10 +311,22 @@ for name in PIECES:
         if echo:
             row(name, 'echo floor round trip', spread(echo['round_trip']) +
                 f"; echo CPU {echo['cpu_percent']} %")
-            row(name, 'loop p99 / echo round-trip p99', fmt(piece.get('latency_p99_ratio')))
+            by_round = piece.get('latency_p99_ratio_rounds')
+            row(name, 'loop p99 / echo round-trip p99', fmt(piece.get('latency_p99_ratio'))
+                + (f" pooled; per round {by_round['min']:g}-{by_round['max']:g} (median "
+                   f"{by_round['median']:g})" if by_round else ''))
             row(name, 'CPU / echo CPU', ', '.join(
                 f'{k} {v}' for k, v in piece.get('cpu_vs_echo', {}).items()))
-        row(name, 'window', f"{piece['duration_s']} s")
+        row(name, 'windows', f"{piece['duration_s']} s of loop in {piece.get('windows', 1)} "
+            f"windows, each after an echo window; {piece.get('tree', '')}")
+        for tree, other in piece.get('trees', {}).items():
+            latency = other['state_to_command'].get('latency', {})
+            by_round = other.get('latency_p99_ratio_rounds') or {}
+            row(name, f'checkout {tree}', f"p99 {fmt(latency.get('p99_ms'))} ms, ratio "
+                f"{fmt(other.get('latency_p99_ratio'))} (rounds {fmt(by_round.get('min'))}-"
+                f"{fmt(by_round.get('max'))}); controller "
+                f"{fmt(other['cpu_percent'].get('controller'))} %, CPU / echo "
+                f"{other.get('cpu_vs_echo')}")
         row(name, '/joint_states rate', f"{j['achieved_rate_hz']} Hz received; sim time / "
             f"wall {fmt(j['sim_realtime_factor'])}")
         row(name, '/joint_states period (stamps)', spread(j['stamp_period']))

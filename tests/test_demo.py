@@ -17,6 +17,8 @@ FIGURES = ('fit_follow', 'fit_avoid', 'fit_follow_safe', 'behaviour_follow',
            'behaviour_avoid', 'behaviour_follow_safe', 'sequence', 'recorded_person')
 
 
+# Over the demo's own time limit (the subprocess's 600 s), so that its message is the one seen.
+@pytest.mark.timeout(660)
 def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_path):
     env = node_environment(next_domain_id())
     env['HRI_DEMO_DOMAIN_ID'] = env['ROS_DOMAIN_ID']

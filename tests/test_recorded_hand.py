@@ -198,9 +198,12 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     try:
         assert wait_for(lambda: states and states[-1].status == 'ok'
                         and stand_in.sent > 420, 30.0), controller.log()
-        sent_swaps = len([k for k in swap_samples if k <= stand_in.sent])
     finally:
         stand_in.close()
+    # Counted once the publisher has stopped: it went on sending until close(), and on a
+    # loaded machine (a fresh-clone run) 7 more swap samples went out between a count taken
+    # before close() and the close, which the controller rightly held (31 held of "24").
+    sent_swaps = len([k for k in swap_samples if k <= stand_in.sent])
     assert wait_for(lambda: states[-1].target_glitches > 0, 5.0)
     counted = states[-1].target_glitches
     used = [s for s in states if s.status == 'ok']

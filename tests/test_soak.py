@@ -67,6 +67,8 @@ def rss(process) -> int:
     return psutil.Process(process.pid).memory_info().rss
 
 
+# The soak's own length, and its start and the report after it.
+@pytest.mark.timeout(SOAK_SECONDS + 300)
 def test_closed_loop_soak(live_loop, probe, tmp_path):
     received = {topic: [] for topic in RECORDED}
     for topic, msg_type in zip(RECORDED, (JointState, ControllerState), strict=True):

@@ -84,7 +84,8 @@ def system_lines(log: str, level: str) -> list[str]:
             if line.startswith(f'[{level}]') and '[system]:' in line]
 
 
-@pytest.mark.exclusive  # the 1 kHz loop
+# Not exclusive: it runs the 1 kHz loop but checks no timing of it (the arm comes within
+# NEAR of a still hand within 30 s; it took 4 s alone), so it runs in the parallel phase.
 def test_system_runs_the_loop_and_ends_every_node_on_sigint(system, probe, tmp_path):
     states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     log_dir = tmp_path / 'system_logs'

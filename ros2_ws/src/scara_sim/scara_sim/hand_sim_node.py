@@ -114,6 +114,8 @@ class HandSim(Node):
             what = 'recording' if values['profile'] == RECORDING else 'parameters'
             raise StartupError(f'bad {what}: {error}') from None
         self._restart_clock()
+        self._published = 0  # hand positions, for the summary line at the stop
+        self._node_started = time.monotonic()
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publisher = self.create_publisher(PointStamped, topics.TARGET.name,
@@ -209,6 +211,7 @@ class HandSim(Node):
             position.append(0.0)  # the planar arm's plane
         stamp = self.get_clock().now().seconds_nanoseconds()
         self._publisher.publish(self._template.encode(tuple(position), stamp=stamp))
+        self._published += 1
 
     def _publish_frame(self) -> None:
         """The newest recorded frame due, once, stamped when it was recorded; nothing for a
@@ -226,6 +229,14 @@ class HandSim(Node):
         x, y, z = motion.positions[index]
         self._publisher.publish(self._template.encode(
             (float(x), float(y), float(z)), stamp=(stamp // 1_000_000_000, stamp % 1_000_000_000)))
+        self._published += 1
+
+    def summary(self) -> str:
+        """One line on what the node did (run_node logs it at the stop)."""
+        what = ('recording' if isinstance(self._source, Replay)
+                else f'profile {self._source.name}')
+        return (f'{self._published} hand positions published on {self._publisher.topic_name} '
+                f'in {time.monotonic() - self._node_started:.1f} s ({what})')
 
 
 def main(args=None):

@@ -256,8 +256,9 @@ def test_the_node_picks_the_law_by_robot(panda):
     gains = arm_gains_from({**values, 'arm_ks': [5.0] * 6}, model)
     with pytest.raises(ValueError, match='ks must have 7 values'):
         ArmController(model, gains)
-    with pytest.raises(ValueError, match='unknown robot'):
-        arm_model_from({**values, 'robot': 'ur5'})
+    with pytest.raises(ValueError, match="unknown robot 'ur7'; expected one of scara, panda, "
+                       'ur3, ur5, ur10, xarm7, z1'):
+        arm_model_from({**values, 'robot': 'ur7'})
 
 
 def test_a_joint_started_in_its_limit_band_is_pushed_out(panda):

@@ -49,7 +49,7 @@ from hri_core.node_common import (
     run_node,
     take_raw,
 )
-from hri_core.robot_model import RobotModel, robot_model
+from hri_core.robot_model import ROBOT_NAMES, RobotModel, robot_model
 from scara_sim.simulation import (
     FixedStepClock,
     RealTimeStepper,
@@ -72,8 +72,8 @@ def clock_offset() -> int | None:
 
 # Which arm a node simulates or works on (robot_from_parameters).
 ROBOT_PARAMETERS = {
-    'robot': ParameterSpec(str, 'the arm: scara or panda (ignored when urdf_file is given)',
-                           read_only=True),
+    'robot': ParameterSpec(str, 'the arm by name, of hri_core.robot_model.ROBOTS (ignored '
+                           'when urdf_file is given)', choices=ROBOT_NAMES, read_only=True),
     'urdf_file': ParameterSpec(str, 'URDF of the arm ("": the robot parameter)',
                                read_only=True),
     'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the '

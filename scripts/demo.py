@@ -13,8 +13,8 @@ Then (not with --quick) a short run of the Panda in 3-D into OUT/panda/ (scripts
 demonstrations, learning, the event sequence); --robot panda runs every stage on the Panda
 alone, --robot scara the SCARA alone.
 Run through scripts/demo.sh, which sets the project up and sources its environment first.
-Every process is started on this run's own ROS_DOMAIN_ID, discovery on loopback, and ended by
-PID when its stage ends or fails.
+Every process is started on this run's own ROS domain (HRI_DEMO_DOMAIN_ID, not ROS_DOMAIN_ID:
+see --help), discovery on loopback, and ended by PID when its stage ends or fails.
 """
 
 import argparse
@@ -43,6 +43,7 @@ from hri_adaptive_controller.run_metrics import (  # noqa: E402
 )
 from hri_bringup.processes import (  # noqa: E402
     LIVE_LOOP,
+    READY_LINES,
     NodeProcess,
     NodesNotReadyError,
     start_live_loop,
@@ -150,9 +151,10 @@ QUICK_RECORDED_SECONDS = 8.0  # s: the avoid task from about 2 s, judged from 4 
 RECORDED_SETTLE = 2.0  # s
 
 
-def _or_dash(value: float, spec: str) -> str:
-    """`value` formatted with `spec`, or an em dash where it is not a number (no samples)."""
-    return format(value, spec) if np.isfinite(value) else '—'
+def _or_dash(value: float, spec: str, instead: str = '—') -> str:
+    """`value` formatted with `spec`, or `instead` (an em dash) where it is not a number (no
+    samples)."""
+    return format(value, spec) if np.isfinite(value) else instead
 
 
 def hand_profile(hand: dict) -> HandProfile:
@@ -472,6 +474,12 @@ class Demo:
         except NodesNotReadyError as error:
             raise StageError(f'{error}; logs in {self.logs}') from None
         self.running.extend(loop.values())
+        # The run's time counts from the hand's first move: on a loaded machine (the loop at
+        # SCHED_FIFO on both cores) `ros2 run` took up to 17 s to bring hand_sim up, and the
+        # run was over before the hand had published.
+        if not loop['hand_sim'].wait_for_line(READY_LINES['hand_sim'], 30.0):
+            raise StageError(f'hand_sim did not start within 30 s; log '
+                             f'{loop["hand_sim"].log_path}')
         self.run_for(seconds, f'{run}: running', list(loop.values()))
         # The hand first, then the recorder: the bag ends with the loop still running; then
         # the loop's nodes together.
@@ -649,12 +657,18 @@ class Demo:
                 'longest_high_effort_hold': longest_high_effort_hold(
                     command_t[window], shares[window], criteria.high_effort_fraction)}
             m = summary[task]
-            median = _or_dash(m['follow_median_distance'], '.3f')
-            print(f'    {task}: median distance {median} m, closer '
-                  f'than d1 - 3 cm {100 * m["close_fraction"]:.1f} % (of the samples with '
-                  f'the hand in reach and slower than {criteria.task_speed} m/s); longest '
-                  f'hold above 25 % of the effort limit {m["longest_high_effort_hold"]:.2f} s;'
-                  f' largest command step {m["largest_effort_step"]:.3f} N m')
+            # Distances are judged only where the arm can be asked to be at the hand: in a
+            # short run a task may hold none of those samples (the toss's fast reach-in under
+            # follow in --quick), and its median is no number.
+            judged = (f'median distance {m["follow_median_distance"]:.3f} m, closer than '
+                      f'd1 - 3 cm {100 * m["close_fraction"]:.1f} % (of the samples with the '
+                      f'hand in reach and slower than {criteria.task_speed} m/s)'
+                      if m['considered'] else
+                      f'no distance judged: the hand was out of reach or faster than '
+                      f'{criteria.task_speed} m/s throughout its {m["seconds"]:.1f} s')
+            print(f'    {task}: {judged}; longest hold above 25 % of the effort limit '
+                  f'{m["longest_high_effort_hold"]:.2f} s; largest command step '
+                  f'{m["largest_effort_step"]:.3f} N m')
         print(f'    /target jumps held: {summary["target_glitches"]}')
         self.metrics['recorded_person'] = summary
         figure = plt.figure(figsize=(11, 6))
@@ -1012,7 +1026,7 @@ class Demo:
         if 'recorded_person' in self.metrics:
             person = self.metrics['recorded_person']
             rows = [f"| {task} | {person[task]['seconds']:.1f} | "
-                    f"{_or_dash(person[task]['follow_median_distance'], '.3f')} | "
+                    f"{_or_dash(person[task]['follow_median_distance'], '.3f', 'none judged')} | "
                     f"{100 * person[task]['close_fraction']:.1f} % | "
                     f"{person[task]['longest_high_effort_hold']:.2f} | "
                     f"{person[task]['largest_effort_step']:.3f} |"
@@ -1054,7 +1068,13 @@ class Demo:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    highest = MAX_DOMAIN_ID - (len(DEMONSTRATIONS) - 1)
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog=f'ROS domain: HRI_DEMO_DOMAIN_ID=N (0 to {highest}; default 60 + PID % 40) runs '
+        f'the demo on domains N to N + {len(DEMONSTRATIONS) - 1}. ROS_DOMAIN_ID is not used: '
+        'the demo keeps to domains of its own so that nodes you run do not meet it; to watch '
+        'it with `ros2 topic echo`, set ROS_DOMAIN_ID=N in that shell.')
     parser.add_argument('--quick', action='store_true', help='shorter closed-loop runs')
     parser.add_argument('--robot', choices=('scara', 'panda'),
                         help='one robot only: scara, or panda (every stage, in OUT/panda/); '
@@ -1064,12 +1084,15 @@ def main() -> int:
     args = parser.parse_args()
     domain_text = os.environ.get('HRI_DEMO_DOMAIN_ID', str(60 + os.getpid() % 40))
     # The demonstrations run side by side on this domain and the ones after it.
-    highest = MAX_DOMAIN_ID - (len(DEMONSTRATIONS) - 1)
     if not (domain_text.isdigit() and int(domain_text) <= highest):
         print(f'[demo] HRI_DEMO_DOMAIN_ID must be an integer from 0 to {highest}, got '
               f'{domain_text!r}', file=sys.stderr)
         return 2
     domain = int(domain_text)
+    ignored = (f'; ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]} is not used'
+               if os.environ.get('ROS_DOMAIN_ID') and 'HRI_DEMO_DOMAIN_ID' not in os.environ
+               else '')
+    print(f'[demo] ROS domain {domain} (HRI_DEMO_DOMAIN_ID{ignored})', flush=True)
     out = args.out.resolve()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     robots = [args.robot] if args.robot else ['scara'] if args.quick else ['scara', 'panda']

@@ -3,7 +3,7 @@
 # (record demonstrations, learn, run the behaviours closed-loop, write report/).
 # Options: --quick (shorter runs; the SCARA only), --robot scara|panda (one robot; the Panda
 # in 3-D, every stage, into OUT/panda/; default: the SCARA, then a short Panda run),
-# --out DIR (default report/).
+# --out DIR (default report/). Its ROS domain: HRI_DEMO_DOMAIN_ID (not ROS_DOMAIN_ID; --help).
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)

@@ -130,7 +130,8 @@ def test_a_gravity_compensating_command_holds_the_arm_still(nodes, probe):
 
 
 @pytest.mark.parametrize(('params', 'reason'), [
-    ({'robot': 'kuka'}, "bad parameters: unknown robot 'kuka'"),
+    ({'robot': 'kuka'}, "bad parameter robot: 'kuka' is not one of scara, panda, ur3, ur5, "
+                        'ur10, xarm7, z1'),
     ({'robot': 'panda', 'tool_frame': 'no_link'}, "no frame 'no_link' in the URDF of panda"),
     ({'urdf_file': '/no/such.urdf', 'tool_frame': 'tip'}, 'cannot read urdf_file'),
     ({'robot': 'panda', 'initial_q': [0.0] * 7}, 'outside the joint limits'),

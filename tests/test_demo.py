@@ -66,7 +66,17 @@ def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_pat
     for task in ran:
         assert person[task]['longest_high_effort_hold'] >= 0.0
         assert 0.0 < person[task]['largest_effort_step'] <= 1.0 + 1e-9, person
+    # A task whose samples were none of them judged says so, not 'median distance — m'.
+    assert 'median distance —' not in result.stdout
+    assert f"[demo] ROS domain {env['ROS_DOMAIN_ID']} (HRI_DEMO_DOMAIN_ID" in result.stdout
     assert not processes_on_domain(env['ROS_DOMAIN_ID']), 'the demo left processes running'
+
+
+def test_demo_help_says_which_variable_sets_its_ros_domain():
+    result = subprocess.run([str(REPO_ROOT / 'scripts/demo.sh'), '--help'], capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert 'HRI_DEMO_DOMAIN_ID' in result.stdout and 'ROS_DOMAIN_ID is not used' in result.stdout
 
 
 def processes_on_domain(domain: str) -> list[int]:

@@ -300,6 +300,6 @@ def test_a_robot_description_it_cannot_read_is_one_warning_and_the_scara_is_draw
     assert entities['arm'] == {'spheres': 3, 'cylinders': 2}  # the planar SCARA
     warnings = [line for line in view.log().splitlines() if '[WARN]' in line]
     assert len(warnings) == 1, view.log()
-    assert "robot 'arm' is not one the suite knows (scara, panda): give tool_frame" in \
-        warnings[0]
+    assert ("robot 'arm' is not one the suite knows (scara, panda, ur3, ur5, ur10, xarm7, "
+            'z1): give tool_frame') in warnings[0]
     assert 'Traceback' not in view.log()

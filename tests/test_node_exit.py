@@ -1,5 +1,6 @@
-"""Every node leaves on SIGINT and SIGTERM with exit code 0 within its deadline (the recorder
-closes its bag, the sim reports its steps).
+"""Every node leaves on SIGINT and SIGTERM with exit code 0 within its deadline, with one
+summary line of what it did (the recorder closes its bag and counts its messages, the sim
+reports its steps, the hand its positions, ...; the controller how long it ran).
 
 Not marked exclusive: the deadline is relative to a bare node's exit measured in the same test,
 so a busy machine slows both alike.
@@ -17,9 +18,11 @@ from hri_bringup.processes import (
     READY_LINES,
     NodeProcess,
     node_environment,
+    start_node,
     wait_for,
     wait_until_logged,
 )
+from hri_core.node_common import SUMMARY_PREFIX
 from hri_demo_learning.bag_io import read_bag
 from tests.common import PAPER_TASKS, REPO_ROOT
 from tests.fault_tools import RELIABLE
@@ -31,7 +34,30 @@ STOP_DEADLINE = 2.0  # s from the signal to the process's exit
 
 
 # Every node's ready line, but the recorder's once it records /joint_states.
-NODE_READY_LINES = {**READY_LINES, 'recorder': 'recording /joint_states'}
+NODE_READY_LINES = {**READY_LINES, 'recorder': 'recording /joint_states',
+                    'live_view': 'live view on ws://'}
+# What each node's summary line says it did (after `summary: `).
+SUMMARY_WORDS = {
+    'scara_sim': 'steps integrated in', 'arm_sim': 'steps integrated in',
+    'hand_sim': 'hand positions published on /target',
+    'demonstrator': 'wrench and reference messages published',
+    'recorder': 'closed bag', 'learner': "1 task learned: 'follow'",
+    'event_manager': 'TaskStates published', 'controller': 'ran ',
+    'event_detector': 'event(s) sent', 'live_view': 'messages streamed',
+    'system': 'nodes run, then stopped; exit codes: hand_sim 0',
+}
+
+
+def summary_lines(log: str, name: str) -> list[str]:
+    """The summary lines the node `name` logged itself (not those of a child it echoes)."""
+    return [line.split(f'[{name}]: {SUMMARY_PREFIX}', 1)[1] for line in log.splitlines()
+            if f'[{name}]: {SUMMARY_PREFIX}' in line]
+
+
+def assert_one_summary(name: str, log: str) -> str:
+    lines = summary_lines(log, name)
+    assert len(lines) == 1 and SUMMARY_WORDS[name] in lines[0], (name, log)
+    return lines[0]
 
 
 # A bare node on hri_core's run_node: how long this machine takes, right now, to end a
@@ -71,6 +97,7 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path
             'tasks_dir': str(PAPER_TASKS), 'initial_task': 'follow'}),
         'controller': nodes('hri_adaptive_controller', 'controller'),
         'event_detector': nodes('hri_adaptive_controller', 'event_detector'),
+        'live_view': nodes('hri_bringup', 'live_view', params={'port': 0}),
     }
     reference = NodeProcess.from_command(
         'reference', [sys.executable, '-c', REFERENCE_NODE], node_environment(ros_domain),
@@ -102,8 +129,28 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path
     assert not slow_or_failed, {name: processes[name].log() for name in slow_or_failed}
     for name, process in processes.items():
         assert 'Traceback' not in process.log(), (name, process.log())
+        print(f'{name}: {assert_one_summary(name, process.log())}')
     assert (bag / 'metadata.yaml').is_file()
     counts = read_bag(bag).counts()
     assert counts['/joint_states'] > 500 and counts['/target'] > 10, counts
     assert 'closed bag' in processes['recorder'].log()
     assert 'steps integrated in' in processes['scara_sim'].log()
+
+
+def test_the_system_and_its_nodes_each_log_one_summary_line(ros_domain, tmp_path):
+    # The system stops its children with SIGTERM; it is stopped here with SIGTERM too.
+    config = tmp_path / 'hand.yaml'
+    config.write_text(f'system:\n  ros__parameters:\n    nodes: [hand_sim]\n'
+                      f'    log_dir: {tmp_path / "logs"}\n')
+    system = start_node('hri_bringup', 'system', ros_domain, params={'config': str(config)},
+                        log_dir=tmp_path)
+    try:
+        assert system.wait_for_line('all 1 nodes ready', 40.0), system.log()
+        system.send(signal.SIGTERM)
+        assert system.wait(20.0) == 0, system.log()
+    finally:
+        system.stop(timeout=20.0)
+    log = system.log()
+    assert 'Traceback' not in log, log
+    print(f'system: {assert_one_summary("system", log)}; '
+          f'hand_sim: {assert_one_summary("hand_sim", log)}')

@@ -1,7 +1,10 @@
 """Topic-level tests of how a node is configured: its YAML, a user's copy, and remapping.
 
 A node's defaults are its package's config/<node>.yaml; a copy passed with --params-file and
-`-p` win over them, also for a renamed node; `--ros-args -r` moves any of its topics.
+`-p` win over them, also for a renamed node; `--ros-args -r` moves any of its topics. What a
+user gets wrong is refused at start with one line and exit 1, for every executable: a
+parameter the node does not have (named with the nearest one it has), a stale key in a
+params file, a params file that is missing, integers where floats are wanted.
 """
 
 from pathlib import Path
@@ -84,3 +87,79 @@ def test_a_topic_is_remapped_with_ros_args(nodes, probe):
     assert wait_for(lambda: len(remapped) > 5, 15.0), hand.log()
     assert default == []
     assert 'on /person/hand' in hand.log()
+
+
+# Every executable of the suite, each with a misspelling of one of its parameters and the
+# parameter meant: (package, executable, misspelt, meant).
+MISSPELT_PARAMETERS = [
+    ('scara_sim', 'scara_sim', 'rate_hx', 'rate_hz'),
+    ('scara_sim', 'arm_sim', 'robt', 'robot'),
+    ('scara_sim', 'hand_sim', 'profil', 'profile'),
+    ('scara_sim', 'demonstrator', 'mod', 'mode'),
+    ('hri_demo_learning', 'recorder', 'topic', 'topics'),
+    ('hri_demo_learning', 'learner', 'task_nam', 'task_name'),
+    ('hri_adaptive_controller', 'event_manager', 'initial_tsk', 'initial_task'),
+    ('hri_adaptive_controller', 'controller', 'efort_limit', 'effort_limit'),
+    ('hri_adaptive_controller', 'event_detector', 'rule', 'rules'),
+    ('hri_bringup', 'system', 'confg', 'config'),
+    ('hri_bringup', 'live_view', 'prt', 'port'),
+]
+START_TIMEOUT = 40.0  # s for a refused node to exit (imports on a loaded machine)
+
+
+def error_lines(log: str) -> list[str]:
+    return [line for line in log.splitlines() if 'ERROR' in line or 'FATAL' in line]
+
+
+def assert_refused_in_one_line(process, *fragments: str) -> str:
+    """The process exited 1 with no traceback and exactly one error line holding every
+    fragment; that line."""
+    code = process.wait(START_TIMEOUT)
+    log = process.log()
+    assert code == 1, (code, log)
+    assert 'Traceback' not in log, log
+    errors = error_lines(log)
+    assert len(errors) == 1, log
+    for fragment in fragments:
+        assert fragment in errors[0], (fragment, errors[0])
+    return errors[0]
+
+
+@pytest.mark.parametrize(('package', 'executable', 'misspelt', 'meant'), MISSPELT_PARAMETERS,
+                         ids=[row[1] for row in MISSPELT_PARAMETERS])
+def test_a_misspelt_parameter_is_refused_naming_the_nearest(nodes, package, executable,
+                                                             misspelt, meant):
+    # The value is valid for the parameter meant: only the name is wrong.
+    value = {'topics': ['/joint_states'], 'port': 18765}.get(meant, 1.5)
+    process = nodes(package, executable, params={misspelt: value})
+    line = assert_refused_in_one_line(process, f'unknown parameter {misspelt} '
+                                               f'(did you mean {meant}?)')
+    print(f'{executable}: {line.split("]: ", 1)[-1]}')
+
+
+def test_a_stale_key_in_a_params_file_is_refused_and_rclpys_own_are_not(nodes, tmp_path):
+    # use_sim_time is rclpy's, declared on every node: given with -p it is no stranger.
+    stale = edited_copy('scara_sim', 'hand_sim', tmp_path, hand_speed=0.2)
+    refused = nodes('scara_sim', 'hand_sim', params_files=[stale])
+    accepted = nodes('scara_sim', 'hand_sim', params={'use_sim_time': False})
+    assert_refused_in_one_line(refused, 'unknown parameter hand_speed (did you mean ')
+    assert accepted.wait_for_line('hand profile', START_TIMEOUT), accepted.log()
+    assert error_lines(accepted.log()) == []
+
+
+def test_a_missing_params_file_is_one_line(nodes, tmp_path):
+    missing = tmp_path / 'no_such.yaml'
+    not_yaml = tmp_path / 'broken.yaml'
+    not_yaml.write_text('hand_sim: {ros__parameters: [\n')
+    for path, reason in ((missing, 'No such file or directory'), (not_yaml, 'is not YAML')):
+        process = nodes('scara_sim', 'hand_sim', params_files=[path])
+        assert_refused_in_one_line(process, f'--params-file {path}', reason)
+
+
+def test_integers_where_floats_are_wanted_get_the_decimal_point_hint(nodes):
+    array = nodes('scara_sim', 'hand_sim', params={'start': [1, 2]})
+    scalar = nodes('scara_sim', 'hand_sim', params={'speed': 1})
+    assert_refused_in_one_line(array, 'bad parameter start',
+                               'write each value with a decimal point, e.g. [1.0, 2.0]')
+    assert_refused_in_one_line(scalar, 'bad parameter speed',
+                               'write it with a decimal point, e.g. 1.0')

@@ -6,7 +6,9 @@ coming down along z onto the tool at 0.5 m/s; 2 s after it stops the tool is >= 
 away. follow a moving hand: hand_sim (dimension 3) moves the hand back and forth along a
 0.25 m line that drops 0.15 m in z (peak 0.079 m/s); after it has settled the tool stays
 within d2 of it (in the follow region). All: every command within the Panda's per-joint
-effort limits and at most 1 N m from the one before; no joint within 5 deg of a limit."""
+effort limits and at most 1 N m from the one before; no joint within 5 deg of a limit.
+The other arms of hri_core.robot_model's table by name (robot:=ur5, ...; the UR5 in the
+default run, the others slow): the still hand, as the Panda's follow."""
 
 import math
 import threading
@@ -265,5 +267,31 @@ def test_an_arm_given_by_its_urdf_file_follows_a_still_hand(nodes, probe):
                                                 ENTER_TIME, controller)
     step, margin = check_commands_and_limits(model, q, efforts)
     print(f'xArm7 follow: in the region {entered:.2f} s after the first state, farthest '
+          f'{held.max():.4f} m of {region} m; largest effort step {step:.3f} N m; nearest '
+          f'limit {np.degrees(margin):.1f} deg')
+
+
+# The arms of hri_core.robot_model.ROBOTS besides the Panda: the UR5 in the default run (one
+# more 1 kHz loop is enough to hold `robot:=NAME` working end to end), the others slow.
+KNOWN_ARMS = [pytest.param('ur5'),
+              *(pytest.param(name, marks=pytest.mark.slow)
+                for name in ('ur3', 'ur10', 'xarm7', 'z1'))]
+
+
+@pytest.mark.parametrize('robot', KNOWN_ARMS)
+def test_an_arm_known_by_name_follows_a_still_hand(nodes, probe, robot):
+    """arm_sim and the controller with robot:=NAME alone (URDF, tool frame and gains from the
+    table and the URDF): the tool enters follow's region around a still hand 0.3 m away (as
+    the xArm7's above) within ENTER_TIME and stays; commands within the limits."""
+    model = robot_model(robot)
+    region = load_task_file(paper_tasks_dir() / 'follow.yaml').d2
+    inward = np.array([-0.2, 0.15, 0.15]) / np.linalg.norm([-0.2, 0.15, 0.15])
+    hand = model.tool_position(model.home) + 0.3 * inward
+    sample, efforts, _, controller = run_panda_loop(nodes, probe, 'follow', hand,
+                                                    ENTER_TIME + 1.0, arm={'robot': robot})
+    entered, _, q, held = enters_band_and_stays(model, sample, hand, (0.0, region),
+                                                ENTER_TIME, controller)
+    step, margin = check_commands_and_limits(model, q, efforts)
+    print(f'{robot} follow: in the region {entered:.2f} s after the first state, farthest '
           f'{held.max():.4f} m of {region} m; largest effort step {step:.3f} N m; nearest '
           f'limit {np.degrees(margin):.1f} deg')

@@ -141,6 +141,8 @@ class EventDetectorNode(Node):
         self._tool_reader = LayoutReader(point_stamped_layout if self._dimension == 2
                                          else point3_layout)
         self._last_warning: dict[str, float] = {}
+        # What the node did, for its summary line at the stop.
+        self._counts = dict.fromkeys(('hand', 'tool', 'events', 'separations', 'closer'), 0)
 
         self._event_pub = self.create_publisher(TaskEvent, topics.EVENTS.name,
                                                 topics.EVENTS.qos)
@@ -211,6 +213,7 @@ class EventDetectorNode(Node):
             self._frame = msg.header.frame_id
             stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             self._monitor.hand(point, stamp, now)
+            self._counts['hand'] += 1
 
     def _take_tool(self, now: float) -> None:
         for data, _ in take_raw(self._tool_sub):
@@ -230,6 +233,7 @@ class EventDetectorNode(Node):
                 self._warn('tool_non_finite', 'ee_position dropped: non-finite position')
                 continue
             self._monitor.tool(values, stamp, now)
+            self._counts['tool'] += 1
 
     def _take_body(self, now: float) -> None:
         for data, _ in take_raw(self._body_sub):
@@ -291,6 +295,7 @@ class EventDetectorNode(Node):
             event = TaskEvent(name=rule.event, task=rule.task)
             event.header.stamp = stamp
             self._event_pub.publish(event)
+            self._counts['events'] += 1
             self.get_logger().info(
                 f'event {rule.event!r} -> task {rule.task or "none"!r} (rule {rule.name}, task '
                 f'{self._current_task!r}): {firing.reason}')
@@ -311,6 +316,15 @@ class EventDetectorNode(Node):
         msg.header.stamp = stamp
         msg.header.frame_id = self._frame
         self._separation_pub.publish(msg)
+        self._counts['separations'] += 1
+        self._counts['closer'] += bool(sample.below_protective)
+
+    def summary(self) -> str:
+        """One line on what the node did (run_node logs it at the stop)."""
+        counts = self._counts
+        return (f'{counts["events"]} event(s) sent; {counts["hand"]} hand and {counts["tool"]} '
+                f'tool positions taken; {counts["separations"]} separations published, '
+                f'{counts["closer"]} of them below the protective distance')
 
     def destroy_node(self):
         self._intake.destroy_node()

@@ -115,6 +115,9 @@ class EventManager(Node):
         self._initial_task = initial  # requested once /hri/task_state has a subscriber
         self._last_published = None
         self._last_publish_time = -float('inf')
+        # What the node did, for its summary line at the stop.
+        self._counts = dict.fromkeys(('tasks received', 'tasks rejected', 'events',
+                                      'events ignored', 'switches', 'states published'), 0)
 
         self._state_publisher = self.create_publisher(TaskState, topics.TASK_STATE.name,
                                                       topics.TASK_STATE.qos)
@@ -144,6 +147,7 @@ class EventManager(Node):
             return str(error)
 
     def _on_task(self, msg: TaskParameters) -> None:
+        self._counts['tasks received'] += 1
         try:
             record = task_record(msg)
             shortfall = self._reach_shortfall(record)
@@ -155,6 +159,7 @@ class EventManager(Node):
             self.get_logger().warning(
                 f'task {msg.name!r} on /hri/task rejected: {error}; keeping {keeping}',
                 throttle_duration_sec=WARNING_THROTTLE)
+            self._counts['tasks rejected'] += 1
             return
         replaced = record.name in self._tasks
         key = self._store(record)
@@ -167,11 +172,13 @@ class EventManager(Node):
             self._switch(key, f'task_updated:{record.name}')
 
     def _on_event(self, msg: TaskEvent) -> None:
+        self._counts['events'] += 1
         if msg.task and msg.task not in self._tasks:
             self.get_logger().warning(
                 f'event {msg.name!r} names unknown task {msg.task!r}; ignored '
                 f'(known: {", ".join(sorted(self._tasks)) or "none"})',
                 throttle_duration_sec=WARNING_THROTTLE)
+            self._counts['events ignored'] += 1
             return
         self._switch(self._tasks[msg.task] if msg.task else None, msg.name)
 
@@ -180,6 +187,7 @@ class EventManager(Node):
         before = self._schedule.evaluate(time.monotonic())
         after = self._schedule.request(key, time.monotonic())
         if (after.phase, after.pending_task) != (before.phase, before.pending_task):
+            self._counts['switches'] += 1
             self._event_name = event_name
             self.get_logger().info(
                 f'event {event_name!r}: {_name(before.active_task) or "idle"} -> '
@@ -234,8 +242,21 @@ class EventManager(Node):
         if state.phase == PHASE_IDLE:
             msg.weight, msg.weight_rate = 0.0, 0.0
         self._state_publisher.publish(msg)
+        self._counts['states published'] += 1
         self._last_published = summary
         self._last_publish_time = now
+
+
+    def summary(self) -> str:
+        """One line on what the node did (run_node logs it at the stop)."""
+        counts = self._counts
+        state = self._schedule.evaluate(time.monotonic())
+        return (f'{len(self._tasks)} task(s) held ({", ".join(sorted(self._tasks)) or "none"});'
+                f' {counts["tasks received"]} received on /hri/task '
+                f'({counts["tasks rejected"]} rejected), {counts["events"]} event(s) '
+                f'({counts["events ignored"]} ignored), {counts["switches"]} switch(es), '
+                f'{counts["states published"]} TaskStates published; active task '
+                f'{_name(state.active_task) or "none"} at a = {state.weight:.2f}')
 
 
 def _name(key) -> str:

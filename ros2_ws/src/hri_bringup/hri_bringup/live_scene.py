@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hri_core.dynamics import forward_kinematics
-from hri_core.robot_model import PANDA_TOOL_FRAME, PinocchioModel
+from hri_core.robot_model import KNOWN_TOOL_FRAMES, ROBOT_NAMES, PinocchioModel
 
 Point = tuple[float, float, float]
 Quaternion = tuple[float, float, float, float]  # x, y, z, w
@@ -51,8 +51,8 @@ REGION_ENTITY = 'task_region'
 # Enough segments for a ring of 0.5 m to look round (1.8 cm chords) at little cost.
 RING_SEGMENTS = 96
 REGION_SHAPE_INSIDE = 1  # TaskParameters.SHAPE_REGION_INSIDE: desired region d1 <= |z| <= d2
-# The tool frame of the arms the suite knows by their URDF's robot name (description_arm).
-KNOWN_TOOL_FRAMES = {'scara': 'tip', 'panda': PANDA_TOOL_FRAME}
+# The tool frame of the arms the suite knows by their URDF's robot name (description_arm):
+# hri_core.robot_model.KNOWN_TOOL_FRAMES, from its one table of arms.
 
 
 @dataclass(frozen=True)
@@ -403,7 +403,7 @@ def description_arm(urdf_text: str, tool_frame: str = '') -> PinocchioModel:
     frame = tool_frame or KNOWN_TOOL_FRAMES.get(name, '')
     if not frame:
         raise ValueError(f'robot {name!r} is not one the suite knows '
-                         f'({", ".join(KNOWN_TOOL_FRAMES)}): give tool_frame')
+                         f'({", ".join(ROBOT_NAMES)}): give tool_frame')
     return PinocchioModel(urdf_text, frame, name=name or 'urdf')
 
 

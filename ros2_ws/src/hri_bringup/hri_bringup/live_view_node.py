@@ -405,12 +405,15 @@ class LiveView(Node):
                 for f in frames]), log_time=now)
 
     def close(self) -> None:
-        """Stop the server (clients see the connection close) and log a summary line."""
+        """Stop the server (clients see the connection close)."""
         self._server.stop()
+
+    def summary(self) -> str:
+        """One line on what was streamed (run_node logs it at the stop)."""
         per_topic = ', '.join(f'{name}: {count}' for name, count in self._streamed.items()
                               if count)
-        self.get_logger().info(f'live view stopped: {sum(self._streamed.values())} messages '
-                               f'streamed ({per_topic or "no topic seen"})')
+        return (f'live view stopped: {sum(self._streamed.values())} messages streamed '
+                f'({per_topic or "no topic seen"})')
 
 
 def main(args=None):

@@ -284,19 +284,24 @@ class System(Node):
                 print(f'[{name}] {line}', flush=True)
 
     def stop_children(self) -> None:
-        """SIGTERM to every child still running, SIGKILL after stop_timeout; log the codes."""
+        """SIGTERM to every child still running, SIGKILL after stop_timeout; keep their exit
+        codes for `summary` (a warning names the children that did not exit 0)."""
         running = [name for name, child in self._children.items() if child.alive()]
         if running:
             self.get_logger().info(f'stopping {", ".join(running)}')
         codes = stop_all(self._children.values(), self._stop_timeout, signal.SIGTERM)
         self._echo_output(final=True)
-        summary = ', '.join(f'{name} {codes[child]}' for name, child in self._children.items())
+        self._exit_codes = ', '.join(f'{name} {codes[child]}'
+                                     for name, child in self._children.items())
         unclean = [name for name in running if codes[self._children[name]] != 0]
         if unclean:
-            self.get_logger().warning(f'stopped; exit codes: {summary} (not 0: '
-                                      f'{", ".join(unclean)})')
-        else:
-            self.get_logger().info(f'stopped; exit codes: {summary}')
+            self.get_logger().warning(f'not stopped cleanly: {", ".join(unclean)} (logs in '
+                                      f'{self._log_dir})')
+
+    def summary(self) -> str:
+        """One line on the children (run_node logs it at the stop)."""
+        return (f'{len(self._children)} nodes run, then stopped; exit codes: '
+                f'{getattr(self, "_exit_codes", "none")}')
 
 
 def main(args=None):

@@ -24,6 +24,16 @@ COMMANDS_USAGE = '\n'.join([
 ])
 # The verbs besides `run`, by the module whose main(argv) runs them.
 VERB_MODULES = {'topic': 'hri_cli.topic', 'bag': 'hri_cli.bag'}
+# What this project offers where ros2cli has a command the stand-in does not: (the command's
+# first words, the one-line answer).
+ALTERNATIVES = {
+    ('launch',): "'ros2 launch' is not available here (launch is not on the package index): "
+                 '`ros2 run hri_bringup system` starts the live loop from one YAML '
+                 '(--ros-args -p config:=FILE; README, "The live system")',
+    ('bag', 'record'): "'ros2 bag record' is not available here: `ros2 run hri_demo_learning "
+                       'recorder --ros-args -p output:=BAG` records the demonstration topics '
+                       'into a rosbag2 (MCAP) bag (-p "topics:=[/a, /b]" for others)',
+}
 
 
 def fail(message: str, code: int = 1) -> int:
@@ -38,7 +48,12 @@ def run(argv: list[str]) -> int:
             return fail(USAGE, 2)
         prefix_command = argv[1].split()
         argv = argv[2:]
-    if len(argv) < 2 or argv[0] in ('-h', '--help'):
+    if argv[:1] in (['-h'], ['--help']):
+        print(USAGE)
+        print('Runs EXECUTABLE of PACKAGE (found through the ament index) with ARGS, '
+              '--ros-args included; --prefix runs it under PREFIX (e.g. "gdb -ex run --args").')
+        return 0
+    if len(argv) < 2:
         return fail(USAGE, 2)
     package, executable, rest = argv[0], argv[1], argv[2:]
     from ament_index_python.packages import PackageNotFoundError, get_package_prefix
@@ -77,6 +92,9 @@ def main() -> int:
         return 0 if args else 2
     if args[0] == 'run':
         return run(args[1:])
+    for words, answer in ALTERNATIVES.items():
+        if tuple(args[:len(words)]) == words:
+            return fail(answer, 2)
     if args[0] in VERB_MODULES:
         return run_verb(args[0], args[1:])
     return fail(f"'{args[0]}' is not available here: this environment provides only "

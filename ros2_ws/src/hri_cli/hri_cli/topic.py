@@ -62,12 +62,17 @@ from hri_core import message_types
 
 DEFAULT_TRUNCATE_LENGTH = 128
 DEFAULT_WINDOW_SIZE = 10000
-# Seconds of discovery (--spin-time). ros2cli without its daemon gives 0.5 s, but here a new
-# participant learns of a running node only at that node's next periodic announcement (Fast
-# DDS: every 3 s; config/fastdds.xml speeds up the other direction only): measured 0.05 to
-# 2.8 s on 2026-12-01, so 0.5 s often listed an empty graph. list waits all of it; info,
-# echo and hz stop waiting as soon as their topic is there.
+# The most seconds of discovery (--spin-time). ros2cli without its daemon gives 0.5 s; with
+# Fast DDS's defaults a new participant learned of a running node only at that node's next
+# periodic announcement (every 3 s: 0.05 to 2.8 s measured), and config/fastdds.xml's 0.5 s
+# period may still be missing from another profile. info, echo and hz stop waiting as soon
+# as their topic is there; list once the graph is settled (GraphSettling).
 DEFAULT_SPIN_TIME = 3.0
+# list: the graph is settled once it has held still this long with another node on it (at
+# load 8 on 2 cores one node's endpoints came 0.35 s after the other's) ...
+SETTLED_AFTER = 0.6  # s
+# ... or, with no other node seen, after this long (discovery here: 0.1 to 0.5 s).
+EMPTY_GRAPH_WAIT = 1.5  # s
 # What echo and hz subscribe with before adopting their publishers' reliability and
 # durability (ros2cli's default profile for them).
 SUBSCRIBE_BASE_QOS = qos_profile_sensor_data
@@ -450,6 +455,53 @@ def _resolve_topic(session, name: str) -> str:
         raise UsageError(f"invalid topic name '{name}': {reason}") from None
 
 
+class GraphSettling:
+    """When `ros2 topic list` has seen the graph long enough (no ROS: it is given snapshots).
+
+    `settled(snapshot, now)`: True once the snapshot (anything comparable: the other nodes'
+    names and the topics with their types) has held still for SETTLED_AFTER s while it shows
+    another node (`has_nodes`), once EMPTY_GRAPH_WAIT s have passed without one, or at
+    `spin_time` s whatever it shows. Why: a fixed wait made every list take 3 s where
+    discovery takes 0.1 to 0.5 s; endpoints come in over a few polls after their node, so a
+    graph is judged complete by holding still, not by being non-empty."""
+
+    def __init__(self, start: float, spin_time: float):
+        self._start = start
+        self._spin_time = spin_time
+        self._snapshot = None
+        self._since = start
+
+    def settled(self, snapshot, has_nodes: bool, now: float) -> bool:
+        if snapshot != self._snapshot:
+            self._snapshot, self._since = snapshot, now
+        elapsed = now - self._start
+        if elapsed >= self._spin_time:
+            return True
+        if has_nodes:
+            return now - self._since >= SETTLED_AFTER
+        return elapsed >= EMPTY_GRAPH_WAIT
+
+
+def _graph_snapshot(session) -> tuple[frozenset, frozenset]:
+    """(the other nodes' names, every topic with its types) of the graph as seen now."""
+    own = session.node.get_fully_qualified_name()
+    nodes = frozenset(
+        f'{namespace.rstrip("/")}/{name}'
+        for name, namespace in session.node.get_node_names_and_namespaces()) - {own}
+    topics = frozenset((name, tuple(types))
+                       for name, types in session.node.get_topic_names_and_types())
+    return nodes, topics
+
+
+def _wait_for_settled_graph(session, stop: StopRequest, spin_time: float) -> None:
+    settling = GraphSettling(time.monotonic(), spin_time)
+    while True:
+        nodes, topics = _graph_snapshot(session)
+        if settling.settled((nodes, topics), bool(nodes), time.monotonic()) \
+                or stop.wait(GRAPH_POLL_PERIOD):
+            return
+
+
 def _discover(stop: StopRequest, spin_time: float,
               found: Callable[[], bool] = lambda: False) -> None:
     """Give discovery up to `spin_time` s, less if `found()` turns true before."""
@@ -494,7 +546,7 @@ def _subscription_qos(session, topic: str, args: argparse.Namespace,
 
 def list_topics(args: argparse.Namespace, stop: StopRequest) -> int:
     with ros_node(tool_node_name('topic')) as session:
-        _discover(stop, args.spin_time)
+        _wait_for_settled_graph(session, stop, args.spin_time)
         names_and_types = session.node.get_topic_names_and_types()
     lines = format_topic_list(names_and_types, args.show_types, args.include_hidden_topics)
     print(len(lines) if args.count_topics else '\n'.join(lines), flush=True)
@@ -616,7 +668,8 @@ def pub(args: argparse.Namespace, stop: StopRequest) -> int:
 def _add_discovery_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--spin-time', type=non_negative_float, default=DEFAULT_SPIN_TIME,
                         help='the most seconds to wait for discovery; less once the topic '
-                             'is found (default: %(default)s)')
+                             'is found (list: once the graph has settled) '
+                             '(default: %(default)s)')
     parser.add_argument('--no-daemon', action='store_true',
                         help='accepted for ros2cli compatibility: there is no daemon here')
 

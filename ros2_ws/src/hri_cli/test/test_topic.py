@@ -30,8 +30,11 @@ from hri_cli.common import (  # noqa: E402
     UsageError,
 )
 from hri_cli.topic import (  # noqa: E402
+    EMPTY_GRAPH_WAIT,
     HZ_BASE_QOS,
+    SETTLED_AFTER,
     FieldError,
+    GraphSettling,
     RateWindow,
     check_array_length,
     field_element_type,
@@ -356,3 +359,33 @@ def test_bad_pub_values_exit_2_and_an_unknown_type_exits_1_before_ros_starts(cap
     assert capsys.readouterr().err == "ros2 topic echo: error: Invalid field value '.'\n"
     # The verbs hand Ctrl-C back to the caller when they end.
     assert signal.getsignal(signal.SIGINT) is handler
+
+
+# list's wait: the graph settled
+
+
+def settle(snapshots: list[tuple[float, object, bool]], spin_time: float = 3.0) -> float:
+    """The time (s) GraphSettling calls the graph settled, fed (time, snapshot, has_nodes)
+    every 50 ms from `snapshots` (each holds from its time until the next's)."""
+    settling = GraphSettling(0.0, spin_time)
+    now = 0.0
+    while now <= spin_time + 0.05:
+        current = [row for row in snapshots if row[0] <= now][-1]
+        if settling.settled(current[1], current[2], now):
+            return round(now, 2)
+        now += 0.05
+    raise AssertionError('never settled')
+
+
+def test_list_returns_once_the_graph_holds_still_with_nodes_on_it():
+    # One node's topics at 0.25 s, the other's at 0.6 s (0.35 s later, as seen at load 8):
+    # settled SETTLED_AFTER after the last change, not at the first pause.
+    seen = [(0.0, 'own', False), (0.25, 'one node', True), (0.6, 'both nodes', True)]
+    assert settle(seen) == round(0.6 + SETTLED_AFTER, 2)
+
+
+def test_list_of_an_empty_graph_waits_a_little_and_a_busy_one_at_most_spin_time():
+    assert settle([(0.0, 'own', False)]) == EMPTY_GRAPH_WAIT
+    changing = [(0.05 * k, k, True) for k in range(100)]  # a new topic every poll
+    assert settle(changing, spin_time=2.0) == 2.0
+    assert settle([(0.0, 'own', False)], spin_time=0.0) == 0.0

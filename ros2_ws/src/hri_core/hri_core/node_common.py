@@ -9,19 +9,33 @@ user gives (`--params-file`, `-p`) wins as usual in ROS, also for a node renamed
 that a node started with a bad or missing value logs that line and exits non-zero instead of
 printing a traceback.
 
+A parameter the node does not declare (a misspelt `-p profil:=circle`, a stale key in a
+`--params-file`) is refused at start, naming the nearest declared one
+(`unknown_parameters_problem`): ROS itself would ignore it and run on the default. A
+`--params-file` that does not exist or is not YAML, or arguments rcl cannot parse, are one
+line and exit 1 too (`ros_arguments_problem`, `init_ros`), where rcl raised a 22-line
+traceback.
+
 Spinning: `init_ros` starts rclpy without its signal handlers and turns SIGINT and SIGTERM
 into a stop request that `spin_until_stopped` checks between callbacks. rclpy's own handlers
 shut the context down at once, so a 1 kHz timer callback already running when the signal
 comes would publish on a dead context and end the process with a traceback; this way the
 node leaves the loop, logs its summary and exits 0.
+
+Summary: when its loop ends, `run_node` logs one line `summary: ...`, what the node did
+(messages, cycles, tasks): the text of the node's `summary()` if it has one, else how long it
+ran.
 """
 
+import difflib
 import faulthandler
 import gc
 import math
 import os
+import re
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -37,6 +51,7 @@ from rcl_interfaces.msg import (
     IntegerRange,
     ParameterDescriptor,
 )
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.exceptions import (
     InvalidParameterTypeException,
     ParameterException,
@@ -160,9 +175,15 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec],
     YAML, `load_defaults`) as the default; return {name: value}.
 
     Raises StartupError with a one-line reason for a value of the wrong type, out of range,
-    not among the choices, or missing (a `required` one not given or empty). An unset
+    not among the choices, or missing (a `required` one not given or empty), and for a
+    parameter given that `specs` does not hold (unknown_parameters_problem): every node
+    declares its whole table in this one call, before it starts any work. An unset
     `optional` parameter is None.
     """
+    problem = unknown_parameters_problem(
+        parameter_overrides(node), [*specs, *declared_parameter_names(node)], node.get_name())
+    if problem:
+        raise StartupError(problem)
     values = {}
     for name, spec in specs.items():
         if name in defaults:
@@ -181,8 +202,8 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec],
                 continue
             raise StartupError(spec.missing(name)) from None
         except InvalidParameterTypeException as error:
-            hint = ' (write it with a decimal point, e.g. 1000.0)' if spec.type is float \
-                else ''
+            given = parameter_overrides(node).get(name)
+            hint = decimal_point_hint(spec, None if given is None else given.value)
             raise StartupError(f'bad parameter {name}: {_reason(error, name)}{hint}') from None
         except ParameterException as error:
             raise StartupError(f'bad parameter {name}: {_reason(error, name)}') from None
@@ -193,6 +214,62 @@ def declare_parameters(node: Node, specs: dict[str, ParameterSpec],
             raise StartupError(f'bad parameter {name}: {reason}')
         values[name] = [float(v) for v in value] if spec.type is list else value
     return values
+
+
+def decimal_point_hint(spec: ParameterSpec, given) -> str:
+    """The hint for an integer given where `spec` wants a float or an array of floats: the
+    value as it is to be written (`given`: the value given, None if unknown)."""
+    if spec.type is float:
+        example = f'{float(given)!r}' if isinstance(given, int) else '1000.0'
+        return f' (write it with a decimal point, e.g. {example})'
+    if spec.type is list:
+        example = '[20.0, 4.0]'
+        if isinstance(given, (list, tuple)) and given and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in given):
+            example = f'[{", ".join(repr(float(v)) for v in given)}]'
+        return f' (write each value with a decimal point, e.g. {example})'
+    return ''
+
+
+# Parameters rclpy itself may declare on any node (use_sim_time, the type description service
+# are declared by every Node; `qos_overrides.<topic>.*` when a publisher allows them); they are
+# never the node's unknown parameters.
+RESERVED_PARAMETER_PREFIXES = ('qos_overrides.',)
+RESERVED_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+
+
+def parameter_overrides(node: Node) -> dict:
+    """{name: Parameter} the user gave the node: `-p`, `--params-file` sections that match
+    it. rclpy keeps them in Node._parameter_overrides and has no public getter."""
+    return dict(getattr(node, '_parameter_overrides', {}))
+
+
+def declared_parameter_names(node: Node) -> list[str]:
+    """The names of the parameters declared on `node` so far (rclpy's own among them)."""
+    return list(node.list_parameters([], 0).names)
+
+
+def unknown_parameters_problem(given, declared, node_name: str) -> str:
+    """The one-line reason for the names in `given` that are not in `declared` (each with the
+    nearest declared name, by difflib's similarity), or '' if there is none. rclpy's own
+    parameters (RESERVED_PARAMETERS, RESERVED_PARAMETER_PREFIXES) are always allowed.
+
+    Why: rclpy ignores a parameter no one declares, so `-p profil:=circle` started the hold
+    profile and exited 0 at the end."""
+    known = sorted(set(declared) | set(RESERVED_PARAMETERS))
+    unknown = sorted(name for name in given if name not in known
+                     and not name.startswith(RESERVED_PARAMETER_PREFIXES))
+    if not unknown:
+        return ''
+    own = [name for name in known if name not in RESERVED_PARAMETERS] or known
+
+    def nearest(name: str) -> str:
+        return max(own, key=lambda candidate: (
+            difflib.SequenceMatcher(None, name, candidate).ratio(), candidate))
+
+    listed = ', '.join(f'{name} (did you mean {nearest(name)}?)' for name in unknown)
+    return (f'unknown parameter{"s" if len(unknown) > 1 else ""} {listed} for {node_name}; '
+            'every node\'s parameters: docs/parameters.md')
 
 
 def _as_type(value, spec: ParameterSpec):
@@ -263,9 +340,54 @@ def stamp_seconds(stamp) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
+def ros_arguments_problem(argv: list[str]) -> str:
+    """Why the `--params-file` arguments of the command line `argv` cannot be used (a file
+    missing, unreadable or not YAML), or '' if they can. rcl would refuse them with a
+    traceback from rclpy.init; this says which file and why in one line."""
+    in_ros_args = False
+    for index, argument in enumerate(argv):
+        if argument == '--ros-args':
+            in_ros_args = True
+        elif argument == '--':
+            in_ros_args = False
+        elif in_ros_args and argument == '--params-file':
+            if index + 1 >= len(argv):
+                return '--params-file needs a file: --params-file PATH'
+            path = Path(argv[index + 1])
+            try:
+                yaml.safe_load(path.read_text())
+            except OSError as error:
+                return f'cannot read --params-file {path}: {error.strerror or error}'
+            except (yaml.YAMLError, UnicodeDecodeError) as error:
+                return f'--params-file {path} is not YAML: {" ".join(str(error).split())}'
+    return ''
+
+
+# rcl's error text ends in where in its C sources it was raised (", at /project/src/...").
+_RCL_SOURCE_LOCATION = re.compile(r',? at /\S+:\d+')
+
+
+def rcl_error_line(error: Exception) -> str:
+    """rcl's error message in one line, without the C source locations."""
+    return ' '.join(_RCL_SOURCE_LOCATION.sub('', str(error)).split())
+
+
 def init_ros(args=None) -> threading.Event:
-    """rclpy.init without rclpy's signal handlers; return the event SIGINT/SIGTERM set."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    """rclpy.init without rclpy's signal handlers; return the event SIGINT/SIGTERM set.
+
+    Raises StartupError with one line for command-line arguments rcl cannot use (a missing
+    --params-file, a malformed -p); rcl's own log line about them is left out."""
+    problem = ros_arguments_problem(sys.argv if args is None else list(args))
+    if problem:
+        raise StartupError(problem)
+    held_back = StderrHeldBack()
+    try:
+        with held_back:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RCLError as error:
+        held_back.read()  # rcl's own line: the StartupError says it in full
+        raise StartupError(f'bad command line: {rcl_error_line(error)}') from None
+    sys.stderr.write(held_back.read())
     stop = threading.Event()
 
     def request_stop(signum, frame):
@@ -274,6 +396,29 @@ def init_ros(args=None) -> threading.Event:
     signal.signal(signal.SIGINT, request_stop)
     signal.signal(signal.SIGTERM, request_stop)
     return stop
+
+
+class StderrHeldBack:
+    """Holds back what is written on file descriptor 2 (by C code too) inside the `with`;
+    `read()` gives it afterwards. rcl logs 'Failed to parse global arguments' there before
+    it raises: on a failure that line is dropped, the StartupError says it in full."""
+
+    def __enter__(self):
+        sys.stderr.flush()
+        self._file = tempfile.TemporaryFile()
+        self._saved = os.dup(2)
+        os.dup2(self._file.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+
+    def read(self) -> str:
+        self._file.seek(0)
+        text = self._file.read().decode(errors='replace')
+        self._file.close()
+        return text
 
 
 CONTEXT_CHECK_PERIOD = 0.05
@@ -321,26 +466,38 @@ def run_node(create_node: Callable[[], Node], node_name: str, executor_class=Non
     """A node's whole life: rclpy up, create the node, spin until SIGINT/SIGTERM (or until
     `exit_code(node)` is not None), clean up; return the process exit code.
 
-    A StartupError is logged as its one-line reason (ERROR) and the process ends at once with
-    exit code 1, without tearing the middleware down: a node that could not start has nothing
-    to save, and that teardown, next to many processes starting at once, hung after the error
-    line in 3 of about 30 fresh-clone test runs (ci16, ci23, ci36; with the half-built node
-    left to the garbage collector and with it destroyed before rclpy shut down alike).
-    `on_stop(node)` runs before the node is destroyed (a summary line, closing a file).
-    `executor_class` defaults to SingleThreadedExecutor; the EventsExecutor is driven with
-    spin_once here, because its spin() ignores shutdown (docs/design.md).
+    A StartupError (bad command-line arguments, a bad or unknown parameter, ...) is logged as
+    its one-line reason (ERROR) and the process ends at once with exit code 1, without tearing
+    the middleware down: a node that could not start has nothing to save, and that teardown,
+    next to many processes starting at once, hung after the error line in 3 of about 30
+    fresh-clone test runs (ci16, ci23, ci36; with the half-built node left to the garbage
+    collector and with it destroyed before rclpy shut down alike).
+    `on_stop(node)` runs before the node is destroyed (closing a file, stopping a thread);
+    then the summary line is logged (`log_summary`). `executor_class` defaults to
+    SingleThreadedExecutor; the EventsExecutor is driven with spin_once here, because its
+    spin() ignores shutdown (docs/design.md).
     """
     logger = rclpy.logging.get_logger(node_name)
     # `kill -USR1 PID` prints every thread's Python stack to stderr (the node's log), even when
     # the process hangs in the middleware with the GIL held: how a stuck node is diagnosed.
     faulthandler.register(signal.SIGUSR1, all_threads=True)
-    stop = init_ros(args)
+    try:
+        stop = init_ros(args)
+    except StartupError as error:
+        _exit_at_start(logger, error)
     node = None
     executor = None
     code = 0
+    started = time.monotonic()
     try:
         leave_startup_objects_to_the_collector()
         node = create_node()
+        # Every node of the suite refuses unknown parameters in declare_parameters, before it
+        # starts any work; this catches a node that declares its parameters otherwise.
+        problem = unknown_parameters_problem(parameter_overrides(node),
+                                             declared_parameter_names(node), node.get_name())
+        if problem:
+            raise StartupError(problem)
         executor = (executor_class or SingleThreadedExecutor)()
         executor.add_node(node)
         spin_until_stopped(executor, stop,
@@ -349,10 +506,7 @@ def run_node(create_node: Callable[[], Node], node_name: str, executor_class=Non
         if exit_code is not None and exit_code(node) is not None:
             code = exit_code(node)
     except StartupError as error:
-        logger.error(str(error))
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(1)
+        _exit_at_start(logger, error)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -363,9 +517,38 @@ def run_node(create_node: Callable[[], Node], node_name: str, executor_class=Non
         if node is not None:
             if on_stop is not None:
                 on_stop(node)
+            log_summary(node, time.monotonic() - started)
             bounded_teardown(node.destroy_node, 'node teardown', logger.warning, code)
         bounded_teardown(rclpy.try_shutdown, 'rclpy shutdown', logger.warning, code)
     return code
+
+
+def _exit_at_start(logger, error: StartupError) -> None:
+    """Log a node's StartupError as its one line and end the process with exit code 1."""
+    logger.error(str(error))
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(1)
+
+
+SUMMARY_PREFIX = 'summary: '
+"""What the summary line of every node begins with (after the logger's [name]: )."""
+
+
+def log_summary(node: Node, elapsed: float) -> None:
+    """Log the node's one summary line: `summary: ` and the text of its `summary()` (what it
+    did: messages, cycles, tasks), or how long it ran (`elapsed` s) if it has none. A failing
+    summary() is an error line, never a traceback on the way out."""
+    summary = getattr(node, 'summary', None)
+    if not callable(summary):
+        node.get_logger().info(f'{SUMMARY_PREFIX}ran {elapsed:.1f} s')
+        return
+    try:
+        text = summary()
+    except Exception as error:  # noqa: BLE001 - the node is stopping: say it, exit cleanly
+        node.get_logger().error(f'{SUMMARY_PREFIX}none ({type(error).__name__}: {error})')
+        return
+    node.get_logger().info(f'{SUMMARY_PREFIX}{text}')
 
 
 TEARDOWN_TIMEOUT = 3.0

@@ -3,7 +3,7 @@
 A bag that carries its robot holds the URDF text that robot_state_publisher (or arm_sim)
 publishes on /robot_description. `description_model(urdf_text, tool_frame)` builds the
 hri_core.robot_model.PinocchioModel of it; the tool frame, when not given, is the robot's own
-where the URDF names a robot the suite knows (`panda`: PANDA_TOOL_FRAME, `scara`: `tip`), else
+where the URDF names a robot the suite knows (robot_model.KNOWN_TOOL_FRAMES, from its table), else
 the URDF's one end link (a serial chain ends in one link; several end links need `tool_frame`).
 
 `ToolKinematics(model).positions(q)` is the forward kinematics of N joint vectors at once:
@@ -20,10 +20,7 @@ import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
-from hri_core.robot_model import PANDA_TOOL_FRAME, PinocchioModel
-
-#: The tool frame of each robot the suite knows by name (its URDF's <robot name="...">).
-KNOWN_TOOL_FRAMES = {'panda': PANDA_TOOL_FRAME, 'scara': 'tip'}
+from hri_core.robot_model import KNOWN_TOOL_FRAMES, PinocchioModel
 
 
 def _one_line(text) -> str:

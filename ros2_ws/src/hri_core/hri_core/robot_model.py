@@ -33,11 +33,14 @@ Two implementations:
   Y = 1/4 [Y_pin(q, dq + dq_r, 2 ddq_r; 2 g) - Y_pin(q, dq - dq_r, -2 ddq_r; -2 g)] exactly
   (two calls on two copies of the model with gravity scaled by +-2).
 
-`robot_model('scara')`, `robot_model('panda')` (the Franka Emika Panda of the
-example-robot-data package, tool frame `panda_hand_tcp`, the point between the fingertips,
-fingers locked closed) or `robot_model(urdf_file=PATH, tool_frame=NAME)` builds one. Every
-bad input (an unreadable URDF, an unknown frame, a wrong shape) raises ValueError with a
-one-line reason. No ROS import.
+`robot_model(NAME)` builds the arm NAME of the one table ROBOTS: the SCARA (`scara`) and the
+arms of the example-robot-data package, each with its URDF and tool frame: `panda` (the
+Franka Emika Panda, tool frame `panda_hand_tcp`, the point between the fingertips, fingers
+locked closed), `ur3`, `ur5`, `ur10` (Universal Robots, `tool0`), `xarm7` (UFactory,
+`link_eef`), `z1` (Unitree, `gripperStator`, the gripper's jaw locked).
+`robot_model(urdf_file=PATH, tool_frame=NAME)` builds any other. Every bad input (an unknown
+name, an unreadable URDF, an unknown frame, a wrong shape) raises ValueError with a one-line
+reason. No ROS import.
 """
 
 import contextlib
@@ -56,22 +59,58 @@ from hri_core.dynamics import ScaraParameters
 
 __all__ = [
     'JointLimits',
+    'KNOWN_TOOL_FRAMES',
+    'KnownRobot',
     'PANDA_TOOL_FRAME',
     'PinocchioModel',
+    'ROBOTS',
     'ROBOT_NAMES',
     'RobotModel',
     'ScaraModel',
+    'example_robot_urdf_path',
     'generic_model',
     'panda_urdf_path',
     'robot_model',
     'scara_urdf',
 ]
 
-ROBOT_NAMES = ('scara', 'panda')
-PANDA_TOOL_FRAME = 'panda_hand_tcp'
-# Franka's 'ready' pose (rad): elbow bent, hand down in front of the base.
-PANDA_HOME = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
-PANDA_URDF = 'cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/panda.urdf'
+
+
+@dataclass(frozen=True)
+class KnownRobot:
+    """An arm the suite knows by name: its URDF in example-robot-data's robots folder ('' for
+    the analytic SCARA), the frame whose origin is its tool point, the name its URDF gives
+    in <robot name=...> (how a /robot_description is recognised), and its home pose (rad;
+    None: the middle of its joint limits, PinocchioModel's default)."""
+
+    urdf: str
+    tool_frame: str
+    urdf_robot_name: str
+    home: tuple[float, ...] | None = None
+
+
+# The one table of arms known by name (`robot:=NAME` of arm_sim, the demonstrator and the
+# controller). The UR arms are the full-range URDFs (+-2 pi, as the real arms); the
+# joint-limited ones (+-pi) are there for urdf_file. Their home is the middle of their limits.
+ROBOTS = {
+    'scara': KnownRobot('', 'tip', 'scara'),
+    # Franka's 'ready' pose: elbow bent, hand down in front of the base.
+    'panda': KnownRobot('panda_description/urdf/panda.urdf', 'panda_hand_tcp', 'panda',
+                        (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2,
+                         math.pi / 4)),
+    'ur3': KnownRobot('ur_description/urdf/ur3_robot.urdf', 'tool0', 'ur3'),
+    'ur5': KnownRobot('ur_description/urdf/ur5_robot.urdf', 'tool0', 'ur5'),
+    'ur10': KnownRobot('ur_description/urdf/ur10_robot.urdf', 'tool0', 'ur10'),
+    'xarm7': KnownRobot('xarm_description/urdf/xarm7.urdf', 'link_eef', 'UF_ROBOT'),
+    # The gripper's body (a fixed joint on the flange); its jaw is locked.
+    'z1': KnownRobot('z1_description/urdf/z1.urdf', 'gripperStator', 'z1_description'),
+}
+ROBOT_NAMES = tuple(ROBOTS)
+#: The tool frame of each known arm by the robot name its URDF gives (robot_description,
+#: the live view: a /robot_description's arm without a tool_frame given).
+KNOWN_TOOL_FRAMES = {robot.urdf_robot_name: robot.tool_frame for robot in ROBOTS.values()}
+PANDA_TOOL_FRAME = ROBOTS['panda'].tool_frame
+EXAMPLE_ROBOTS = 'cmeel.prefix/share/example-robot-data/robots'
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)  # m/s^2 in the base frame, z up
 # theta's box (PinocchioModel): a link's mass at least this fraction of its URDF mass.
 MASS_FLOOR = 0.01
@@ -429,7 +468,7 @@ class PinocchioModel(RobotModel):
             frames = [frame.name for frame in full.frames][1:]
             raise ValueError(f'no frame {tool_frame!r} in the URDF of {name}; its frames: '
                              f'{", ".join(frames[:20])}{" ..." if len(frames) > 20 else ""}')
-        chain = set(full.supports[full.frames[full.getFrameId(tool_frame)].parentJoint])
+        chain = set(full.supports[full.frames[_frame_id(pin, full, tool_frame)].parentJoint])
         locked = [joint for joint in range(1, full.njoints) if joint not in chain]
         model = (pin.buildReducedModel(full, locked, _neutral_within_limits(pin, full))
                  if locked else full)
@@ -452,7 +491,7 @@ class PinocchioModel(RobotModel):
             copy.gravity = pin.Motion(scale * gravity, np.zeros(3))
             self._regressor_models.append((copy, copy.createData()))
         self.tool_frame = tool_frame
-        self.tool_frame_id = model.getFrameId(tool_frame)
+        self.tool_frame_id = _frame_id(pin, model, tool_frame)
         self.name = name
         self.urdf = urdf_text
         self.joint_names = tuple(model.names[1:])
@@ -651,6 +690,14 @@ def generic_model(model: RobotModel) -> 'PinocchioModel':
     return generic
 
 
+def _frame_id(pin, model, name: str) -> int:
+    """The id of the frame `name`: its link's (BODY) frame where a joint has the same name
+    (the Z1's gripperStator), else the one frame of that name."""
+    if model.existFrame(name, pin.FrameType.BODY):
+        return model.getFrameId(name, pin.FrameType.BODY)
+    return model.getFrameId(name)
+
+
 def _neutral_within_limits(pin, model) -> np.ndarray:
     """pinocchio's neutral configuration clipped into the joint limits (a gripper's fingers
     at their closed stop)."""
@@ -659,34 +706,41 @@ def _neutral_within_limits(pin, model) -> np.ndarray:
 
 # Names ------------------------------------------------------------------------------------
 
-def panda_urdf_path() -> Path:
-    """The Panda's URDF of the example-robot-data package: in the Python environment (the
-    PyPI wheel, a data-only package: its files sit under the environment's cmeel.prefix/share)
-    or else in the ament index (the ROS package of an apt install). ValueError if neither."""
+def example_robot_urdf_path(robot: str) -> Path:
+    """The URDF of the known arm `robot` (ROBOTS) in the example-robot-data package: in the
+    Python environment (the PyPI wheel, a data-only package: its files sit under the
+    environment's cmeel.prefix/share) or else in the ament index (the ROS package of an apt
+    install). ValueError if neither."""
+    relative = f'{EXAMPLE_ROBOTS}/{ROBOTS[robot].urdf}'
     candidates = []
     try:
         candidates.append(Path(metadata.distribution('example-robot-data')
-                               .locate_file(PANDA_URDF)))
+                               .locate_file(relative)))
     except metadata.PackageNotFoundError:
         pass
     try:
         from ament_index_python.packages import get_package_share_directory
 
         candidates.append(Path(get_package_share_directory('example-robot-data'))
-                          / PANDA_URDF.split('example-robot-data/', 1)[1])
+                          / relative.split('example-robot-data/', 1)[1])
     except (ImportError, LookupError):
         pass
     for path in candidates:
         if path.is_file():
             return path
-    raise ValueError('robot panda needs the example-robot-data package (requirements.lock); '
-                     f'no Panda URDF at {", ".join(map(str, candidates)) or "any known place"}')
+    raise ValueError(f'robot {robot} needs the example-robot-data package (requirements.lock);'
+                     f' no URDF at {", ".join(map(str, candidates)) or "any known place"}')
+
+
+def panda_urdf_path() -> Path:
+    """The Panda's URDF (example_robot_urdf_path)."""
+    return example_robot_urdf_path('panda')
 
 
 def robot_model(robot: str = '', urdf_file: str = '', tool_frame: str = '') -> RobotModel:
     """The model of `robot` (one of ROBOT_NAMES) or of the URDF file `urdf_file` with its tool
-    point at `tool_frame` (required with urdf_file; for the Panda it may rename the default
-    PANDA_TOOL_FRAME). Exactly one of robot and urdf_file. ValueError with the reason."""
+    point at `tool_frame` (required with urdf_file; for a known arm it may replace the
+    table's). Exactly one of robot and urdf_file. ValueError with the reason."""
     if bool(robot) == bool(urdf_file):
         raise ValueError('give either a robot name '
                          f'({", ".join(ROBOT_NAMES)}) or a urdf_file, not both or neither')
@@ -694,10 +748,12 @@ def robot_model(robot: str = '', urdf_file: str = '', tool_frame: str = '') -> R
         if tool_frame not in ('', 'tip'):
             raise ValueError(f"the SCARA's tool frame is 'tip', not {tool_frame!r}")
         return ScaraModel()
-    if robot == 'panda':
-        model = PinocchioModel(panda_urdf_path().read_text(), tool_frame or PANDA_TOOL_FRAME,
-                               name='panda')
-        model.home = np.array(PANDA_HOME)
+    if robot in ROBOTS:
+        known = ROBOTS[robot]
+        model = PinocchioModel(example_robot_urdf_path(robot).read_text(),
+                               tool_frame or known.tool_frame, name=robot)
+        if known.home is not None:
+            model.home = np.array(known.home)
         return model
     if robot:
         raise ValueError(f'unknown robot {robot!r}; expected one of {", ".join(ROBOT_NAMES)} '

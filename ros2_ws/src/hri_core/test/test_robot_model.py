@@ -11,8 +11,12 @@ import numpy as np
 import pytest
 
 from hri_core.dynamics import ScaraParameters
+from hri_core.robot_description import robot_name
 from hri_core.robot_model import (
+    KNOWN_TOOL_FRAMES,
     PANDA_TOOL_FRAME,
+    ROBOT_NAMES,
+    ROBOTS,
     PinocchioModel,
     ScaraModel,
     robot_model,
@@ -184,7 +188,8 @@ def test_with_inertias_scales_masses_and_damping(panda):
 
 
 @pytest.mark.parametrize(('kwargs', 'reason'), [
-    ({'robot': 'kuka'}, "unknown robot 'kuka'"),
+    ({'robot': 'kuka'}, "unknown robot 'kuka'; expected one of scara, panda, ur3, ur5, ur10, "
+                        'xarm7, z1 or a urdf_file'),
     ({}, 'give either a robot name'),
     ({'robot': 'panda', 'urdf_file': 'x.urdf'}, 'give either a robot name'),
     ({'urdf_file': 'x.urdf'}, 'a urdf_file needs a tool_frame'),
@@ -213,6 +218,32 @@ def test_bad_urdfs_give_one_line(text, reason, tmp_path):
     with pytest.raises(ValueError, match=reason) as error:
         robot_model(urdf_file=str(path), tool_frame='b')
     assert '\n' not in str(error.value)
+
+
+# Every arm of the table: (joints, the tool frame, the tool at home (m, base frame)).
+KNOWN_ARMS = {
+    'ur3': (6, 'tool0', (0.457, 0.194, 0.067)),
+    'ur5': (6, 'tool0', (0.817, 0.191, -0.005)),
+    'ur10': (6, 'tool0', (1.184, 0.256, 0.012)),
+    'xarm7': (7, 'link_eef', (0.486, 0.0, 0.755)),
+    'z1': (6, 'gripperStator', (0.360, 0.0, 0.492)),  # the gripper's jaw locked
+}
+
+
+@pytest.mark.parametrize('name', list(KNOWN_ARMS))
+def test_every_arm_of_the_table_loads_by_its_name(name):
+    dof, tool_frame, tool_at_home = KNOWN_ARMS[name]
+    model = robot_model(name)
+    assert (model.name, model.dof, model.tool_frame) == (name, dof, tool_frame)
+    np.testing.assert_allclose(model.tool_position(model.home), tool_at_home, atol=1e-3)
+    assert model.reach > np.linalg.norm(model.tool_position(model.home) - model.shoulder)
+    # A /robot_description of it is recognised by its URDF's robot name.
+    assert KNOWN_TOOL_FRAMES[robot_name(model.urdf)] == tool_frame
+
+
+def test_the_table_names_every_arm_once_with_its_urdf():
+    assert ROBOT_NAMES == ('scara', 'panda', *KNOWN_ARMS)
+    assert all(ROBOTS[name].urdf for name in ROBOT_NAMES if name != 'scara')
 
 
 def test_urdf_file_loads_like_the_name(panda, tmp_path):

@@ -141,6 +141,8 @@ class Learner(Node):
         except ValueError as error:
             raise StartupError(f'bad S_p constants: {error}') from None
         self.exit_code: int | None = None  # set when a `once` run is over
+        self._learned = None  # the LearnedTask, for the summary line
+        self._delivered: bool | None = None  # whether every subscriber acknowledged it
         self.add_on_set_parameters_callback(self._reject_changes)
         self._publisher = self.create_publisher(TaskParameters, topics.TASK.name,
                                                 topics.TASK.qos)
@@ -158,6 +160,7 @@ class Learner(Node):
         except LearningError as error:
             raise StartupError(str(error)) from None
         task = learned.record
+        self._learned = learned
         self._publisher.publish(task_message(task, self.get_clock().now().to_msg()))
         self.get_logger().info(
             f"learned task '{task.name}' from {len(values['bags'])} bag(s): S={task.s:+d} "
@@ -175,10 +178,22 @@ class Learner(Node):
                 f'({" ".join(learned.fit_message.split())}); '
                 'the task was saved but a1, a2 may be poor')
         if values['once']:
-            if not self.deliver():
+            self._delivered = self.deliver()
+            if not self._delivered:
                 self.get_logger().warning('a subscriber of /hri/task did not acknowledge the '
                                           f'task within {ACK_TIMEOUT} s')
             self.exit_code = 0
+
+    def summary(self) -> str:
+        """One line on what the node did (run_node logs it at the stop)."""
+        learned = self._learned
+        if learned is None:
+            return 'no task learned (stopped before learning was done)'
+        delivery = {None: 'published on /hri/task (transient local)',
+                    True: 'published on /hri/task and delivered',
+                    False: 'published on /hri/task, not acknowledged by every subscriber'}
+        return (f"1 task learned: '{learned.record.name}' from {len(self._values['bags'])} "
+                f'bag(s), {delivery[self._delivered]}; saved to {learned.task_file}')
 
     def _reject_changes(self, parameters) -> SetParametersResult:
         names = ', '.join(p.name for p in parameters)

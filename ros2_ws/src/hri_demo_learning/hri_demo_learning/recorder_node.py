@@ -256,8 +256,8 @@ class Recorder(Node):
         return drained
 
     def close_bag(self) -> None:
-        """Write what is still queued, close the bag (MCAP summary, metadata.yaml) and log a
-        one-line summary of counts."""
+        """Write what is still queued, close the bag (MCAP summary, metadata.yaml) and keep
+        the one-line summary of counts for `summary` (run_node logs it next)."""
         drained = self.drain()
         for subscription in self._recording.values():
             self._intake.destroy_subscription(subscription)
@@ -268,6 +268,7 @@ class Recorder(Node):
         except OSError as err:
             self.get_logger().error(f'cannot close bag {self._writer.path}: '
                                     f'{err.strerror or err}')
+            self._summary = f'bag {self._writer.path} not closed: {err.strerror or err}'
             return
         elapsed = time.monotonic() - self._started
         per_topic = ', '.join(f'{topic}: {counts[topic]}' for topic in self._topics
@@ -278,7 +279,11 @@ class Recorder(Node):
                 'queued at the stop)')
         if missing:
             line += f'; never published: {", ".join(missing)}'
-        self.get_logger().info(line)
+        self._summary = line
+
+    def summary(self) -> str:
+        """The line close_bag made: what went into the bag."""
+        return getattr(self, '_summary', f'bag {self._writer.path} not closed')
 
 
 def main(args=None):

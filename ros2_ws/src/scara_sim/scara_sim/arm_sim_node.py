@@ -1,10 +1,10 @@
 """The `arm_sim` node: any serial arm from its URDF, simulated at 1 kHz under joint torques.
 
-`-p robot:=panda` (the Franka Panda of example-robot-data, tool point `panda_hand_tcp`),
-`robot:=scara` (the default: the SCARA of scara_sim as a URDF) or `-p urdf_file:=PATH -p
-tool_frame:=NAME` (urdf_file, when given, replaces robot) chooses the arm
-(hri_core.robot_model). The arm simulated is the URDF's with each link's mass and inertia and
-each joint's viscous friction scaled by seeded factors within +-`perturbation`
+`-p robot:=NAME`, an arm of hri_core.robot_model's table (`panda`, `ur3`, `ur5`, `ur10`,
+`xarm7`, `z1` of example-robot-data, each with its tool frame; `scara`, the default: the SCARA
+of scara_sim as a URDF) or `-p urdf_file:=PATH -p tool_frame:=NAME` (urdf_file, when given,
+replaces robot) chooses the arm. The arm simulated is the URDF's with each link's mass and
+inertia and each joint's viscous friction scaled by seeded factors within +-`perturbation`
 (arm_simulation.true_arm), integrated with RK4 on pinocchio's ABA in fixed steps of
 1/rate_hz s, gravity along -z, joint limits as inelastic stops, efforts clipped at the URDF's
 limits (arm_simulation.ArmSimulator). Stepping, publishing, timeouts and fault handling are

@@ -164,6 +164,8 @@ class Demonstrator(Node):
         self._heard_at: float | None = None
         self._push_start = 0.0
         self._peak_speed = 0.0
+        self._positions_heard = 0  # /ee_position messages, for the summary line
+        self._published = 0  # wrench and reference pairs
         self._wrench_pub = self.create_publisher(WrenchStamped, topics.HUMAN_WRENCH.name,
                                                  topics.HUMAN_WRENCH.qos)
         self._reference_pub = self.create_publisher(PointStamped, topics.DEMO_REFERENCE.name,
@@ -192,6 +194,7 @@ class Demonstrator(Node):
         stamp = stamp_seconds(msg.header.stamp)
         self._velocity.update(position, stamp)
         self._position, self._stamp = position, stamp
+        self._positions_heard += 1
 
     def _on_tick(self) -> None:
         if self.exit_code is not None:
@@ -270,6 +273,18 @@ class Demonstrator(Node):
         if self._dimension == 3:
             push.z = float(force[2])
         self._wrench_pub.publish(self._wrench)
+        self._published += 1
+
+    def summary(self) -> str:
+        """One line on what the node did (run_node logs it at the stop)."""
+        demo = self._demonstration
+        if demo is None:
+            where = 'never pushed' if self._heard_at is not None else 'never heard the arm'
+        else:
+            where = (f'phase {demo.phase}, end-effector '
+                     f'{float(np.linalg.norm(self._position - self._reference)):.4f} m from x_r')
+        return (f'{self._mode} demonstration: {self._published} wrench and reference messages '
+                f'published, {self._positions_heard} /ee_position heard; {where}')
 
 
 def main(args=None):

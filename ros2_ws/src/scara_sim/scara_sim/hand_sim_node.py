@@ -150,6 +150,8 @@ class HandSim(Node):
             what = 'recording' if values['profile'] == RECORDING else 'parameters'
             raise StartupError(f'bad {what}: {error}') from None
         self._restart_clock()
+        self._published = 0  # hand positions, for the summary line at the stop
+        self._node_started = time.monotonic()
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publisher = self.create_publisher(PointStamped, topics.TARGET.name,
@@ -282,6 +284,7 @@ class HandSim(Node):
         where = self._body
         self._publish_body(BODY_POINTS, standing_body(where.place, where.yaw, where.height,
                                                       position), stamp)
+        self._published += 1
 
     def _publish_body(self, names, points, stamp: tuple[int, int]) -> None:
         """names (K,) and points (K, 3) m on /human/body, stamped (sec, nanosec); nothing
@@ -311,7 +314,15 @@ class HandSim(Node):
             x, y, z = motion.positions[index]
             self._publisher.publish(self._template.encode((float(x), float(y), float(z)),
                                                           stamp=stamp))
+            self._published += 1
         self._publish_body(*self._body.frame(index), stamp)
+
+    def summary(self) -> str:
+        """One line on what the node did (run_node logs it at the stop)."""
+        what = ('recording' if isinstance(self._source, Replay)
+                else f'profile {self._source.name}')
+        return (f'{self._published} hand positions published on {self._publisher.topic_name} '
+                f'in {time.monotonic() - self._node_started:.1f} s ({what})')
 
 
 def main(args=None):

@@ -49,7 +49,7 @@ from hri_core.node_common import (
     run_node,
     take_raw,
 )
-from hri_core.robot_model import RobotModel, robot_model
+from hri_core.robot_model import ROBOT_NAMES, RobotModel, robot_model
 from scara_sim.simulation import (
     FixedStepClock,
     RealTimeStepper,
@@ -72,8 +72,8 @@ def clock_offset() -> int | None:
 
 # Which arm a node simulates or works on (robot_from_parameters).
 ROBOT_PARAMETERS = {
-    'robot': ParameterSpec(str, 'the arm: scara or panda (ignored when urdf_file is given)',
-                           read_only=True),
+    'robot': ParameterSpec(str, 'the arm by name, of hri_core.robot_model.ROBOTS (ignored '
+                           'when urdf_file is given)', choices=ROBOT_NAMES, read_only=True),
     'urdf_file': ParameterSpec(str, 'URDF of the arm ("": the robot parameter)',
                                read_only=True),
     'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the '
@@ -371,7 +371,7 @@ class SteppedSimNode(Node):
         self._last_report = now
 
     def summary(self) -> str:
-        """One line on the whole run's timing."""
+        """One line on the whole run's timing (run_node logs it at the stop)."""
         if self._stepper is None:
             return 'no step run'
         clock = self._stepper.clock
@@ -380,9 +380,6 @@ class SteppedSimNode(Node):
                 f'{clock.dropped} steps dropped')
 
 
-def _stop(node: SteppedSimNode) -> None:
-    node.stop_stepping()
-    node.get_logger().info(node.summary())
 
 
 def run_sim_node(node_class, node_name: str, args=None) -> int:
@@ -390,4 +387,5 @@ def run_sim_node(node_class, node_name: str, args=None) -> int:
     fraction of the CPU of the SingleThreadedExecutor, bench/bench_sim.py), exit code 1
     after a failed step, the timing summary on the way out."""
     return run_node(node_class, node_name, EventsExecutor, args,
-                    exit_code=lambda node: None if node.failure is None else 1, on_stop=_stop)
+                    exit_code=lambda node: None if node.failure is None else 1,
+                    on_stop=SteppedSimNode.stop_stepping)

@@ -213,7 +213,7 @@ class FilteredHand:
     accepted sample; presence(t) -> WeightState of the hand's presence (weight in [0, 1],
     rate 1/s). Times must not go backwards between presence calls (the controller's joint
     stamps). glitches, reanchors: the filter's counters. dimension: 2 ([x, y]) or 3. A control
-    loop (controller_node, closed_loop) uses it as:
+    loop (control_cycle, closed_loop) uses it as:
 
         hand = FilteredHand(TargetFilterSettings(filter_time=..., max_extrapolation=...))
         hand.offer(stamp, (x, y))          # each hand sample; False: held as a glitch

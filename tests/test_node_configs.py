@@ -84,5 +84,8 @@ def test_controller_yaml_runs_the_gains_the_closed_loop_tests_check():
     values = load_defaults('hri_adaptive_controller', 'controller')
     for robot in ('scara', 'panda'):
         model = robot_model(robot)
+        robot_gains = default_gains(model)
         assert controller_node.gains_from({**values, 'robot': robot}, model) == \
-            dataclasses.replace(default_gains(model), limit_band=values['joint_limit_band'])
+            dataclasses.replace(robot_gains, limit_band=values['joint_limit_band'],
+                                body=dataclasses.replace(robot_gains.body,
+                                                         clearance=values['clearance']))

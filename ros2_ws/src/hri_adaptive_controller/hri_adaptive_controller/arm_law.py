@@ -112,8 +112,8 @@ class ClearanceSettings:
 
     clearance (m, >= 0): the distance the barrier holds; influence (m, > 0): it starts this
     far beyond; force (N, >= 0): its push at the clearance (0: off); tracked: the human
-    capsules of the tracked hand (/target), which the tool's capsule may reach in a task
-    whose region reaches the hand (d1 below the clearance, a follow task)."""
+    capsules of the tracked hand (/target), which the arm may reach in a task whose region
+    reaches the hand (d1 below the clearance, a follow task)."""
 
     clearance: float = 0.10
     influence: float = 0.10
@@ -461,7 +461,7 @@ def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSetti
                    exempt) -> tuple[np.ndarray | None, float, float, tuple[int, int]]:
     """g = dU/dq (n,) N m (None where no pair is within clearance + influence), U (J), the
     nearest pair's distance (m) and indices, for the robot `body` at q (n,) rad and the
-    person's capsules `human`; exempt: (robot index, human indices) left out, or None.
+    person's capsules `human`; exempt: (robot indices, human indices) left out, or None.
 
     U = sum over pairs of force influence (2.5 v^4 - 3 v^5 + v^6 + max(u - 1, 0)), u = (c +
     i - d) / i, v = min(u, 1): dU/dd = -force w(v), w the quintic smoothstep; dd/dq = -n^T
@@ -898,14 +898,17 @@ class ArmController(TaskDrives):
                          barrier_task_velocity=barrier_task, reference_offset=offset, body=body)
 
     def _exempt(self, drive, avoid: bool, human: Capsules):
-        """(the tool's capsule, the tracked hand's capsules) where the task's region reaches
-        the hand (a follow task with d1 below the clearance: there the learned task governs),
-        else None."""
+        """(every robot capsule, the tracked hand's capsules) where the task's region reaches
+        the hand (a follow task with d1 below the clearance: there the learned task governs
+        how near the arm comes to the hand), else None. Not the tool's capsule alone: the
+        links next to it are within the clearance of a hand held at the tool (the Panda's
+        link7 beside its hand; the SCARA's elbow 0.3 m from its tip, with the hand's 0.1 m
+        radius), so a handover would be refused."""
         settings = self._gains.body
         if drive is None or avoid or drive.shape.d1 >= settings.clearance:
             return None
         hand = [j for j, name in enumerate(human.names) if name in settings.tracked]
-        return (self._tool_capsule, hand) if hand else None
+        return (slice(None), hand) if hand else None
 
     def gravity_hold(self, q) -> np.ndarray:
         """The torque (n,) N m that holds the arm at q (n,) rad against gravity with theta_hat:

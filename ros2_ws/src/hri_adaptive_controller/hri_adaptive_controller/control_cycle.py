@@ -80,6 +80,7 @@ from hri_adaptive_controller.event_weight import (
 from hri_adaptive_controller.separation_cap import SeparationCap
 from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
+from hri_core.bodies import human_capsules
 from hri_core.potential import TaskShape
 from hri_core.separation import ProtectiveSeparation
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
@@ -142,6 +143,7 @@ class CycleSettings:
     target_timeout: float
     rest_position: tuple[float, ...] | None = None
     separation: ProtectiveSeparation | None = None
+    body_timeout: float = 0.5
 
     @classmethod
     def from_values(cls, values: Mapping, rest_position: tuple[float, ...] | None = None,
@@ -242,6 +244,8 @@ class ControlCycle:
         if settings.separation is not None:
             self._cap = SeparationCap(settings.separation, law.gains.max_task_speed)
         self._rest = settings.rest_position
+        self._human = None  # the person's capsules (body) and when they came
+        self._human_time = None
         self._rest_key = None  # the task the rest position was taken for
         self._rest_array = None  # (rest, the same as an array): built once per rest position
         self._hold = None  # the torque of a stale-joint-state outage, N m
@@ -413,6 +417,32 @@ class ControlCycle:
             self._link.request(LINK, now)
         return True
 
+    def body(self, now: float, names, points) -> bool:
+        """The person's body points (REP-155 names (K,), points (K, 3) m in the base frame)
+        received at `now`: their capsules (hri_core.bodies.human_capsules) are what the law
+        keeps clear of until body_timeout s without a body. False (the body dropped, a
+        throttled warning) for a bad message."""
+        try:
+            self._human = human_capsules(names, points)
+        except ValueError as error:
+            self._warn('body', f'body dropped: {error}')
+            return False
+        if self._human_time is not None and now - self._human_time > self.settings.body_timeout:
+            self._info('the body is back: keeping clear of it again')
+        self._human_time = now
+        return True
+
+    def _body_at(self, now: float):
+        """The person's capsules while fresh, else None (one warning when they go stale)."""
+        if self._human is None:
+            return None
+        if now - self._human_time > self.settings.body_timeout:
+            self._warn(None, f'no body for {self.settings.body_timeout:g} s: the tool-hand '
+                       'task alone keeps the distance')
+            self._human = None
+            return None
+        return self._human
+
     def separation(self, now: float, separation: float, human_speed_used: float,
                    closing_speed: float) -> None:
         """A separation (m), the hand speed S_p counted (m/s) and the closing speed (m/s),
@@ -570,7 +600,7 @@ class ControlCycle:
             self._status = 'no_target'
             # An arm under gravity is held where it is (no task, no hand motion) rather than
             # let fall.
-            return self._arm_step(None, 0.0, 0.0, None, dt)
+            return self._arm_step(None, 0.0, 0.0, None, dt, self._body_at(now))
         link = self._link_state(now)
         # a of the task in force, held between TaskStates from their stamps to the joint
         # state's (a TaskState delivered late would otherwise step a by its delay times
@@ -605,9 +635,9 @@ class ControlCycle:
         if self._cap is not None:
             self.law.limit_pull_speed(self._cap.knee(now))
         return self._arm_step((target, target_velocity), weight, rate,
-                              None if shape is None else (shape, k), dt)
+                              None if shape is None else (shape, k), dt, self._body_at(now))
 
-    def _arm_step(self, hand, weight: float, rate: float, task, dt: float):
+    def _arm_step(self, hand, weight: float, rate: float, task, dt: float, human=None):
         """arm_law's command: hand (x_d, xdot_d) tuples on the task axes or None (held where
         the tool is), task (shape, k) or None. The ArmOutput, or None (zero torque, a throttled
         warning) on a fault. What the torque does not need waits until it is sent (`sent`):
@@ -624,7 +654,7 @@ class ControlCycle:
                                     else np.array(self._rest))
             output = self.law.command(np.array(self._q), np.array(self._dq),
                                       HandState(position, velocity, np.zeros(velocity.size)),
-                                      active, dt, self._rest_array[1])
+                                      active, dt, self._rest_array[1], human)
         except Exception as error:  # noqa: BLE001 a robot command must stay safe
             self._status = f'fault: {type(error).__name__}'
             self._warn('internal', f'zero torque: control step failed: {error!r}')

@@ -40,7 +40,7 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from hri_adaptive_controller.arm_law import ArmController, ArmGains, default_gains
+from hri_adaptive_controller.arm_law import ArmController
 from hri_adaptive_controller.control_cycle import (
     INFO,
     WARNING,
@@ -50,7 +50,15 @@ from hri_adaptive_controller.control_cycle import (
     Note,
     TaskInput,
 )
-from hri_adaptive_controller.controller_parameters import GAIN_PARAMETERS, PARAMETERS
+from hri_adaptive_controller.controller_parameters import (  # noqa: F401 (re-exported)
+    GAIN_PARAMETERS,
+    PARAMETERS,
+    gains_from,
+    initial_estimate,
+    model_from,
+    rest_position_from,
+    robot_body_from,
+)
 from hri_core import topics
 from hri_core.cdr import (
     EFFORT,
@@ -73,74 +81,11 @@ from hri_core.node_common import (
     stamp_seconds,
 )
 from hri_core.robot_description import urdf_joint_names
-from hri_core.robot_model import RobotModel, robot_model
 from hri_core.separation import ProtectiveSeparation
 
 PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'controller'
 WARNING_THROTTLE = 2.0  # s between repeats of one kind of warning
-
-
-def model_from(values: dict) -> RobotModel:
-    """The arm's model: urdf_file with tool_frame, else robot; its home pose home_position if
-    set. ValueError with the reason."""
-    if values['urdf_file']:
-        model = robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
-    else:
-        model = robot_model(values['robot'], tool_frame=values['tool_frame'])
-    if values.get('home_position') is not None:
-        model.home = model.joint_position(values['home_position'], 'home_position')
-    return model
-
-
-def gains_from(values: dict, model: RobotModel) -> ArmGains:
-    """The law's gains for `model` from parameter values: ks and adaptation_gain if set, else
-    the robot's (arm_law.default_gains); the task, speed, rate-limit and barrier parameters
-    from the values. ValueError with the reason if invalid."""
-    robot = default_gains(model)
-    ks, adaptation = values.get('ks'), values.get('adaptation_gain')
-    if ks is not None and len(ks) != model.dof:
-        raise ValueError(f'ks must have {model.dof} values for {model.name}, got {len(ks)}')
-    if adaptation is not None and len(adaptation) != len(model.adaptation_kinds):
-        raise ValueError(f'adaptation_gain must have {len(model.adaptation_kinds)} values for '
-                         f'{model.name} ({", ".join(model.adaptation_kinds)}), got '
-                         f'{len(adaptation)}')
-    return dataclasses.replace(
-        robot, ks=robot.ks if ks is None else tuple(ks), kp=values['kp'],
-        adaptation=robot.adaptation if adaptation is None else tuple(adaptation),
-        approach_speed=values['approach_speed'], region_margin=values['region_margin'],
-        max_task_speed=values['max_task_speed'], rest_gain=values['rest_gain'],
-        rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
-        effort_limit=values['effort_limit'] or None, limit_band=values['joint_limit_band'],
-        barrier_torque=values['barrier_torque'],
-        reach_round=dataclasses.replace(robot.reach_round, enabled=values['reach_round']))
-
-
-def initial_estimate(values: dict, model: RobotModel, gains: ArmGains):
-    """theta_hat(0) (p,): theta_hat0 if set, else the gains' initial_estimate share of the
-    model's nominal theta. ValueError with the reason."""
-    theta = values.get('theta_hat0')
-    if theta is None:
-        return gains.initial_estimate * model.theta
-    if len(theta) != model.theta.size:
-        raise ValueError(f'theta_hat0 must have {model.theta.size} values for {model.name} '
-                         f'({", ".join(model.parameter_names[:8])}'
-                         f'{" ..." if model.theta.size > 8 else ""}), got {len(theta)}')
-    return np.array(theta, dtype=float)
-
-
-def rest_position_from(values: dict, model: RobotModel) -> tuple[float, ...] | None:
-    """The fixed rest position of avoid tasks (m, one per task axis of `model`), or None when
-    unset. ValueError with the reason."""
-    fixed = values.get('rest_position')
-    if fixed is None:
-        return None
-    axes = model.task_axes
-    if len(fixed) != axes:
-        raise ValueError(f'rest_position must have {axes} values '
-                         f'{["[x, y]", "[x, y, z]"][axes - 2]} (m) for {model.name}, got '
-                         f'{len(fixed)}')
-    return tuple(float(v) for v in fixed)
 
 
 class Controller(Node):
@@ -153,7 +98,8 @@ class Controller(Node):
         try:
             model = model_from(values)
             gains = gains_from(values, model)
-            law = ArmController(model, gains, initial_estimate(values, model, gains))
+            body, problem = robot_body_from(values, model)
+            law = ArmController(model, gains, initial_estimate(values, model, gains), body=body)
             # ISO/TS 15066 speed cap with S_p's constants from the detector's YAML.
             separation = (ProtectiveSeparation.from_mapping(
                 load_defaults(PACKAGE, 'event_detector'))
@@ -162,6 +108,8 @@ class Controller(Node):
                                                  separation)
         except ValueError as error:
             raise StartupError(f'bad controller parameters: {error}') from None
+        if problem:
+            self.get_logger().warning(f'whole-body clearance off: {problem}')
         self._cycle = ControlCycle(law, settings, self._log)
         self._joint_names = model.joint_names
         self._dof, self._axes = model.dof, model.task_axes
@@ -194,6 +142,9 @@ class Controller(Node):
         # The arm a simulator or robot_state_publisher describes, checked once it comes.
         self.create_subscription(String, topics.ROBOT_DESCRIPTION.name,
                                  self._on_robot_description, topics.ROBOT_DESCRIPTION.qos)
+        if body is not None:  # the person's body points, kept clear of by every link
+            self.create_subscription(topics.HUMAN_BODY.type, topics.HUMAN_BODY.name,
+                                     self._on_body, topics.HUMAN_BODY.qos)
         if separation is not None:
             self.create_subscription(SeparationState, topics.SEPARATION.name,
                                      self._on_separation, topics.SEPARATION.qos)
@@ -222,6 +173,9 @@ class Controller(Node):
             self.get_logger().info(note.text)
         else:
             self.get_logger().warning(note.text)
+
+    def _on_body(self, msg) -> None:
+        self._cycle.body(time.monotonic(), msg.names, [(p.x, p.y, p.z) for p in msg.points])
 
     def _on_robot_description(self, msg: String) -> None:
         """One line when the published arm lacks a joint the controller drives."""

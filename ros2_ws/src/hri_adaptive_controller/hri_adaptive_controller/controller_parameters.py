@@ -1,12 +1,22 @@
 """The controller node's parameters: their table (types, ranges, descriptions; the defaults
-are in config/controller.yaml) and which of them may change while it runs (the gains).
+are in config/controller.yaml), which of them may change while it runs (the gains), and what
+the node builds from their values: the robot model, the law's gains, the initial estimate,
+an avoid task's rest position and the robot's capsules for the whole-body clearance (each a
+ValueError with a one-line reason).
 
-controller_node declares them and re-exports both names; scripts/parameters_doc.py writes
+controller_node declares them and re-exports these names; scripts/parameters_doc.py writes
 docs/parameters.md from the table.
 """
 
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from hri_adaptive_controller.arm_law import ArmGains, default_gains
+from hri_core.bodies import RobotBody, panda_package_dirs, robot_body
 from hri_core.node_common import CPU_WAKEUP_LATENCY, REALTIME_PRIORITY, ParameterSpec
-from hri_core.robot_model import ROBOT_NAMES
+from hri_core.robot_model import ROBOT_NAMES, RobotModel, robot_model
 
 PARAMETERS = {
     'robot': ParameterSpec(str, 'the arm (hri_core.robot_model); ignored when urdf_file is given',
@@ -102,7 +112,93 @@ PARAMETERS = {
     'target_timeout': ParameterSpec(float, 'no /target accepted for this long: the task fades '
                                     'out over task_fade_time (s)', low=0.01, high=3600.0,
                                     read_only=True),
+    'clearance': ParameterSpec(float, 'every link keeps this far from every capsule of the '
+                               "person on /human/body (m; 0: off); the tool may reach the "
+                               "tracked hand's wrist and forearm in a task whose region reaches "
+                               'the hand', low=0.0, high=1.0, read_only=True),
 }
 GAIN_PARAMETERS = ('ks', 'kp', 'adaptation_gain', 'max_task_speed', 'approach_speed',
                    'region_margin', 'effort_limit', 'max_effort_rate', 'applied_effort_cycles',
                    'rest_gain', 'rest_gate', 'joint_limit_band', 'barrier_torque', 'reach_round')
+
+
+def model_from(values: dict) -> RobotModel:
+    """The arm's model: urdf_file with tool_frame, else robot; its home pose home_position if
+    set. ValueError with the reason."""
+    if values['urdf_file']:
+        model = robot_model(urdf_file=values['urdf_file'], tool_frame=values['tool_frame'])
+    else:
+        model = robot_model(values['robot'], tool_frame=values['tool_frame'])
+    if values.get('home_position') is not None:
+        model.home = model.joint_position(values['home_position'], 'home_position')
+    return model
+
+
+def gains_from(values: dict, model: RobotModel) -> ArmGains:
+    """The law's gains for `model` from parameter values: ks and adaptation_gain if set, else
+    the robot's (arm_law.default_gains); the task, speed, rate-limit and barrier parameters
+    from the values. ValueError with the reason if invalid."""
+    robot = default_gains(model)
+    ks, adaptation = values.get('ks'), values.get('adaptation_gain')
+    if ks is not None and len(ks) != model.dof:
+        raise ValueError(f'ks must have {model.dof} values for {model.name}, got {len(ks)}')
+    if adaptation is not None and len(adaptation) != len(model.adaptation_kinds):
+        raise ValueError(f'adaptation_gain must have {len(model.adaptation_kinds)} values for '
+                         f'{model.name} ({", ".join(model.adaptation_kinds)}), got '
+                         f'{len(adaptation)}')
+    return dataclasses.replace(
+        robot, ks=robot.ks if ks is None else tuple(ks), kp=values['kp'],
+        adaptation=robot.adaptation if adaptation is None else tuple(adaptation),
+        approach_speed=values['approach_speed'], region_margin=values['region_margin'],
+        max_task_speed=values['max_task_speed'], rest_gain=values['rest_gain'],
+        rest_gate=values['rest_gate'], max_effort_rate=values['max_effort_rate'],
+        effort_limit=values['effort_limit'] or None, limit_band=values['joint_limit_band'],
+        barrier_torque=values['barrier_torque'],
+        body=dataclasses.replace(robot.body, clearance=values.get('clearance',
+                                                                  robot.body.clearance)),
+        reach_round=dataclasses.replace(robot.reach_round, enabled=values['reach_round']))
+
+
+def initial_estimate(values: dict, model: RobotModel, gains: ArmGains):
+    """theta_hat(0) (p,): theta_hat0 if set, else the gains' initial_estimate share of the
+    model's nominal theta. ValueError with the reason."""
+    theta = values.get('theta_hat0')
+    if theta is None:
+        return gains.initial_estimate * model.theta
+    if len(theta) != model.theta.size:
+        raise ValueError(f'theta_hat0 must have {model.theta.size} values for {model.name} '
+                         f'({", ".join(model.parameter_names[:8])}'
+                         f'{" ..." if model.theta.size > 8 else ""}), got {len(theta)}')
+    return np.array(theta, dtype=float)
+
+
+def rest_position_from(values: dict, model: RobotModel) -> tuple[float, ...] | None:
+    """The fixed rest position of avoid tasks (m, one per task axis of `model`), or None when
+    unset. ValueError with the reason."""
+    fixed = values.get('rest_position')
+    if fixed is None:
+        return None
+    axes = model.task_axes
+    if len(fixed) != axes:
+        raise ValueError(f'rest_position must have {axes} values '
+                         f'{["[x, y]", "[x, y, z]"][axes - 2]} (m) for {model.name}, got '
+                         f'{len(fixed)}')
+    return tuple(float(v) for v in fixed)
+
+
+def robot_body_from(values: dict, model: RobotModel) -> tuple[RobotBody | None, str]:
+    """(the robot's capsules for the whole-body clearance, '') or (None, why not): off with
+    clearance 0, or where the arm's collision geometry cannot be read (its meshes are looked
+    for where example-robot-data's and the URDF file's folders hold them)."""
+    if values.get('clearance', 0.0) <= 0.0:
+        return None, ''
+    folders = [str(Path(values['urdf_file']).resolve().parent)] if values['urdf_file'] else []
+    try:
+        folders += list(panda_package_dirs())
+    except ValueError:
+        pass  # no example-robot-data: a URDF file's own folder only
+    try:
+        return robot_body(model, folders), ''
+    except ValueError as error:
+        return None, str(error)
+

@@ -59,14 +59,19 @@ def run(robot, where, force, duration=4.0, monitor=False, **changes):
 
 
 @pytest.mark.parametrize('robot', ['scara', 'panda'])
-def test_the_exemption_is_the_tool_against_the_hands_wrist_and_forearm_in_follow_only(robot):
+def test_the_exemption_is_the_arm_against_the_hands_wrist_and_forearm_in_follow_only(robot):
     model, body, _, hand_at = scene(robot, 'chest')
     law = ArmController(model, body=body)
     person = human_capsules(BODY_POINTS, standing_body([0.7, 0.0], math.pi, 0.0, hand_at))
-    tool = body.names.index(body.tool)
     tracked = [j for j, n in enumerate(person.names) if n in SETTINGS.tracked]
     assert sorted(person.names[j] for j in tracked) == ['r_forearm', 'r_hand']
-    assert law._exempt(law.drive(FOLLOW), False, person) == (tool, tracked)
+    assert law._exempt(law.drive(FOLLOW), False, person) == (slice(None), tracked)
+    # and the rest of the person stays in the barrier: the hand's own capsules alone go.
+    q, still = model.home, np.zeros(model.dof)
+    near = human_capsules(['r_wrist', 'head'], [body.capsules(q).b[-1] + [0.0, 0.0, 0.12]] * 2)
+    exempt = law._exempt(law.drive(FOLLOW), False, near)
+    assert body_barrier(body, q, still, near, SETTINGS, exempt).pair[1] == 'head'
+    assert body_barrier(body, q, still, near, SETTINGS, None).gradient is not None
     assert law._exempt(law.drive(AVOID), True, person) is None  # avoid keeps off the hand
     assert law._exempt(None, False, person) is None
     safe = TaskShape(1, 1.576, 30.78, 0.183, 0.271)  # d1 above the clearance

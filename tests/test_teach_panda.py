@@ -34,7 +34,7 @@ FAST = {'start_delay': 0.3, 'hold_time': 1.0, 'peak_speed': 0.15, 'damping': 80.
 # What a Panda's bag holds: joint states and URDF, not the tool's position.
 BAG_TOPICS = ['/joint_states', '/robot_description', '/demo/reference', '/human/wrench']
 # avoid's open region, farther than any separation within twice the Panda's reach bound
-# (1.09 m): the learner then leaves a1 uncapped (scripts/demo_panda.py).
+# (1.09 m): the learner then leaves a1 uncapped (scripts/demo.py's PandaDemo).
 WORKSPACE_RADIUS = 2.5  # m
 # s from the first joint state for the learned follow to reach its region: 0.3 m at the
 # pace the person taught (one run here: 5.0 s, the 1 s fade-in included)

@@ -209,7 +209,7 @@ def test_placement_ignores_a_long_marker_swap():
 
 # -- a placement a person could stand in ---------------------------------------------------
 # Each arm's reach annulus as hand_sim gets it: the SCARA's default (hand_sim.yaml) and the
-# Panda's demo (scripts/demo_panda.py's PANDA_HAND_REACH).
+# Panda's demo (scripts/demo.py's PANDA_HAND_REACH).
 ARM_REACH = {'scara': SCARA_REACH, 'panda': ReachAnnulus(0.30, 0.75)}
 # Share of each take's hand path in reach with the trunk kept clear, at least: the least over
 # the eight takes and both arms is 0.68 (CollaborativeHammering_1, SCARA).

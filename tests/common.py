@@ -35,9 +35,11 @@ def next_domain_id() -> int:
     return DOMAIN_ID_FIRST + slot * workers + worker
 
 
-def call_service(client, request, timeout: float = 5.0):
+def call_service(client, request, timeout: float = 15.0):
     """The response of `client` (a probe's service client) to `request`; fails the test if
-    none comes within `timeout` s."""
+    none comes within `timeout` s. 15 s: a node's service may do seconds of work (hand_sim
+    reads a take twice and searches its placement, 2 s alone; twice that and more beside
+    phase 1's three workers); the deadline is for a node that never answers."""
     future = client.call_async(request)
     assert wait_for(future.done, timeout), client.srv_name
     return future.result()

@@ -17,7 +17,9 @@ import yaml
 from hri_bringup.processes import wait_for
 from tests.test_task_behaviour import ARM, RAMP, Streams, stamp, start_loop_then_hand
 
-pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # the 1 kHz loop
+# The 1 kHz loop; slow: the pure loop holds the pace (test_closed_loop's K / 4 test) in the
+# default run.
+pytestmark = [pytest.mark.integration, pytest.mark.exclusive, pytest.mark.slow]
 
 LEARNED_FOLLOW = {'name': 'follow', 's': 1, 'a1': 6.028, 'a2': 1000.0, 'd1': 0.0,
                   'd2': 0.055, 'n': 3, 'k': 0.1381, 'cost': 0.0, 'iterations': 0}

@@ -143,6 +143,7 @@ def enters_band_and_stays(model, sample, hand, band: tuple[float, float], enter_
     return entered, times, q, distance[first:]
 
 
+@pytest.mark.slow  # the moving 3-D hand and test_teach_panda's follow run cover it live
 def test_the_panda_follows_a_still_3d_hand_and_holds(nodes, probe):
     model = robot_model('panda')
     region = load_task_file(paper_tasks_dir() / 'follow.yaml').d2

@@ -161,7 +161,8 @@ def test_streams_the_topics_and_the_scene_to_a_foxglove_client(nodes):
     nodes('scara_sim', 'hand_sim', params={'profile': 'circle'})
     port = free_port()
     view = nodes('hri_bringup', 'live_view', params={'port': port})
-    assert view.wait_for_line(f'live view on ws://127.0.0.1:{port} streaming 13 topics',
+    streamed = len(load_defaults('hri_bringup', 'live_view')['topics'])
+    assert view.wait_for_line(f'live view on ws://127.0.0.1:{port} streaming {streamed} topics',
                               START_TIMEOUT), view.log()
 
     with websockets.sync.client.connect(f'ws://127.0.0.1:{port}', subprotocols=SUBPROTOCOLS,

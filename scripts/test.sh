@@ -6,16 +6,14 @@
 # The tiers are markers (pytest.ini; conftest.py gives every test its tier): `pure` (no ROS
 # process), `topic` (starts ROS processes; `integration` is its alias), `exclusive` (a 1 kHz
 # loop with timing checks) and `slow` (only with --all). Every test has a time limit
-# (pytest-timeout, pytest.ini); the pure tests in the background get a longer one (below).
+# (pytest-timeout, pytest.ini).
 #
-# The unit tests (marker `pure`, no ROS process) run in the background at the lowest CPU
-# priority (SCHED_IDLE, else nice 19) beside phase 1: the topic-level tests not marked
-# `exclusive`, in HRI_TEST_WORKERS (default 3; they wait on processes they start more than
-# they compute) pytest-xdist workers (worksteal). Then phase 2, the `exclusive` ones (a 1 kHz
-# closed loop, whose timing checks need the CPU), one at a time with the machine to
-# themselves: it waits for the unit tests (below, why). The exit code is non-zero if any part
-# fails. The topic-level phases do not collect the packages' unit tests (HRI_TEST_SCOPE,
-# conftest.py).
+# Phase 1: the topic-level tests not marked `exclusive`, in HRI_TEST_WORKERS (default 3;
+# they wait on processes they start more than they compute) pytest-xdist workers
+# (worksteal). Phase 2: the `exclusive` ones (a 1 kHz closed loop, whose timing checks need
+# the CPU), one at a time. Then the unit tests (marker `pure`, no ROS process) in two workers,
+# alone (below, why). The exit code is non-zero if any part fails. The topic-level phases do
+# not collect the packages' unit tests (HRI_TEST_SCOPE, conftest.py).
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -43,39 +41,23 @@ tally() {
   fi
 }
 not_slow=${selection:+$selection and }
-# The unit tests (no ROS process) start first, at the lowest CPU priority (SCHED_IDLE where
-# chrt can set it: it yields a CPU to any other runnable task at once, where nice 19 only
-# weighs less), beside phase 1, whose tests wait on their processes more than they compute;
-# the exclusive phase then waits for them: beside the unit tests (about 230 s of two
-# workers since every arm runs the one law), the Panda's live loop had its joint states stale
-# and a joint at its limit in 2 of 3 runs, and in none of 3 beside one busy loop alone.
-unit_log=$(mktemp)
-background=(nice -n 19)
-if chrt --idle 0 true 2>/dev/null; then
-  background=(chrt --idle 0)
-fi
-echo "[test] unit tests in the background at the lowest priority (their report comes later)" >&2
-# Their default time limit is 300 s instead of pytest.ini's 120: at SCHED_IDLE a test gets
-# only what phase 1 leaves idle.
-"${background[@]}" python -m pytest -n 2 --timeout 300 -m "${not_slow}pure" "$@" \
-  >"$unit_log" 2>&1 &
-unit_pid=$!
-# A background job of a script ignores SIGINT: end it by PID if the script ends first (^C).
-trap 'kill "$unit_pid" 2>/dev/null || true; rm -f "$unit_log"' EXIT
 echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-3}" \
   "workers" >&2
 code=0
 HRI_TEST_SCOPE=topic python -m pytest -n "${HRI_TEST_WORKERS:-3}" --dist worksteal \
   -m "${not_slow}topic and not exclusive" "$@" || code=$?
 tally "$code"
-code=0
-wait "$unit_pid" || code=$?
-echo "[test] unit tests:" >&2
-cat "$unit_log"
-tally "$code"
 echo "[test] pytest, phase 2: exclusive tests one at a time, the machine to themselves" >&2
 code=0
 HRI_TEST_SCOPE=topic python -m pytest -m "${not_slow}exclusive" "$@" || code=$?
+tally "$code"
+# The unit tests last, alone: beside phase 2 (about 230 s of two workers since every arm runs
+# the one law, even at SCHED_IDLE) the Panda's moving-hand loop had stale joint states and a
+# joint at its limit in 2 of 3 runs; beside phase 1 six of its tests failed (a joint-state
+# restart, the hand's pace, a lost hand's fade).
+echo "[test] pytest, the unit tests (no ROS process), two workers" >&2
+code=0
+python -m pytest -n 2 -m "${not_slow}pure" "$@" || code=$?
 tally "$code"
 if [ "$status" -ne 0 ]; then
   echo "[test] FAILED (see the summaries above)" >&2

@@ -48,3 +48,6 @@ def pytest_collection_modifyitems(config, items):
                     item.add_marker(name)
         else:
             item.add_marker('pure')
+    # The long ones first (stable): pytest-xdist hands each worker a contiguous share of the
+    # list, so a long test at the front starts at once instead of running on alone at the end.
+    items.sort(key=lambda item: item.get_closest_marker('first') is None)

@@ -10,8 +10,11 @@ import pytest
 from hri_bringup.processes import node_environment
 from tests.common import REPO_ROOT, next_domain_id
 
-# The 1 kHz closed loop needs the machine to itself (pytest.ini, marker exclusive).
-pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
+# Not exclusive: the demo checks no timing of its loop (it runs the sim and the controller at
+# SCHED_FIFO where the OS allows, as on a robot's computer), and it passed beside a process
+# that kept a core busy. It starts first in the parallel phase (marker first): its 75 s would
+# otherwise be that phase's tail.
+pytestmark = pytest.mark.integration
 
 FIGURES = ('fit_follow', 'fit_avoid', 'fit_follow_safe', 'behaviour_follow',
            'behaviour_avoid', 'behaviour_follow_safe', 'sequence', 'recorded_person')
@@ -19,6 +22,7 @@ FIGURES = ('fit_follow', 'fit_avoid', 'fit_follow_safe', 'behaviour_follow',
 
 # Over the demo's own time limit (the subprocess's 600 s), so that its message is the one seen.
 @pytest.mark.timeout(660)
+@pytest.mark.first
 def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_path):
     env = node_environment(next_domain_id())
     env['HRI_DEMO_DOMAIN_ID'] = env['ROS_DOMAIN_ID']

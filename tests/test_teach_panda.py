@@ -82,9 +82,10 @@ AVOID_REFERENCE = (0.31, 0.004, 0.49)  # m, 6 mm from the tool at home
 
 @pytest.mark.parametrize(('mode', 'reference', 'final_distance', 'sign', 'run_learned'), [
     # A learned task that then runs on the live 1 kHz loop, whose timing needs the machine:
-    # follow in the default run, avoid under slow (avoid's learning alone in the default run).
+    # under slow (avoid's learning alone in the default run; the Panda's live loop there is
+    # tests/test_panda_loop.py).
     pytest.param('follow', DEFAULT_REFERENCES['panda'], 0.041, -1.0, True,
-                 marks=pytest.mark.exclusive, id='follow-run'),
+                 marks=[pytest.mark.exclusive, pytest.mark.slow], id='follow-run'),
     pytest.param('avoid', AVOID_REFERENCE, 0.183, 1.0, False, id='avoid'),
     pytest.param('avoid', AVOID_REFERENCE, 0.183, 1.0, True,
                  marks=[pytest.mark.exclusive, pytest.mark.slow], id='avoid-run'),

@@ -173,14 +173,19 @@ class TargetFilter:
             self._anchor, self._candidate = _Track(stamp, position, None), None
             self._held_since_anchor = False
             return True
-        # A sample that goes on with a held jump rather than with the hand is one more of the
-        # jump (a marker swap lasts frames), even where the anchor's bounds, loosening with
-        # the time since it, would let it pass.
-        with_candidate = (candidate is not None and candidate.miss(stamp, position, s) <= 0.0
-                          and candidate.off(stamp, position) < anchor.off(stamp, position))
         # The anchor's bounds loosen with the time since it: after a dropout (nothing came)
         # a far sample may be the hand, after a stream of held ones it must be confirmed.
         recent = stamp - anchor.stamp <= s.confirm_time or not self._held_since_anchor
+        # A sample that goes on with a held jump rather than with the hand is one more of the
+        # jump (a marker swap lasts frames), even where the anchor's bounds, loosening with
+        # the time since it, would let it pass. Once it must be confirmed, a sample as near
+        # the candidate's prediction as the anchor's (within tolerance) goes on with the
+        # candidate: the hand back where it was after a stall that split a swap (a tie, a
+        # still hand) once restarted the candidate at every sample and was held for ever.
+        with_candidate = False
+        if candidate is not None and candidate.miss(stamp, position, s) <= 0.0:
+            nearer = candidate.off(stamp, position) - anchor.off(stamp, position)
+            with_candidate = nearer < 0.0 or (not recent and nearer <= s.tolerance)
         if not with_candidate and recent and anchor.miss(stamp, position, s) <= 0.0:
             far = anchor.off(stamp, position)
             self.blend_time = max(far - s.tolerance, 0.0) / s.blend_speed

@@ -98,6 +98,47 @@ def test_a_long_swap_reanchors_after_the_confirm_time_with_a_slow_blend():
     np.testing.assert_allclose(held[after][::10], moved[201:], atol=0.002)
 
 
+def test_a_still_hand_after_a_stall_that_split_a_swap_is_followed_again():
+    # 50 Hz, a swap of 2 frames 1.5 m away, then the sender stalls 0.34 s and the hand is
+    # back where it was: it must come through a candidate (samples were held since the
+    # anchor), which it does within confirm_time, though the anchor predicts it as well.
+    hand, far = (0.456, 0.403), (0.456, 1.903)
+    stamps = [0.02 * k for k in range(10)] + [0.2, 0.22] + [0.56 + 0.02 * k for k in range(30)]
+    points = [hand] * 10 + [far] * 2 + [hand] * 30
+    flt = TargetFilter()
+    accepted = offer_all(flt, np.array(stamps), np.array(points))
+    assert accepted[:10].all() and not accepted[10:12].any()
+    back = np.flatnonzero(accepted[12:])
+    assert back.size and stamps[12 + back[0]] - stamps[12] <= 0.2 + 0.02 + 1e-9
+    assert accepted[12 + back[0]:].all()
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_swaps_amid_random_stalls_never_hold_the_hand_for_long(seed):
+    # A still hand at 50 Hz with a 3-frame swap each second, the sender stalling now and then
+    # (10 % of the frames, 0.15 s on average) and the receiver missing 30 % of the samples
+    # (a depth-1 subscription): the hand is never held for more than the confirm time after
+    # the longest stall.
+    rng = np.random.default_rng(seed)
+    hand, far = np.array([0.456, 0.403]), np.array([0.456, 1.903])
+    swaps = {k for start in range(50, 600, 50) for k in (start, start + 1, start + 2)}
+    gaps = 0.02 + np.where(rng.random(600) < 0.1, rng.exponential(0.15, 600), 0.0)
+    stamps = np.cumsum(gaps)
+    flt = TargetFilter()
+    held_since = None
+    longest = 0.0
+    for k in np.flatnonzero(rng.random(600) >= 0.3):
+        accepted = flt.offer(float(stamps[k]), far if k in swaps else hand)
+        if k in swaps:
+            continue
+        if accepted:
+            held_since = None
+        else:
+            held_since = stamps[k] if held_since is None else held_since
+            longest = max(longest, stamps[k] - held_since)
+    assert longest <= 0.2 + gaps.max() + 0.04, longest
+
+
 def test_jitter_of_inconsistent_garbage_never_reanchors():
     rng = np.random.default_rng(4)
     t, path = circle(duration=2.0)

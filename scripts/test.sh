@@ -8,13 +8,15 @@
 # loop with timing checks) and `slow` (only with --all). Every test has a time limit
 # (pytest-timeout, pytest.ini).
 #
-# The unit tests (marker `pure`, no ROS process) run from the start in one worker at nice 19,
-# beside the topic-level phases: they take the CPU those leave (the topic-level tests wait on
-# the processes they start more than they compute, and the 1 kHz loops run at SCHED_FIFO where
-# the OS allows), and their output is printed once the topic-level phases are done.
-# Phase 1: the topic-level tests not marked `exclusive`, in HRI_TEST_WORKERS (default 3)
-# pytest-xdist workers (worksteal; the quick demo, marker `first`, starts first). Phase 2: the
-# `exclusive` ones (a 1 kHz closed loop, whose timing checks need the CPU), one at a time.
+# The unit tests (marker `pure`, no ROS process) run from the start in two workers in the
+# background, at the lowest priority: nice 19 in a session of their own whose autogroup is
+# set to nice 19 too (Linux shares the CPU between sessions first, and each node a test starts
+# has its own session, so a plain nice 19 counted for nothing against them). They take the CPU
+# the topic-level phases leave, and their output is printed once they are done.
+# Phase 1: the topic-level tests not marked `exclusive`, in HRI_TEST_WORKERS (default 2, one
+# per core) pytest-xdist workers (worksteal; tests marked `first`, the long ones, start first).
+# Phase 2: the `exclusive` ones (a 1 kHz closed loop, whose timing checks need the CPU), one
+# at a time.
 # The exit code is non-zero if any part fails. The topic-level phases do not collect the
 # packages' unit tests (HRI_TEST_SCOPE, conftest.py).
 set -euo pipefail
@@ -49,14 +51,17 @@ unit_pid=
 # An interrupted run does not leave the unit tests running.
 trap 'if [ -n "$unit_pid" ]; then kill "$unit_pid" 2>/dev/null || true; fi; rm -f "$unit_log"' \
   EXIT
-echo "[test] pytest, the unit tests (no ROS process): one worker at nice 19, in the" \
+echo "[test] pytest, the unit tests (no ROS process): two workers at nice 19, in the" \
   "background" >&2
-nice -n 19 python -m pytest -m "${not_slow}pure" "$@" > "$unit_log" 2>&1 &
+# shellcheck disable=SC2016
+setsid bash -c 'echo 19 > /proc/self/autogroup 2> /dev/null || true; exec "$@"' unit \
+  env HRI_TEST_BACKGROUND=1 nice -n 19 python -m pytest -n 2 -m "${not_slow}pure" "$@" \
+  > "$unit_log" 2>&1 &
 unit_pid=$!
-echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-3}" \
+echo "[test] pytest, phase 1: topic-level tests not marked exclusive, ${HRI_TEST_WORKERS:-2}" \
   "workers" >&2
 code=0
-HRI_TEST_SCOPE=topic python -m pytest -n "${HRI_TEST_WORKERS:-3}" --dist worksteal \
+HRI_TEST_SCOPE=topic python -m pytest -n "${HRI_TEST_WORKERS:-2}" --dist worksteal \
   -m "${not_slow}topic and not exclusive" "$@" || code=$?
 tally "$code"
 echo "[test] pytest, phase 2: exclusive tests one at a time" >&2

@@ -84,7 +84,7 @@ RESUME_WITHIN = 1.0  # s from a new sim's ready line to control (the kill test)
 # one command is reported, not bounded: it also counts the sim's own stalls.
 OTHER_PEERS = ('hand_sim', 'recorder', 'event_manager')
 PEERS = ('scara_sim', *OTHER_PEERS)
-KILLS = 6  # the default run; KILLS_SLOW under `slow`
+KILLS = 3  # the default run; KILLS_SLOW under `slow`
 KILLS_SLOW = 20
 DWELL = 0.15  # s
 MAX_ANSWER = 0.02  # s

@@ -76,6 +76,7 @@ def exit_time(process: NodeProcess, sig: int) -> tuple[int | None, float]:
     return code, round(time.monotonic() - sent, 2)
 
 
+@pytest.mark.first
 def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path):
     # Both signals take one path (hri_core.node_common.init_ros); the nodes get them in turn.
     # Deadline: STOP_DEADLINE, or 3 times what a bare node takes to exit measured just

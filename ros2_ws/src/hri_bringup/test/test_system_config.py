@@ -44,12 +44,13 @@ def test_the_shipped_config_holds_every_default_of_the_system_node():
         Path(get_package_share_directory('hri_bringup')) / 'config' / 'system.yaml')
 
 
-def test_the_shipped_config_loads_table_one_with_follow_and_a_circling_hand():
+def test_the_shipped_config_loads_table_one_with_follow_and_a_hand_that_comes_and_goes():
     sections = load_config(SHIPPED)
     manager = sections['event_manager']['ros__parameters']
     assert Path(manager['tasks_dir'], 'follow.yaml').is_file()
     assert manager['initial_task'] == 'follow'
-    assert sections['hand_sim']['ros__parameters']['profile'] == 'circle'
+    hand = sections['hand_sim']['ros__parameters']
+    assert hand['profile'] == 'waypoints' and hand['repeat'] and hand['unseen_time'] > 1.0
     assert system_settings(shipped_defaults(), sections, 'config') == {
         'nodes': list(SYSTEM_NODES), 'log_dir': '', 'echo_output': True, 'stop_timeout': 5.0}
 

@@ -3,7 +3,9 @@
 Publishes geometry_msgs/PointStamped (frame `base_frame`, m) on /target at `rate_hz`, the
 position of `profiles.hand_position` for the profile named by `profile` (hold, approach,
 retreat, back_and_forth, circle, waypoints) and its parameters `start`, `end`, `speed`,
-`period`, `radius`, `start_delay`, `waypoints`. `dimension` 2 (the default, the planar
+`period`, `radius`, `start_delay`, `waypoints` (with `segment_speeds`, `pauses`, and
+`unseen_time` and `repeat`: out of sight after each pass, nothing published, then again from
+the first waypoint). `dimension` 2 (the default, the planar
 SCARA's) takes the points as [x, y] and publishes z = 0; 3 takes them as [x, y, z] (waypoints
 flat in threes) for an arm that reaches in space (`robot:=panda`). The profile's clock starts
 when the node does; changing any profile parameter at run time (validated) restarts it (to
@@ -62,7 +64,13 @@ from hri_core.recorded_motion import (
     choose_placement,
     read_vicon_csv,
 )
-from scara_sim.profiles import HAND_DIMENSIONS, HAND_PROFILES, HandProfile, hand_position
+from scara_sim.profiles import (
+    HAND_DIMENSIONS,
+    HAND_PROFILES,
+    HandProfile,
+    hand_in_sight,
+    hand_position,
+)
 
 PACKAGE = 'scara_sim'
 NODE_NAME = 'hand_sim'
@@ -91,6 +99,10 @@ PARAMETERS = {
                                     'unset: speed', optional=True),
     'pauses': ParameterSpec(list, 'waypoints profile: time at the end of each move (s); '
                             'unset: none', optional=True),
+    'unseen_time': ParameterSpec(float, 'waypoints profile: out of sight (nothing published) '
+                                 'for this long after each pass (s)', 0.0, 3600.0),
+    'repeat': ParameterSpec(bool, 'waypoints profile: pass through the waypoints again after '
+                            'each pass and its unseen_time'),
     'base_frame': ParameterSpec(str, 'frame of /target', read_only=True),
     'recording': ParameterSpec(str, 'recording profile: Vicon Nexus CSV export to replay'),
     'segment': ParameterSpec(str, 'recording profile: segment to replay (right_hand, '
@@ -123,7 +135,8 @@ RECORDING_PARAMETERS = ('recording', 'segment', 'translation', 'yaw', 'auto_plac
                         'time_scale', 'at_end', 'body_clearance')
 BODY_PARAMETERS = ('body_place', 'body_height', 'body_yaw')
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
-                      'waypoints', 'dimension', 'segment_speeds', 'pauses',
+                      'waypoints', 'dimension', 'segment_speeds', 'pauses', 'unseen_time',
+                      'repeat',
                       *RECORDING_PARAMETERS, *BODY_PARAMETERS)
 
 
@@ -198,7 +211,8 @@ class HandSim(Node):
             speed=value('speed'), period=value('period'), radius=value('radius'),
             start_delay=value('start_delay'), waypoints=tuple(value('waypoints')),
             segment_speeds=tuple(value('segment_speeds') or ()),
-            pauses=tuple(value('pauses') or ()), dimension=value('dimension')), \
+            pauses=tuple(value('pauses') or ()), unseen_time=value('unseen_time'),
+            repeat=value('repeat'), dimension=value('dimension')), \
             StandingPlace(place, float(value('body_height')), float(yaw))
 
     @staticmethod
@@ -275,7 +289,10 @@ class HandSim(Node):
         if isinstance(self._source, Replay):
             self._publish_frame()
             return
-        position = hand_position(self._source, time.monotonic() - self._started).tolist()
+        since = time.monotonic() - self._started
+        if not hand_in_sight(self._source, since):
+            return  # out of sight: neither the hand nor the body
+        position = hand_position(self._source, since).tolist()
         if len(position) == 2:
             position.append(0.0)  # the planar arm's plane
         now = self.get_clock().now()

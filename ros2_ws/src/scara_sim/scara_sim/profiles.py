@@ -101,7 +101,10 @@ class HandProfile:
     point. waypoints: flat [x0, y0, x1, y1, ...] (or [x0, y0, z0, x1, y1, z1, ...] in 3-D)
     (m), at least two points; segment_speeds: peak speed (m/s) of each waypoints move (one per
     move; empty: `speed` for all); pauses: time (s) the hand stays at each waypoint after the
-    first before it moves on (one per move; empty: none).
+    first before it moves on (one per move; empty: none). unseen_time: after each pass through
+    the waypoints (the last move and its pause) the hand is out of sight this long (s; 0:
+    never); repeat: then the pass starts again from the first waypoint (else the hand stays
+    at the last one).
     """
 
     name: str = 'hold'
@@ -114,6 +117,8 @@ class HandProfile:
     waypoints: tuple[float, ...] = field(default=())
     segment_speeds: tuple[float, ...] = field(default=())
     pauses: tuple[float, ...] = field(default=())
+    unseen_time: float = 0.0
+    repeat: bool = False
     dimension: int = 2
 
     def __post_init__(self):
@@ -137,6 +142,11 @@ class HandProfile:
         positive(self.radius, 'radius', 'm')
         if not (math.isfinite(self.start_delay) and self.start_delay >= 0.0):
             raise ValueError(f'start_delay must be finite and >= 0 s, got {self.start_delay}')
+        if not (math.isfinite(self.unseen_time) and self.unseen_time >= 0.0):
+            raise ValueError(f'unseen_time must be finite and >= 0 s, got {self.unseen_time}')
+        if (self.unseen_time > 0.0 or self.repeat) and self.name != 'waypoints':
+            raise ValueError(f'unseen_time and repeat are for the waypoints profile, not '
+                             f'{self.name}')
         if self.name == 'waypoints':
             d = self.dimension
             points = np.asarray(self.waypoints, dtype=float)
@@ -175,6 +185,31 @@ def _waypoint_position(points: np.ndarray, t: float, speeds, pauses) -> np.ndarr
     return points[-1].copy()
 
 
+def _pass_time(profile: HandProfile) -> float:
+    """Duration (s) of one pass through the waypoints: every move and its pause."""
+    schedule = waypoint_schedule(profile)
+    pauses = profile.pauses or (0.0,) * len(schedule)
+    return schedule[-1][1] + pauses[-1] - profile.start_delay
+
+
+def _waypoint_time(profile: HandProfile, tau: float) -> tuple[float, bool]:
+    """(time into the current pass, whether the hand is in sight) at tau s after start_delay
+    (waypoints: a pass, then unseen_time out of sight, repeated if `repeat`)."""
+    passing = _pass_time(profile)
+    cycle = passing + profile.unseen_time
+    if profile.repeat and cycle > 0.0:
+        tau = math.fmod(tau, cycle)
+    return tau, not (passing <= tau < cycle)
+
+
+def hand_in_sight(profile: HandProfile, t: float) -> bool:
+    """Whether the hand is in sight at t (s since the profile started): False only in the
+    waypoints profile's unseen_time after each pass."""
+    if profile.name != 'waypoints' or profile.unseen_time == 0.0:
+        return True
+    return _waypoint_time(profile, max(0.0, t - profile.start_delay))[1]
+
+
 def waypoint_schedule(profile: HandProfile) -> list[tuple[float, float]]:
     """(start, end) times (s since the profile started) of each waypoints move."""
     points = profile.points()
@@ -197,8 +232,10 @@ def hand_position(profile: HandProfile, t: float) -> np.ndarray:
     start -> end -> start ... as start + (end - start) (1 - cos(2 pi t / period)) / 2.
     circle: centre `start`, `radius`, counter-clockwise seen from above (+z), one turn per
     `period`, beginning at start + [radius, 0(, 0)]; in 3-D at the height of `start`.
-    waypoints: minimum-jerk moves through the points, then stays at the last. Before
-    `start_delay` the hand stays where the profile begins.
+    waypoints: minimum-jerk moves through the points, then stays at the last (with `repeat`,
+    after unseen_time s out of sight the moves start again from the first; hand_in_sight says
+    when the hand is out of sight). Before `start_delay` the hand stays where the profile
+    begins.
     """
     if not math.isfinite(t):
         raise ValueError(f't must be finite, got {t}')
@@ -219,6 +256,8 @@ def hand_position(profile: HandProfile, t: float) -> np.ndarray:
         return start + profile.radius * offset
     points = profile.points()
     moves = len(points) - 1
+    if profile.repeat:
+        tau = _waypoint_time(profile, tau)[0]
     return _waypoint_position(points, tau, profile.segment_speeds or (profile.speed,) * moves,
                               profile.pauses or (0.0,) * moves)
 

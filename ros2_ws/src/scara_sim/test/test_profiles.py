@@ -17,6 +17,7 @@ from scara_sim.profiles import (
     demonstration_goal,
     demonstration_points,
     hand_force,
+    hand_in_sight,
     hand_position,
     minimum_jerk,
     minimum_jerk_duration,
@@ -111,6 +112,29 @@ def test_waypoints_visit_every_point_and_stop_at_the_last():
     np.testing.assert_allclose(hand_position(profile, 2 * first + 1.0), [0.2, 0.2])
 
 
+def test_waypoints_go_out_of_sight_after_each_pass_and_start_again():
+    # A pass: 1 s at the first point (a zero-length move and its pause), the move there and
+    # back at 0.2 m/s (0.9375 s each), 0.5 s at the end; then 2 s out of sight; repeated.
+    profile = HandProfile(name='waypoints', waypoints=(0.5, 0.0, 0.5, 0.0, 0.4, 0.0, 0.5, 0.0),
+                          speed=0.2, pauses=(1.0, 0.0, 0.5), unseen_time=2.0, repeat=True,
+                          start_delay=0.25)
+    move = minimum_jerk_duration(0.1, 0.2)
+    passing = 1.0 + 2 * move + 0.5
+    cycle = passing + 2.0
+    for k in range(3):
+        begin = 0.25 + k * cycle
+        assert hand_in_sight(profile, begin) and hand_in_sight(profile, begin + passing - 1e-6)
+        assert not hand_in_sight(profile, begin + passing + 1e-6)
+        assert not hand_in_sight(profile, begin + cycle - 1e-6)
+        np.testing.assert_allclose(hand_position(profile, begin + 1.0 + move), [0.4, 0.0])
+    # Without repeat the hand comes back into sight at the last point and stays.
+    once = HandProfile(name='waypoints', waypoints=(0.5, 0.0, 0.4, 0.0), speed=0.2,
+                       unseen_time=2.0)
+    assert not hand_in_sight(once, move + 1.0) and hand_in_sight(once, move + 2.5)
+    np.testing.assert_allclose(hand_position(once, move + 10.0), [0.4, 0.0])
+    assert all(hand_in_sight(HandProfile(name='circle'), t) for t in (0.0, 5.0, 100.0))
+
+
 @pytest.mark.parametrize(('kwargs', 'message'), [
     ({'name': 'wave'}, "unknown hand profile 'wave'"),
     ({'speed': 0.0}, 'speed must be finite and > 0'),
@@ -118,6 +142,9 @@ def test_waypoints_visit_every_point_and_stop_at_the_last():
     ({'start': (0.1, float('nan'))}, 'start must be 2 finite values'),
     ({'start_delay': -0.5}, 'start_delay must be finite and >= 0'),
     ({'name': 'waypoints', 'waypoints': (0.1, 0.2, 0.3)}, 'at least two points'),
+    ({'name': 'waypoints', 'waypoints': (0.1, 0.2, 0.3, 0.4), 'unseen_time': -1.0},
+     'unseen_time must be finite and >= 0'),
+    ({'name': 'circle', 'repeat': True}, 'for the waypoints profile, not circle'),
 ])
 def test_hand_profile_rejects_bad_parameters(kwargs, message):
     with pytest.raises(ValueError, match=message):

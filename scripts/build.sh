@@ -35,12 +35,18 @@ colcon --log-level error build --symlink-install --base-paths ros2_ws/src \
 # The project's own modules byte-compiled now (0.5 s): with PYTHONDONTWRITEBYTECODE set, every
 # process would otherwise compile them again at import (0.1 s of CPU per node start).
 "$venv/bin/python" -m compileall -q -j 0 ros2_ws/src tests scripts bench conftest.py >/dev/null
-# The n-joint law's compiled kernels (hri_adaptive_controller.arm_kernels) into numba's cache
-# beside them now: a controller or test would otherwise compile them at its start (2 s).
+# The compiled kernels (hri_adaptive_controller.arm_kernels, hri_core.capsule_kernels) into
+# numba's cache beside them now: a controller or test would otherwise compile them at its
+# start (2 s).
 ( set +u
   # shellcheck disable=SC1091
   source "$root/install/setup.bash"
   "$venv/bin/python" -c 'from hri_adaptive_controller.arm_law import PANDA_GAINS, ArmController
+from hri_core.bodies import capsule_distances, human_capsules, robot_body
+from hri_core.human_body import BODY_POINTS, standing_body
 from hri_core.robot_model import robot_model
-ArmController(robot_model("panda"), PANDA_GAINS)' )
+ArmController(robot_model("panda"), PANDA_GAINS)
+scara = robot_model("scara")
+capsule_distances(robot_body(scara).capsules(scara.home), human_capsules(
+    BODY_POINTS, standing_body([0.8, 0.0], 3.1, 0.0, [0.4, 0.0, 0.0])))' )
 echo "$sources" > "$stamp"

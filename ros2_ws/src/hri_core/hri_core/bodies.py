@@ -215,13 +215,20 @@ def segment_parameters(robot: 'Capsules', human: 'Capsules') -> tuple[np.ndarray
     return s, t
 
 
-def capsule_distances(robot: Capsules, human: Capsules, planar: bool = False) -> Distances:
+def capsule_distances(robot: Capsules, human: Capsules, planar: bool = False,
+                      compiled: bool = True) -> Distances:
     """Every robot capsule against every human capsule (module docstring): shapes (R, H) and
     (R, H, 3), m. planar: measure in the plane z = 0 (a planar arm): the human capsules'
     ends are projected onto it (z = 0) before the distance is taken. Pass the same human
-    Capsules object each cycle: what it needs of the person alone is computed once."""
+    Capsules object each cycle: what it needs of the person alone is computed once.
+    compiled: through hri_core.capsule_kernels (numba; imported at the first call), else
+    through numpy (the reference the kernel is tested against)."""
     if planar:
         human = human.flat
+    if compiled:
+        from hri_core.capsule_kernels import segment_table
+        s, t, between, centre = segment_table(robot.a, robot.axis, human.a, human.axis)
+        return Distances(robot, human, s, t, between, centre)
     s, t = segment_parameters(robot, human)
     between = ((human.a - robot.a[:, None, :]) + t[..., None] * human.axis
                - s[..., None] * robot.axis[:, None, :])

@@ -75,6 +75,26 @@ def test_capsule_distances_equal_coals_on_random_pairs():
     assert checked == 3600
 
 
+@pytest.mark.parametrize('planar', [False, True])
+def test_the_compiled_distances_equal_the_numpy_reference(planar):
+    # Degenerate pairs among them: random_capsules makes some spheres, and the last two
+    # human capsules copy robot capsule 0 shifted (parallel axes) and robot capsule 1 (the
+    # same axis).
+    rng = np.random.default_rng(13)
+    shift = np.array([[0.05, -0.02, 0.01], [0.0, 0.0, 0.0]])
+    for _ in range(30):
+        robot, human = random_capsules(rng, 9), random_capsules(rng, 10)
+        human = Capsules(human.names, np.vstack([human.a[:8], robot.a[:2] + shift]),
+                         np.vstack([human.b[:8], robot.b[:2] + shift]), human.radius)
+        compiled = capsule_distances(robot, human, planar=planar)
+        reference = capsule_distances(robot, human, planar=planar, compiled=False)
+        np.testing.assert_allclose(compiled.distance, reference.distance, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(compiled.normal, reference.normal, rtol=0, atol=1e-9)
+        for i, j in ((0, 0), (3, 9), (8, 5)):
+            assert compiled.parameters(i, j) == pytest.approx(reference.parameters(i, j),
+                                                              abs=1e-9)
+
+
 def test_pair_gives_one_pairs_figures_and_closest_the_least():
     rng = np.random.default_rng(5)
     robot, human = random_capsules(rng, 4), random_capsules(rng, 6)

@@ -1,0 +1,178 @@
+#!/usr/bin/env python3
+"""What the whole-body clearance does on the shipped recorded people (a measurement, not a test).
+
+Each take of data/human-motion/ is placed by recorded_motion.choose_placement with the arm's
+reach and its `body_clearance` (BODY_CLEARANCE: the person's hip, torso and head that far from
+the base), cropped to its first `--crop` s, and replayed in the pure closed loop
+(closed_loop.simulate, 1 kHz, the hand at 100 Hz through the glitch filter) with each of
+Table I's tasks, once with the barrier off (force 0) and once on (arm_law.ClearanceSettings'
+defaults), the person's body on it as it was recorded. Per run:
+
+- trunk: the share of samples (every 10 ms) in which some robot capsule is closer than
+  clearance - 3 cm to the head, torso or hip capsules, and the least such distance (m);
+- tool-hand: follow's median distance (m) over the samples where the hand is seen, in reach
+  and slower than the task speed (run_metrics.considered_samples), and over those of them where
+  the hand is also clear of the trunk (a tool-sized ball at the hand at least `clearance`
+  from it); avoid's and follow_safe's share of those samples closer than d1 - 3 cm;
+- the peak |effort| (N m) and the seconds the run took.
+
+Run it in the project's environment: `source scripts/env.sh; python bench/bench_body_takes.py
+[--robots scara,panda] [--tasks follow,avoid,follow_safe] [--crop 10]`. `--json` prints one
+JSON object.
+"""
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hri_adaptive_controller.arm_law import ArmController, ClearanceSettings
+from hri_adaptive_controller.closed_loop import (
+    LoopConditions,
+    recorded_body,
+    recorded_target,
+    simulate,
+)
+from hri_adaptive_controller.run_metrics import TakeCriteria, considered_samples
+from hri_core.bodies import (
+    Capsules,
+    capsule_distances,
+    human_capsules,
+    panda_package_dirs,
+    robot_body,
+)
+from hri_core.human_body import BODY_POINTS, TRUNK, read_recorded_body
+from hri_core.potential import TaskShape
+from hri_core.recorded_motion import (
+    BODY_CLEARANCE,
+    ReachAnnulus,
+    choose_placement,
+    read_vicon_csv,
+)
+from hri_core.robot_model import robot_model
+from hri_core.task_file import load_task_file
+
+ROOT = Path(__file__).resolve().parents[1]
+TAKES = sorted((ROOT / 'data' / 'human-motion').glob('*.csv'))
+TASKS = ROOT / 'ros2_ws' / 'src' / 'hri_adaptive_controller' / 'tasks'
+# The reach annulus choose_placement places the hand path in: the SCARA's (hand_sim's
+# default) and the one scripts/demo.py gives the Panda.
+REACH = {'scara': ReachAnnulus(0.222, 0.65), 'panda': ReachAnnulus(0.30, 0.75)}
+MARGIN = 0.03  # m: "closer than clearance - 3 cm", and avoid's d1 - 3 cm
+SAMPLE_EVERY = 10  # steps (10 ms) between the trunk checks
+
+
+def task(name: str) -> TaskShape:
+    record = load_task_file(TASKS / f'{name}.yaml')
+    return TaskShape(record.s, record.a1, record.a2, record.d1, record.d2, record.n)
+
+
+def trunk_capsules(frame: np.ndarray) -> Capsules | None:
+    """The head, torso and hip capsules of one frame (K, 3), or None if none is seen."""
+    kept = [BODY_POINTS.index(name) for name in TRUNK
+            if np.all(np.isfinite(frame[BODY_POINTS.index(name)]))]
+    if not kept:
+        return None
+    return human_capsules([BODY_POINTS[k] for k in kept], frame[kept])
+
+
+def run(robot: str, body, path: Path, names, crop: float) -> list[dict]:
+    model = robot_model(robot)
+    clearance = ClearanceSettings().clearance
+    tool_radius = float(body.radius[body.names.index(body.tool)])
+    recorded = read_recorded_body(path)
+    placement = choose_placement(read_vicon_csv(path).positions, REACH[robot],
+                                 body=recorded.trunk(), clearance=BODY_CLEARANCE[robot])
+    motion = read_vicon_csv(path, placement=placement)
+    person = read_recorded_body(path, placement=placement)
+    keep = motion.times <= crop
+    times, hand, points = motion.times[keep], motion.positions[keep], person.points[keep]
+    trunks = [trunk_capsules(frame) for frame in points]
+    clear_hand = np.zeros(len(times), dtype=bool)
+    for k, trunk in enumerate(trunks):
+        if trunk is not None and np.all(np.isfinite(hand[k])):
+            ball = Capsules(('tool',), hand[k][None], hand[k][None], np.array([tool_radius]))
+            clear_hand[k] = capsule_distances(ball, trunk, body.planar).distance.min() \
+                >= clearance
+    rows = []
+    for name in names:
+        shape = task(name)
+        for force in (0.0, ClearanceSettings().force):
+            gains = dataclasses.replace(ArmController(model).gains,
+                                        body=ClearanceSettings(force=force))
+            started = time.perf_counter()
+            result = simulate({name: shape}, [(0.0, name)],
+                              recorded_target(times, hand[:, :model.task_axes]),
+                              float(times[-1]),
+                              LoopConditions(arm=model, gains=gains, monitor=False,
+                                             target_period=0.01,
+                                             body=recorded_body(times, BODY_POINTS, points),
+                                             robot_body=body))
+            seconds = time.perf_counter() - started
+            index = np.clip(np.searchsorted(times, result.time, side='right') - 1, 0,
+                            len(times) - 1)
+            trunk_distance = np.array([
+                capsule_distances(body.capsules(result.q[i], checked=False),
+                                  trunks[index[i]], body.planar).distance.min()
+                for i in range(0, len(result.time), SAMPLE_EVERY)
+                if trunks[index[i]] is not None])
+            seen = hand[index, :model.task_axes]
+            criteria = TakeCriteria(d1=shape.d1, effort_limit=float(model.limits.effort.min()),
+                                    task_speed=gains.max_task_speed, reach=REACH[robot])
+            considered = considered_samples(result.time, seen, criteria)
+            distance = np.linalg.norm(result.position - seen, axis=1)
+            clear = considered & clear_hand[index]
+            row = {'robot': robot, 'take': path.stem, 'task': name, 'barrier': force > 0.0,
+                   'trunk_close': float(np.mean(trunk_distance < clearance - MARGIN)),
+                   'trunk_min': float(trunk_distance.min()),
+                   'peak_effort': float(np.max(np.abs(result.tau))),
+                   'seconds': round(seconds, 1)}
+            if shape.d1 == 0.0:
+                row['median'] = float(np.median(distance[considered])) if considered.any() \
+                    else None
+                row['median_clear'] = float(np.median(distance[clear])) if clear.any() \
+                    else None
+            else:
+                row['too_close'] = float(np.mean(distance[considered] < shape.d1 - MARGIN)) \
+                    if considered.any() else None
+            rows.append(row)
+    return rows
+
+
+def text(row: dict) -> str:
+    figures = (f"median {row['median']:.3f} m, clear of the trunk "
+               f"{row['median_clear']:.3f} m" if 'median' in row and row['median'] is not None
+               and row['median_clear'] is not None else
+               f"median {row.get('median')}" if 'median' in row else
+               f"closer than d1 - 3 cm {row['too_close']}")
+    return (f"{row['robot']:5s} {row['take'][:24]:24s} {row['task']:11s} "
+            f"{'on ' if row['barrier'] else 'off'} trunk < c - 3 cm {row['trunk_close']:.3f} "
+            f"(least {row['trunk_min']:+.3f} m); {figures}; peak {row['peak_effort']:.1f} N m; "
+            f"{row['seconds']} s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--robots', default='scara,panda')
+    parser.add_argument('--tasks', default='follow,avoid,follow_safe')
+    parser.add_argument('--crop', type=float, default=10.0, help='s of each take')
+    parser.add_argument('--json', action='store_true')
+    options = parser.parse_args()
+    rows = []
+    for robot in options.robots.split(','):
+        # example-robot-data's meshes (every arm's there) resolve in the Panda's folder
+        body = robot_body(robot_model(robot), panda_package_dirs())
+        for path in TAKES:
+            for row in run(robot, body, path, options.tasks.split(','), options.crop):
+                rows.append(row)
+                if not options.json:
+                    print(text(row), flush=True)
+    if options.json:
+        print(json.dumps(rows))
+
+
+if __name__ == '__main__':
+    main()

@@ -42,7 +42,7 @@ SUMMARY_WORDS = {
     'hand_sim': 'hand positions published on /target',
     'demonstrator': 'wrench and reference messages published',
     'recorder': 'closed bag', 'learner': "1 task learned: 'follow'",
-    'event_manager': 'TaskStates published', 'controller': 'ran ',
+    'event_manager': 'TaskStates published', 'controller': 'commands computed (',
     'event_detector': 'event(s) sent', 'live_view': 'messages streamed',
     'system': 'nodes run, then stopped; exit codes: hand_sim 0',
 }

@@ -325,6 +325,13 @@ class Controller(Node):
             # use_sim_time may change at run time: looked at again at each ControllerState.
             self._system_clock = not self.get_clock().ros_time_is_active
 
+    def summary(self) -> str:
+        """One line on what the node did (run_node logs it at the stop)."""
+        cycle = self._cycle
+        return (f'{cycle.cycles} commands computed ({cycle.deadline_misses} deadline misses); '
+                f'{cycle.target_glitches} /target samples held as glitches, '
+                f'{cycle.target_reanchors} re-anchored; last status {cycle.status}')
+
     @staticmethod
     def _state_message(report: CycleReport, published: int) -> ControllerState:
         # The arrays as array('d'): rosidl's setters check a list element by element (77

@@ -279,6 +279,12 @@ def sampled_configurations(model: RobotModel, samples: int) -> np.ndarray:
 # spun through its limits.
 KS_RATE = 60.0  # 1/s
 KS_PER_EFFORT = 40.0 / 87.0  # s/rad
+# A URDF arm's adaptation rates L: a tenth of the Panda's. With the Panda's own, the UR3 and
+# the UR10 (example-robot-data) ran away from a still hand 0.3 m off in the pure loop (0.90
+# and 1.72 m away after 4 s, theta_hat wound up); with a tenth each enters follow's region in
+# 1.46 and 1.41 s, and the UR5 and the Z1 do as before (1.59-1.61 s). Any L > 0 keeps V
+# non-increasing; a smaller one only adapts more slowly.
+ADAPTATION_SCALE = 0.1
 INERTIA_SAMPLES = 200  # seeded configurations over which each joint's least inertia is taken
 
 
@@ -295,12 +301,14 @@ def default_arm_ks(model: RobotModel, samples: int = INERTIA_SAMPLES) -> tuple[f
 
 def default_gains(model: RobotModel) -> ArmGains:
     """The gains for `model`: its own (ROBOT_GAINS) where tuned for it, else PANDA_GAINS'
-    with Ks from its effort limits and link inertias (default_arm_ks)."""
+    with Ks from its effort limits and link inertias (default_arm_ks) and ADAPTATION_SCALE
+    times its adaptation rates."""
     gains = ROBOT_GAINS.get(model.name)
     if gains is not None and len(gains.ks) == model.dof and len(gains.adaptation) == len(
             model.adaptation_kinds):
         return gains
-    return dataclasses.replace(PANDA_GAINS, ks=default_arm_ks(model))
+    return dataclasses.replace(PANDA_GAINS, ks=default_arm_ks(model), adaptation=tuple(
+        ADAPTATION_SCALE * rate for rate in PANDA_GAINS.adaptation))
 
 
 class HandState(NamedTuple):

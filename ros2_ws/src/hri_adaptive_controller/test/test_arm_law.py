@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from hri_adaptive_controller.arm_law import (
+    ADAPTATION_SCALE,
     KS_RATE,
     PANDA_GAINS,
     SCARA_GAINS,
@@ -22,6 +23,7 @@ from hri_adaptive_controller.arm_law import (
     rk4_step,
     task_term,
 )
+from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_target
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import (
     ReachRoundSettings,
@@ -296,6 +298,21 @@ def test_the_default_gains_are_the_robots_own_or_derived(panda, tmp_path):
     urdf.write_text(panda.urdf)
     copy = robot_model(urdf_file=str(urdf), tool_frame='panda_hand_tcp')
     assert default_gains(copy).ks == default_arm_ks(copy)
+
+
+@pytest.mark.parametrize('robot', ['ur3', 'ur10'])
+def test_an_arm_without_gains_of_its_own_follows_a_still_hand(robot):
+    # With the Panda's adaptation rates the UR3 and the UR10 ran away from the hand (0.90 and
+    # 1.72 m after 4 s); with the default gains' (ADAPTATION_SCALE) they follow it.
+    model = robot_model(robot)
+    assert default_gains(model).adaptation == tuple(
+        ADAPTATION_SCALE * rate for rate in PANDA_GAINS.adaptation)
+    inward = np.array([-0.2, 0.15, 0.15]) / np.linalg.norm([-0.2, 0.15, 0.15])
+    hand = model.tool_position(model.home) + 0.3 * inward
+    result = simulate({'follow': FOLLOW}, [], still_target(hand), 4.0,
+                      LoopConditions(arm=model, initial_task='follow', monitor=False))
+    assert np.all(result.distance[result.time >= 3.0] <= FOLLOW.d2), robot
+    assert np.all(np.abs(result.tau) <= model.limits.effort + 1e-9)
 
 
 def test_a_joint_started_in_its_limit_band_is_pushed_out(panda):

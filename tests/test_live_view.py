@@ -191,7 +191,8 @@ def test_streams_the_topics_and_the_scene_to_a_foxglove_client(nodes):
         state = None
         entities: dict[str, dict] = {}
         deadline = time.monotonic() + RECEIVE_TIMEOUT
-        while state is None or not {'arm', 'hand'} <= {k for k, v in entities.items() if v}:
+        while state is None or not {'arm', 'hand', 'person'} <= {
+                k for k, v in entities.items() if v}:
             frame = connection.recv(timeout=max(0.1, deadline - time.monotonic()))
             if not isinstance(frame, bytes) or frame[0] != MESSAGE_DATA_OPCODE:
                 continue
@@ -215,6 +216,8 @@ def test_streams_the_topics_and_the_scene_to_a_foxglove_client(nodes):
     assert entities['arm'] == {'spheres': 3, 'cylinders': 2}
     assert entities['hand'] == {'spheres': 1}
     assert entities['task_region'] == {}  # no event_manager: no task to draw
+    # hand_sim's standing person: 7 capsules between two points, head and hands balls.
+    assert entities['person'] == {'spheres': 17, 'cylinders': 7}
     assert 'live view stopped' in view.log()
     assert 'Traceback' not in view.log()
 

@@ -31,6 +31,11 @@ hri_core.robot_model.PinocchioModel), in 3-D (`spatial_scene_entities`):
 - the desired region: translucent spheres of radius d1 and d2 round the hand, with rings of
   those radii at the hand's height, coloured by a as in the plane.
 `chain_frames` gives each moving link's frame in the base frame.
+
+Either arm: the person of /human/body (`person_entity`) as the capsules the whole-body
+clearance and the ISO/TS 15066 margin use (hri_core.bodies.human_capsules: head, torso,
+shoulders, upper arms, forearms and hands, half DIN 33402-2's 95th-percentile thicknesses as
+radii), each a translucent rod of its diameter with a ball at each end (a sphere: one ball).
 """
 
 import math
@@ -39,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hri_core.bodies import human_capsules
 from hri_core.dynamics import forward_kinematics
 from hri_core.robot_model import KNOWN_TOOL_FRAMES, ROBOT_NAMES, PinocchioModel
 
@@ -48,6 +54,7 @@ Quaternion = tuple[float, float, float, float]  # x, y, z, w
 ARM_ENTITY = 'arm'
 HAND_ENTITY = 'hand'
 REGION_ENTITY = 'task_region'
+PERSON_ENTITY = 'person'
 # Enough segments for a ring of 0.5 m to look round (1.8 cm chords) at little cost.
 RING_SEGMENTS = 96
 REGION_SHAPE_INSIDE = 1  # TaskParameters.SHAPE_REGION_INSIDE: desired region d1 <= |z| <= d2
@@ -69,6 +76,7 @@ LINK_COLOUR = Rgba(0.30, 0.50, 0.80, 1.0)
 JOINT_COLOUR = Rgba(0.20, 0.20, 0.25, 1.0)
 TOOL_COLOUR = Rgba(1.00, 0.55, 0.10, 1.0)
 HAND_COLOUR = Rgba(0.90, 0.25, 0.25, 1.0)
+PERSON_COLOUR = Rgba(0.95, 0.75, 0.55, 0.4)  # translucent: the arm shows through
 # The region's colour at a = 0 (task faded out) and a = 1 (task in force).
 REGION_IDLE_COLOUR = Rgba(0.55, 0.55, 0.55, 1.0)
 REGION_ACTIVE_COLOUR = Rgba(0.10, 0.75, 0.25, 1.0)
@@ -314,6 +322,23 @@ def hand_entity(hand: tuple[float, ...] | None, diameter: float = 0.06) -> Entit
     if hand is None or not all(math.isfinite(v) for v in hand):
         return Entity(HAND_ENTITY)
     return Entity(HAND_ENTITY, balls=(Ball(spatial(hand), diameter, HAND_COLOUR),))
+
+
+def person_entity(names, points) -> Entity:
+    """The person from REP-155 body point names (K,) and points (K, 3) m (/human/body) as
+    capsules (module docstring); empty without a body, or with one the capsules refuse."""
+    try:
+        capsules = human_capsules(tuple(names), np.asarray(points, dtype=float).reshape(-1, 3))
+    except ValueError:
+        return Entity(PERSON_ENTITY)
+    rods, balls = [], []
+    for a, b, radius in zip(capsules.a, capsules.b, capsules.radius, strict=True):
+        start, end, diameter = spatial(a), spatial(b), 2.0 * float(radius)
+        balls.append(Ball(start, diameter, PERSON_COLOUR))
+        if start != end:
+            rods.append(Rod(start, end, diameter, PERSON_COLOUR))
+            balls.append(Ball(end, diameter, PERSON_COLOUR))
+    return Entity(PERSON_ENTITY, rods=tuple(rods), balls=tuple(balls))
 
 
 def region_label(region: TaskRegion, distance: float | None) -> str:

@@ -71,7 +71,7 @@ SUITE_TOPICS: dict[str, topics.Topic] = {
     topic.name: topic for topic in vars(topics).values() if isinstance(topic, topics.Topic)}
 # What the scene is drawn from, streamed or not.
 SCENE_INPUTS = (topics.JOINT_STATES, topics.TARGET, topics.TASK_STATE,
-                topics.ROBOT_DESCRIPTION)
+                topics.ROBOT_DESCRIPTION, topics.HUMAN_BODY)
 PARAMETERS = {
     'host': ParameterSpec(str, 'address the WebSocket server listens on (127.0.0.1: this '
                           'machine only)', read_only=True),
@@ -391,6 +391,11 @@ class LiveView(Node):
             entities = live_scene.spatial_scene_entities(points, hand, region, self._geometry,
                                                          self._display_radius)
             frames = None if q is None else live_scene.chain_frames(arm, q, self._frame)
+        body = self._newest(topics.HUMAN_BODY)
+        person = live_scene.person_entity(() if body is None else body.names,
+                                          [] if body is None else
+                                          [(p.x, p.y, p.z) for p in body.points])
+        entities = (*entities, person)
         self._scene_channel.log(
             SceneUpdate(entities=[foxglove_entity(e, self._frame, stamp) for e in entities]),
             log_time=now)

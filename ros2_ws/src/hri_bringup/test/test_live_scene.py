@@ -20,13 +20,16 @@ from hri_bringup.live_scene import (
     dashes,
     hand_entity,
     joint_angles,
+    person_entity,
     region_bands,
     region_colours,
     region_entity,
     rod_pose,
     scene_entities,
 )
+from hri_core.bodies import HUMAN_CAPSULES, HUMAN_RADII
 from hri_core.dynamics import forward_kinematics
+from hri_core.human_body import BODY_POINTS, standing_body
 from hri_core.robot_model import PANDA_TOOL_FRAME, panda_urdf_path, scara_urdf
 
 GEOMETRY = ArmGeometry(l1=0.35, l2=0.30)
@@ -177,6 +180,30 @@ def test_every_entity_is_sent_even_empty_so_that_the_viewer_clears_it():
     arm, hand, region = scene_entities((0.0, 1.0), (0.45, 0.05), FOLLOW, GEOMETRY, 0.5)
     assert not (arm.is_empty() or hand.is_empty() or region.is_empty())
     assert hand_entity((math.inf, 0.0)).is_empty()
+
+
+def test_the_person_is_drawn_as_the_clearances_capsules():
+    points = standing_body([0.8, 0.0], math.pi, -0.35, [0.45, 0.05, 0.0])
+    person = person_entity(BODY_POINTS, points)
+    spheres = [name for name, start, end, _ in HUMAN_CAPSULES if start == end]
+    assert len(person.rods) == len(HUMAN_CAPSULES) - len(spheres)         # 7 segments
+    assert len(person.balls) == 2 * len(person.rods) + len(spheres)       # 17
+    where = dict(zip(BODY_POINTS, points, strict=True))
+    head = [ball for ball in person.balls if ball.centre == tuple(where['head'])]
+    assert head and head[0].diameter == pytest.approx(2.0 * HUMAN_RADII['head'])
+    torso = [rod for rod in person.rods
+             if {rod.start, rod.end} == {tuple(where['body']), tuple(where['torso'])}]
+    assert torso and torso[0].diameter == pytest.approx(2.0 * HUMAN_RADII['torso'])
+    assert all(part.colour.a < 1.0 for part in (*person.rods, *person.balls))
+
+
+@pytest.mark.parametrize(('names', 'points'), [
+    ((), []),                                                   # no body yet
+    (('head', 'head'), [[0.5, 0.0, 0.4], [0.5, 0.0, 0.4]]),     # a repeated name
+    (('head',), [[math.nan, 0.0, 0.4]]),                        # not finite
+])
+def test_no_person_is_drawn_without_a_usable_body(names, points):
+    assert person_entity(names, points).is_empty()
 
 
 # Any arm from its URDF, in 3-D ----------------------------------------------------------------

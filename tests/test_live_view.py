@@ -191,7 +191,7 @@ def test_streams_the_topics_and_the_scene_to_a_foxglove_client(nodes):
         state = None
         entities: dict[str, dict] = {}
         deadline = time.monotonic() + RECEIVE_TIMEOUT
-        while state is None or not {'arm', 'hand', 'person'} <= {
+        while state is None or not {'arm', 'hand', 'person', 'closest_pair'} <= {
                 k for k, v in entities.items() if v}:
             frame = connection.recv(timeout=max(0.1, deadline - time.monotonic()))
             if not isinstance(frame, bytes) or frame[0] != MESSAGE_DATA_OPCODE:
@@ -216,8 +216,11 @@ def test_streams_the_topics_and_the_scene_to_a_foxglove_client(nodes):
     assert entities['arm'] == {'spheres': 3, 'cylinders': 2}
     assert entities['hand'] == {'spheres': 1}
     assert entities['task_region'] == {}  # no event_manager: no task to draw
-    # hand_sim's standing person: 7 capsules between two points, head and hands balls.
+    # hand_sim's standing person: 7 capsules between two points, head and hands balls; the
+    # SCARA's two link capsules; the line between their closest points, with its label.
     assert entities['person'] == {'spheres': 17, 'cylinders': 7}
+    assert entities['robot_body'] == {'spheres': 4, 'cylinders': 2}
+    assert entities['closest_pair'] == {'lines': 1, 'texts': 1}
     assert 'live view stopped' in view.log()
     assert 'Traceback' not in view.log()
 
@@ -263,7 +266,8 @@ def test_draws_the_arm_of_the_robot_description_in_3d(nodes):
             {'id': 1, 'channelId': scene['id']}]}))
         entities: dict[str, dict] = {}
         deadline = time.monotonic() + 2 * RECEIVE_TIMEOUT  # the Panda's URDF loads first
-        while entities.get('arm', {}).get('cylinders', 0) <= 2 or not entities.get('hand'):
+        while entities.get('arm', {}).get('cylinders', 0) <= 2 or not entities.get('hand') \
+                or not entities.get('robot_body'):
             frame = connection.recv(timeout=max(0.1, deadline - time.monotonic()))
             if isinstance(frame, bytes) and frame[0] == MESSAGE_DATA_OPCODE:
                 entities = scene_entities(frame[13:], scene_schema)
@@ -272,6 +276,8 @@ def test_draws_the_arm_of_the_robot_description_in_3d(nodes):
     assert (panda.dof, pedestal) == (7, 1)
     assert entities['hand'] == {'spheres': 1}
     assert entities['task_region'] == {}
+    # The Panda's capsules, fitted from its collision meshes: link0-link7 and the hand.
+    assert entities['robot_body'] == {'cylinders': 9, 'spheres': 18}
     assert "drawing panda of /robot_description: 7 joints, tool 'panda_hand_tcp'" in view.log()
     assert 'Traceback' not in view.log()
 

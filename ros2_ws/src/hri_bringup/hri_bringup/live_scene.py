@@ -32,10 +32,13 @@ hri_core.robot_model.PinocchioModel), in 3-D (`spatial_scene_entities`):
   those radii at the hand's height, coloured by a as in the plane.
 `chain_frames` gives each moving link's frame in the base frame.
 
-Either arm: the person of /human/body (`person_entity`) as the capsules the whole-body
-clearance and the ISO/TS 15066 margin use (hri_core.bodies.human_capsules: head, torso,
-shoulders, upper arms, forearms and hands, half DIN 33402-2's 95th-percentile thicknesses as
-radii), each a translucent rod of its diameter with a ball at each end (a sphere: one ball).
+Either arm, the two bodies as the whole-body clearance and the ISO/TS 15066 margin see them:
+the person of /human/body (`person_capsules`, `person_entity`: hri_core.bodies.human_capsules,
+head, torso, shoulders, upper arms, forearms and hands, half DIN 33402-2's 95th-percentile
+thicknesses as radii), the robot's capsules (`robot_body_entity`: hri_core.bodies.robot_body,
+one per link), each a translucent rod of its diameter with a ball at each end (a sphere: one
+ball); and the closest pair (`closest_pair_entity`): a line between the two closest points,
+labelled with the link, the body part and the distance (a planar arm's in its plane).
 """
 
 import math
@@ -44,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hri_core.bodies import human_capsules
+from hri_core.bodies import Capsules, capsule_distances, human_capsules
 from hri_core.dynamics import forward_kinematics
 from hri_core.robot_model import KNOWN_TOOL_FRAMES, ROBOT_NAMES, PinocchioModel
 
@@ -55,6 +58,8 @@ ARM_ENTITY = 'arm'
 HAND_ENTITY = 'hand'
 REGION_ENTITY = 'task_region'
 PERSON_ENTITY = 'person'
+ROBOT_BODY_ENTITY = 'robot_body'
+CLOSEST_PAIR_ENTITY = 'closest_pair'
 # Enough segments for a ring of 0.5 m to look round (1.8 cm chords) at little cost.
 RING_SEGMENTS = 96
 REGION_SHAPE_INSIDE = 1  # TaskParameters.SHAPE_REGION_INSIDE: desired region d1 <= |z| <= d2
@@ -77,6 +82,8 @@ JOINT_COLOUR = Rgba(0.20, 0.20, 0.25, 1.0)
 TOOL_COLOUR = Rgba(1.00, 0.55, 0.10, 1.0)
 HAND_COLOUR = Rgba(0.90, 0.25, 0.25, 1.0)
 PERSON_COLOUR = Rgba(0.95, 0.75, 0.55, 0.4)  # translucent: the arm shows through
+ROBOT_BODY_COLOUR = Rgba(0.30, 0.50, 0.80, 0.25)  # round the drawn links
+CLOSEST_PAIR_COLOUR = Rgba(1.0, 0.85, 0.1, 1.0)
 # The region's colour at a = 0 (task faded out) and a = 1 (task in force).
 REGION_IDLE_COLOUR = Rgba(0.55, 0.55, 0.55, 1.0)
 REGION_ACTIVE_COLOUR = Rgba(0.10, 0.75, 0.25, 1.0)
@@ -324,21 +331,57 @@ def hand_entity(hand: tuple[float, ...] | None, diameter: float = 0.06) -> Entit
     return Entity(HAND_ENTITY, balls=(Ball(spatial(hand), diameter, HAND_COLOUR),))
 
 
-def person_entity(names, points) -> Entity:
-    """The person from REP-155 body point names (K,) and points (K, 3) m (/human/body) as
-    capsules (module docstring); empty without a body, or with one the capsules refuse."""
-    try:
-        capsules = human_capsules(tuple(names), np.asarray(points, dtype=float).reshape(-1, 3))
-    except ValueError:
-        return Entity(PERSON_ENTITY)
+def capsules_entity(entity_id: str, capsules: Capsules | None, colour: Rgba) -> Entity:
+    """Capsules as rods of their diameter with a ball at each end (a sphere: one ball);
+    empty without any."""
+    if capsules is None:
+        return Entity(entity_id)
     rods, balls = [], []
     for a, b, radius in zip(capsules.a, capsules.b, capsules.radius, strict=True):
         start, end, diameter = spatial(a), spatial(b), 2.0 * float(radius)
-        balls.append(Ball(start, diameter, PERSON_COLOUR))
+        balls.append(Ball(start, diameter, colour))
         if start != end:
-            rods.append(Rod(start, end, diameter, PERSON_COLOUR))
-            balls.append(Ball(end, diameter, PERSON_COLOUR))
-    return Entity(PERSON_ENTITY, rods=tuple(rods), balls=tuple(balls))
+            rods.append(Rod(start, end, diameter, colour))
+            balls.append(Ball(end, diameter, colour))
+    return Entity(entity_id, rods=tuple(rods), balls=tuple(balls))
+
+
+def person_capsules(names, points) -> Capsules | None:
+    """The person's capsules from REP-155 body point names (K,) and points (K, 3) m
+    (/human/body); None without a body, or for one the capsules refuse."""
+    try:
+        capsules = human_capsules(tuple(names), np.asarray(points, dtype=float).reshape(-1, 3))
+    except ValueError:
+        return None
+    return capsules if len(capsules) else None
+
+
+def person_entity(names, points) -> Entity:
+    """The person of /human/body as capsules (module docstring); empty without one."""
+    return capsules_entity(PERSON_ENTITY, person_capsules(names, points), PERSON_COLOUR)
+
+
+def robot_body_entity(capsules: Capsules | None) -> Entity:
+    """The robot's capsules at its joint state (RobotBody.capsules); empty without them."""
+    return capsules_entity(ROBOT_BODY_ENTITY, capsules, ROBOT_BODY_COLOUR)
+
+
+def closest_pair_entity(robot: Capsules | None, person: Capsules | None,
+                        planar: bool) -> Entity:
+    """A line between the robot's and the person's closest points, labelled 'link - part:
+    distance m' (planar: measured, and drawn, in the plane z = 0); empty without both."""
+    if robot is None or person is None or not len(robot) or not len(person):
+        return Entity(CLOSEST_PAIR_ENTITY)
+    distances = capsule_distances(robot, person, planar)
+    i, j = distances.closest()
+    distance, robot_point, person_point, _ = distances.pair(i, j)
+    start, end = spatial(robot_point), spatial(person_point)
+    middle = tuple((a + b) / 2.0 for a, b in zip(start, end, strict=True))
+    return Entity(CLOSEST_PAIR_ENTITY,
+                  lines=(Lines((start, end), 0.006, CLOSEST_PAIR_COLOUR, dashed=True),),
+                  labels=(Label((middle[0], middle[1], middle[2] + 0.04),
+                                f'{robot.names[i]} - {person.names[j]}: {distance:.3f} m',
+                                0.025, CLOSEST_PAIR_COLOUR),))
 
 
 def region_label(region: TaskRegion, distance: float | None) -> str:

@@ -56,6 +56,8 @@ from rclpy.serialization import deserialize_message
 
 from hri_bringup import live_scene
 from hri_core import topics
+from hri_core.bodies import panda_package_dirs, robot_body
+from hri_core.dynamics import ScaraParameters
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -63,6 +65,7 @@ from hri_core.node_common import (
     load_defaults,
     run_node,
 )
+from hri_core.robot_model import ScaraModel
 
 PACKAGE = 'hri_bringup'
 NODE_NAME = 'live_view'
@@ -245,9 +248,18 @@ class LiveView(Node):
         self._frame = values['frame']
         self._joints = tuple(values['joints'])
         self._geometry = live_scene.ArmGeometry(l1=values['l1'], l2=values['l2'])
+        # The planar SCARA's capsules (hri_core.bodies: from the link lengths alone; the
+        # centres of mass, which they do not use, put mid-link), drawn while no
+        # /robot_description names another arm; that arm's are fitted when its description
+        # comes.
+        l1, l2 = values['l1'], values['l2']
+        self._scara_body = robot_body(ScaraModel(ScaraParameters(l1=l1, l2=l2, lc1=l1 / 2,
+                                                                 lc2=l2 / 2)))
         self._tool_frame = values['tool_frame']
-        # The arm of the newest /robot_description: (its bytes, the model or None).
+        # The arm of the newest /robot_description: (its bytes, the model or None), and its
+        # capsules (or None).
         self._description: tuple[bytes, object] | None = None
+        self._described_body = None
         self._display_radius = values['region_display_radius']
         # A channel logs to the server of its context only: a context of the node's own keeps
         # another server in the same process (a test) from seeing these channels.
@@ -347,7 +359,7 @@ class LiveView(Node):
         if data is None:
             return None
         if self._description is None or self._description[0] is not data:
-            arm = None
+            arm = body = None
             try:
                 arm = live_scene.description_arm(self._newest(topics.ROBOT_DESCRIPTION).data,
                                                  self._tool_frame)
@@ -356,7 +368,14 @@ class LiveView(Node):
             except ValueError as error:
                 self.get_logger().warning(f'cannot draw the arm of /robot_description '
                                           f'({error}); drawing the planar SCARA')
+            if arm is not None:
+                try:  # example-robot-data's meshes resolve in the Panda's folder
+                    body = robot_body(arm, panda_package_dirs())
+                except ValueError as error:
+                    self.get_logger().warning(f'cannot draw the capsules of {arm.name} '
+                                              f'({error})')
             self._description = (data, arm)
+            self._described_body = body
         return self._description[1]
 
     def _scene_inputs(self, joint_names: tuple[str, ...]):
@@ -391,11 +410,7 @@ class LiveView(Node):
             entities = live_scene.spatial_scene_entities(points, hand, region, self._geometry,
                                                          self._display_radius)
             frames = None if q is None else live_scene.chain_frames(arm, q, self._frame)
-        body = self._newest(topics.HUMAN_BODY)
-        person = live_scene.person_entity(() if body is None else body.names,
-                                          [] if body is None else
-                                          [(p.x, p.y, p.z) for p in body.points])
-        entities = (*entities, person)
+        entities = (*entities, *self._body_entities(arm, q))
         self._scene_channel.log(
             SceneUpdate(entities=[foxglove_entity(e, self._frame, stamp) for e in entities]),
             log_time=now)
@@ -408,6 +423,24 @@ class LiveView(Node):
                                rotation=Quaternion(x=f.rotation[0], y=f.rotation[1],
                                                    z=f.rotation[2], w=f.rotation[3]))
                 for f in frames]), log_time=now)
+
+    def _body_entities(self, arm, q) -> tuple:
+        """The person, the robot's capsules at q and their closest pair (live_scene)."""
+        message = self._newest(topics.HUMAN_BODY)
+        person = None if message is None else live_scene.person_capsules(
+            message.names, [(p.x, p.y, p.z) for p in message.points])
+        body = self._scara_body if arm is None else self._described_body
+        robot = None
+        if body is not None and q is not None:
+            try:
+                robot = body.capsules(q)
+            except ValueError:  # a joint state outside the model's limits: not drawn
+                robot = None
+        planar = body is not None and body.planar
+        return (live_scene.capsules_entity(live_scene.PERSON_ENTITY, person,
+                                           live_scene.PERSON_COLOUR),
+                live_scene.robot_body_entity(robot),
+                live_scene.closest_pair_entity(robot, person, planar))
 
     def close(self) -> None:
         """Stop the server (clients see the connection close)."""

@@ -17,20 +17,23 @@ from hri_bringup.live_scene import (
     arm_frames,
     arm_points,
     circle_points,
+    closest_pair_entity,
     dashes,
     hand_entity,
     joint_angles,
+    person_capsules,
     person_entity,
     region_bands,
     region_colours,
     region_entity,
+    robot_body_entity,
     rod_pose,
     scene_entities,
 )
-from hri_core.bodies import HUMAN_CAPSULES, HUMAN_RADII
+from hri_core.bodies import HUMAN_CAPSULES, HUMAN_RADII, capsule_distances, robot_body
 from hri_core.dynamics import forward_kinematics
 from hri_core.human_body import BODY_POINTS, standing_body
-from hri_core.robot_model import PANDA_TOOL_FRAME, panda_urdf_path, scara_urdf
+from hri_core.robot_model import PANDA_TOOL_FRAME, ScaraModel, panda_urdf_path, scara_urdf
 
 GEOMETRY = ArmGeometry(l1=0.35, l2=0.30)
 FOLLOW = TaskRegion('follow', 1, 0.0, 0.041, 1.0, 'active')
@@ -204,6 +207,26 @@ def test_the_person_is_drawn_as_the_clearances_capsules():
 ])
 def test_no_person_is_drawn_without_a_usable_body(names, points):
     assert person_entity(names, points).is_empty()
+
+
+def test_the_robot_body_and_the_closest_pair_are_the_clearances():
+    scara = ScaraModel()
+    body = robot_body(scara)
+    robot = body.capsules(scara.home)
+    drawn = robot_body_entity(robot)
+    assert len(drawn.rods) == 2 and len(drawn.balls) == 4
+    assert [rod.diameter for rod in drawn.rods] == pytest.approx(2.0 * robot.radius)
+    person = person_capsules(BODY_POINTS, standing_body([0.8, 0.0], math.pi, -0.35,
+                                                        [0.45, 0.05, 0.0]))
+    pair = closest_pair_entity(robot, person, planar=True)
+    expected = capsule_distances(robot, person, planar=True)
+    i, j = expected.closest()
+    distance, robot_point, person_point, _ = expected.pair(i, j)
+    (line,), (label,) = pair.lines, pair.labels
+    np.testing.assert_allclose(line.points, [robot_point, person_point])
+    assert label.text == f'{robot.names[i]} - {person.names[j]}: {distance:.3f} m'
+    assert closest_pair_entity(robot, None, planar=True).is_empty()
+    assert robot_body_entity(None).is_empty()
 
 
 # Any arm from its URDF, in 3-D ----------------------------------------------------------------

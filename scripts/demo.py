@@ -52,6 +52,12 @@ from hri_bringup.processes import (  # noqa: E402
     stop_all,
     wait_until_logged,
 )
+from hri_core.bodies import (  # noqa: E402
+    capsule_distances,
+    human_capsules,
+    panda_package_dirs,
+    robot_body,
+)
 from hri_core.node_common import load_defaults  # noqa: E402
 from hri_core.potential import TaskShape  # noqa: E402
 from hri_core.recorded_motion import BODY_CLEARANCE, ReachAnnulus  # noqa: E402
@@ -143,6 +149,12 @@ QUICK_SEQUENCE_SETTLE = 3.0  # s
 RUN_TOPICS = ['/hri/controller_state', '/hri/task_state', '/target', '/ee_position',
               '/effort_controller/commands']
 SEQUENCE_TOPICS = [*RUN_TOPICS, '/hri/events', '/hri/separation']
+# The recorded person's run also records the person's body and the arm's joints: the report
+# measures the robot's capsules against the person's (hri_core.bodies) every BODY_STEP s.
+PERSON_TOPICS = ['/human/body', '/joint_states']
+TRUNK_CAPSULES = ('head', 'torso')  # hri_core.bodies: the torso runs from the hip up
+BODY_STEP = 0.01  # s
+BODY_MAX_AGE = 0.05  # s: an older /human/body is no body at that time (a lost frame)
 # Stage 5: a person's right hand recorded with a Vicon tracker, replayed by hand_sim at its
 # recorded pace and placed by its auto_place, from the learned follow, the tasks switched by
 # the event_detector's default rules. The first RECORDED_SETTLE s after each switch are left
@@ -153,10 +165,10 @@ QUICK_RECORDED_SECONDS = 8.0  # s: the avoid task from about 2 s, judged from 4 
 RECORDED_SETTLE = 2.0  # s
 
 
-def _or_dash(value: float, spec: str, instead: str = '—') -> str:
-    """`value` formatted with `spec`, or `instead` (an em dash) where it is not a number (no
-    samples)."""
-    return format(value, spec) if np.isfinite(value) else instead
+def _or_dash(value: float | None, spec: str, instead: str = '—') -> str:
+    """`value` formatted with `spec`, or `instead` (an em dash) where it is None or not a
+    number (no samples)."""
+    return format(value, spec) if value is not None and np.isfinite(value) else instead
 
 
 def hand_profile(hand: dict) -> HandProfile:
@@ -498,7 +510,9 @@ class Demo:
         return {
             'event_manager': {'tasks_dir': str(self.tasks), 'initial_task': initial_task,
                               'ramp_time': 1.0},
-            'recorder': {'topics': SEQUENCE_TOPICS if detector else RUN_TOPICS},
+            'recorder': {'topics': list(dict.fromkeys(
+                [*(SEQUENCE_TOPICS if detector else RUN_TOPICS),
+                 *(PERSON_TOPICS if hand.get('profile') == 'recording' else [])]))},
             'hand_sim': hand,
             'scara_sim': {'realtime_priority': LOOP_PRIORITY},
             'controller': {'realtime_priority': LOOP_PRIORITY},
@@ -585,10 +599,11 @@ class Demo:
         """Figures of the recorded person's run per task the controller ran
         (run_metrics.take_metrics), the detected events, and its figure: hand and arm paths,
         distance, effort."""
-        topics = ['/target', '/ee_position', '/effort_controller/commands',
-                  '/hri/controller_state', *self.effort_topics, '/hri/events']
+        topics = list(dict.fromkeys(['/target', '/ee_position', '/effort_controller/commands',
+                                     '/hri/controller_state', *self.effort_topics,
+                                     *PERSON_TOPICS, '/hri/separation', '/hri/events']))
         contents = read_bag(bag, topics=topics).topics
-        for topic in topics[:-1]:
+        for topic in topics[:-2]:
             if topic not in contents or not contents[topic].messages:
                 raise StageError(f'no {topic} in {bag}')
 
@@ -673,6 +688,13 @@ class Demo:
                   f'{m["longest_high_effort_hold"]:.2f} s; largest command step '
                   f'{m["largest_effort_step"]:.3f} N m')
         print(f'    /target jumps held: {summary["target_glitches"]}')
+        body_t, body_least, whole_body = self.whole_body(contents)
+        summary['whole_body'] = whole_body
+        print(f'    whole body: the least robot-person distance {whole_body["least"]:.3f} m '
+              f'({whole_body["least_pair"]}), to head and torso '
+              f'{_or_dash(whole_body["trunk_least"], ".3f")} m ({whole_body["trunk_pair"]}); '
+              f'below S_p {whole_body["below_protective"]:.1f} s of '
+              f'{whole_body["seconds"]:.1f} s (tool and hand)')
         self.metrics['recorded_person'] = summary
         figure = plt.figure(figsize=(11, 6))
         plane = self.path_axis(figure, 1, 2, 2)
@@ -697,7 +719,11 @@ class Demo:
         plane.legend(loc='best', fontsize=8)
         equal_scales(plane)
         distance = np.linalg.norm(hand_at_arm - arm_xy, axis=1)
-        distance_axis.plot(arm_t - t0, distance, color='k', linewidth=0.8)
+        distance_axis.plot(arm_t - t0, distance, color='k', linewidth=0.8, label='tool - hand')
+        distance_axis.plot(body_t - t0, body_least[:, 0], color='tab:red', linewidth=0.8,
+                           label='whole body: least capsule distance')
+        distance_axis.plot(body_t - t0, body_least[:, 1], color='tab:brown', linewidth=0.8,
+                           linestyle='--', label='head and torso: least distance')
         for t in switches:
             distance_axis.axvline(t - t0, color='grey', linestyle='--')
         avoid_d1 = load_task_file(self.tasks / 'avoid.yaml').d1
@@ -715,6 +741,89 @@ class Demo:
         figure.tight_layout()
         figure.savefig(self.figures / 'recorded_person.png', dpi=110)
         plt.close(figure)
+
+    def whole_body(self, contents: dict) -> tuple[np.ndarray, np.ndarray, dict]:
+        """The robot's capsules against the recorded person's (hri_core.bodies) every
+        BODY_STEP s of the run's joint states, with the newest /human/body no older than
+        BODY_MAX_AGE: (times (M,) s, least distance (M, 2) m to the whole body and to its
+        trunk (head, torso, hip), NaN without one; a summary: the least distances and their
+        pairs, the three pairs most often closest, the time below S_p on
+        /hri/separation)."""
+        model = robot_model(self.robot)
+        body = robot_body(model, panda_package_dirs())
+        states = contents['/joint_states'].messages
+        people = contents['/human/body'].messages
+        state_t = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+                            for m in states])
+        person_t = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+                             for m in people])
+        order = {name: k for k, name in enumerate(states[0].name)}
+        joints = [order[name] for name in model.joint_names]
+        picked = np.flatnonzero(np.diff(np.floor(state_t / BODY_STEP), prepend=-1.0) > 0)
+        least = np.full((picked.size, 2), np.nan)
+        pairs: dict[str, int] = {}
+        capsules: dict = {}
+        best = [(np.inf, ''), (np.inf, '')]
+        for k, index in enumerate(picked):
+            newest = int(np.searchsorted(person_t, state_t[index], side='right')) - 1
+            if newest < 0 or state_t[index] - person_t[newest] > BODY_MAX_AGE:
+                continue
+            if newest not in capsules:
+                capsules.clear()
+                message = people[newest]
+                capsules[newest] = human_capsules(message.names,
+                                                  [(p.x, p.y, p.z) for p in message.points])
+            human = capsules[newest]
+            if not len(human):
+                continue
+            q = np.array(states[index].position)[joints]
+            distances = capsule_distances(body.capsules(q, checked=False), human, body.planar)
+            i, j = distances.closest()
+            pair = f'{body.names[i]} - {human.names[j]}'
+            pairs[pair] = pairs.get(pair, 0) + 1
+            trunk = [j for j, name in enumerate(human.names) if name in TRUNK_CAPSULES]
+            found = [(i, j)]
+            if trunk:
+                table = distances.distance[:, trunk]
+                r, t = np.unravel_index(int(np.argmin(table)), table.shape)
+                found.append((int(r), trunk[t]))
+            for column, (r, t) in enumerate(found):
+                least[k, column] = distances.distance[r, t]
+                if least[k, column] < best[column][0]:
+                    best[column] = (float(least[k, column]),
+                                    f'{body.names[r]} - {human.names[t]}')
+        measured = int(np.count_nonzero(np.isfinite(least[:, 0])))
+        if not measured:
+            raise StageError('no joint state with a /human/body to measure the whole body at')
+        separations = (contents['/hri/separation'].messages
+                       if '/hri/separation' in contents else [])
+        below = sum(1 for m in separations if m.below_protective)
+        rate = load_defaults('hri_adaptive_controller', 'event_detector')['publish_rate_hz']
+        ranked = sorted(pairs.items(), key=lambda item: -item[1])[:3]
+        # No head or torso in any frame (a take without those segments): no figure for them.
+        trunk = best[1] if np.isfinite(best[1][0]) else (None, 'none seen')
+        summary = {'least': best[0][0], 'least_pair': best[0][1],
+                   'trunk_least': trunk[0], 'trunk_pair': trunk[1], 'measured': measured,
+                   'closest_pairs': [{'pair': pair, 'share': round(count / measured, 3)}
+                                     for pair, count in ranked],
+                   'below_protective': below / rate, 'seconds': len(separations) / rate}
+        return state_t[picked], least, summary
+
+    def whole_body_lines(self, person: dict) -> list[str]:
+        """The report's lines on the whole body in the recorded person's run."""
+        body = person['whole_body']
+        closest = ', '.join(f"{p['pair']} ({100 * p['share']:.0f} %)"
+                            for p in body['closest_pairs'])
+        return ['', f"The whole body (the arm's capsules against the person's, every "
+                f"{BODY_STEP * 1000:.0f} ms of joint states; the controller's clearance off, "
+                f"its default): the least distance {body['least']:.3f} m "
+                f"({body['least_pair']}; below 0: overlapping), to the head and torso "
+                f"{_or_dash(body['trunk_least'], '.3f')} m ({body['trunk_pair']}); the pairs "
+                'most often '
+                f"closest: {closest}. Below ISO/TS 15066's S_p (tool and hand, /hri/separation): "
+                f"{body['below_protective']:.1f} s of {body['seconds']:.1f} s. The figure's "
+                'red lines are the whole-body and the head-and-torso least distances beside the '
+                'tool-hand distance.']
 
     def controller_series(self, bag: Path) -> dict:
         contents = read_bag(bag, topics=['/hri/controller_state', '/hri/task_state'])
@@ -1050,7 +1159,7 @@ class Demo:
                       'than the arm\'s task speed (max_task_speed), from '
                       f'{RECORDED_SETTLE:.0f} s after each task began; the median distance '
                       'is the figure of merit for follow, the share closer than d1 - 3 cm for '
-                      'avoid.', '',
+                      'avoid.', *self.whole_body_lines(person), '',
                       '![recorded person](figures/recorded_person.png)']
         steps = {name: m['max_effort_step'] for name, m in self.metrics['behaviours'].items()}
         if 'sequence' in self.metrics:
@@ -1193,8 +1302,8 @@ class PandaDemo(Demo):
         overrides['event_detector'] = {'dimension': 3}
         if hand.get('profile') == 'recording':  # effort_shares takes the joints from the bag
             recorder = overrides['recorder']
-            overrides['recorder'] = {**recorder,
-                                     'topics': [*recorder['topics'], *self.effort_topics]}
+            overrides['recorder'] = {**recorder, 'topics': list(dict.fromkeys(
+                [*recorder['topics'], *self.effort_topics]))}
         return overrides
 
     def hand_reach(self) -> ReachAnnulus:
@@ -1328,7 +1437,8 @@ class PandaDemo(Demo):
                       f'event_detector in 3-D. Detected events: {detected}.', '',
                       '| task | time run (s) | median 3-D distance (m) | closer than d1 - 3 cm '
                       '| longest hold above 25 % of a joint\'s limit, gravity left out (s) '
-                      '| largest command step (N m) |', '|---|---|---|---|---|---|', *rows, '',
+                      '| largest command step (N m) |', '|---|---|---|---|---|---|', *rows,
+                      *self.whole_body_lines(person), '',
                       '![recorded person](figures/recorded_person.png)']
         lines += ['', '## Paths in 3-D', '', '![paths](figures/paths_3d.png)']
         (self.out / 'report.md').write_text('\n'.join(lines) + '\n')

@@ -68,6 +68,10 @@ def test_quick_demo_writes_report_and_every_behaviour_reaches_its_region(tmp_pat
     assert person['events'], person  # the event_detector switched the recorded person's run
     ran = [task for task in ('follow', 'avoid', 'follow_safe') if task in person]
     assert any(person[task]['considered'] > 0 for task in ran), person
+    # The whole body measured from the bag: the robot's capsules against the person's.
+    body = person['whole_body']
+    assert body['measured'] > 100 and body['least'] <= body['trunk_least']
+    assert body['closest_pairs'] and body['seconds'] > 0.0
     for task in ran:
         assert person[task]['longest_high_effort_hold'] >= 0.0
         assert 0.0 < person[task]['largest_effort_step'] <= 1.0 + 1e-9, person

@@ -268,17 +268,25 @@ class _JointBlend:
             q_in = tuple(value + min(max(goal - value, -step), step)
                          for goal, value in zip(joint_goal(), q_in, strict=True))
         omega = settings.filter_rate
-        # Critically damped second-order filter (semi-implicit Euler); its acceleration is
-        # continuous (q_in is), so the feed-forward of dq_f steps nothing.
-        acc = tuple(omega * omega * (target - f) - 2.0 * omega * df
-                    for target, f, df in zip(q_in, filtered, rate, strict=True))
-        rate = tuple(df + dt * a for df, a in zip(rate, acc, strict=True))
-        filtered = tuple(f + dt * df for f, df in zip(filtered, rate, strict=True))
-        self._filtered = (q_in, filtered, rate)
+        stiffness, damping = omega * omega, 2.0 * omega
+        # One plain loop over the joints (each tuple built from a zip cost about 1 us; the
+        # blend took 12 us a cycle for two joints). A critically damped second-order filter
+        # (semi-implicit Euler); its acceleration is continuous (q_in is), so the
+        # feed-forward of dq_f steps nothing. e = q - q_f, de = dq - dq_f.
+        acc, rate_out, filtered_out, e, de = [], [], [], [], []
+        for target, f, df, value, v in zip(q_in, filtered, rate, q, dq, strict=True):
+            a = stiffness * (target - f) - damping * df
+            df = df + dt * a
+            f = f + dt * df
+            acc.append(a)
+            rate_out.append(df)
+            filtered_out.append(f)
+            e.append(value - f)
+            de.append(v - df)
+        rate = tuple(rate_out)
+        self._filtered = (q_in, tuple(filtered_out), rate)
         # u = -cap(k e) with a smooth cap on the norm (C1), and its exact time derivative.
         k = settings.gain
-        e = tuple(value - f for value, f in zip(q, filtered, strict=True))
-        de = tuple(v - df for v, df in zip(dq, rate, strict=True))
         norm = math.hypot(*e)
         speed_max = settings.max_speed
         raw = k * norm
@@ -292,12 +300,13 @@ class _JointBlend:
         slope = (0.0 if raw > SECH_LIMIT * speed_max
                  else 1.0 / math.cosh(raw / speed_max) ** 2 * k)
         scale = capped / norm  # u = -scale e
-        along = sum(ei * dei for ei, dei in zip(e, de, strict=True)) / norm  # d norm / dt
+        along = sum(ei * dei for ei, dei in zip(e, de, strict=True)) / norm  # d |e| / dt
         dscale = (slope - scale) / norm * along
-        return (sigma, sigma_rate,
-                tuple(df - scale * ei for df, ei in zip(rate, e, strict=True)),
-                tuple(a - (scale * dei + dscale * ei) for a, ei, dei in zip(acc, e, de,
-                                                                            strict=True)))
+        u, du = [], []
+        for df, a, ei, dei in zip(rate, acc, e, de, strict=True):
+            u.append(df - scale * ei)
+            du.append(a - (scale * dei + dscale * ei))
+        return sigma, sigma_rate, tuple(u), tuple(du)
 
 
 class PlanarReachRound(_JointBlend):

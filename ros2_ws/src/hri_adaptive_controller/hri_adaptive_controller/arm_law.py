@@ -45,8 +45,9 @@ and the last one is <= 0 (N symmetric, idempotent). Joint-limit barrier: joint_l
 barrier for every joint: near a limit the torque
 gets -g_B and the reference the task-space share of it, the feed-forward towards the limit
 is gated, and eq. 19 pauses by 1 - near. Per-joint effort limits: tau is scaled as a whole so
-that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is. A non-finite
-result gives zero torque and fault=True, theta_hat unchanged.
+that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is, and while the
+caller's effort rate limit holds the command off the law's torque (`adapt(applied=False)`).
+A non-finite result gives zero torque and fault=True, theta_hat unchanged.
 
 Avoid tasks (open outward; task_variable's module docstring): the reference drops the hand's
 velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds the
@@ -936,14 +937,24 @@ class ArmController(TaskDrives):
             return zero.copy()
         return tau / peak if peak > 1.0 else tau
 
-    def adapt(self) -> bool:
+    def adapt(self, applied: bool = True) -> bool:
         """Advance theta_hat by the last `command`'s update, eq. 19 (once; none after a fault,
         a clamped torque or within a barrier band): theta - pace L Y^T s projected onto the
-        model's box. False, theta_hat unchanged, if the update is not finite."""
+        model's box. False, theta_hat unchanged, if the update is not finite.
+
+        applied: whether the drives get the command's torque. False (the caller's effort rate
+        limit changed it) drops the update, as a clamped torque does: s then grows from the
+        torque the limit withheld, not from theta_hat's error, and eq. 19 would wind theta_hat
+        up on it. The UR10 starting under gravity (115 N m on its shoulder, reached at 1 N m
+        a command, a command every other cycle on a loaded machine) took its wrist's inertia
+        from 5e-4 past 0.01 kg m^2 within 0.11 s that way (0.5-1.4 kg m^2 later), and the
+        wrist oscillated and spun through its limits."""
         if self._pending is None:
             return True
         regressor, s, pace = self._pending
         self._pending = None
+        if not applied:
+            return True
         if self._compiled:
             theta_next, finite = self._kernels.adapt(regressor, s, self._rates, pace, self._theta,
                                                      self.model.theta_lower,

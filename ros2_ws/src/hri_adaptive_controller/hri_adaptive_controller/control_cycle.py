@@ -52,6 +52,7 @@ Safety (the choices are argued in docs/design.md):
   between their joint states, at most one period, and (effort mode) it stays within
   `applied_effort_cycles` periods' worth of the effort the joint state reports when that
   effort is a command sent before (effort_rate.CommandEcho); zero torque bypasses the limit;
+  theta_hat does not adapt (eq. 19) on a cycle whose command either limit changed;
 - with a `separation` (ISO/TS 15066's S_p constants) the task's pull towards the hand is
   capped from each separation (separation_cap), 0 while none is recent;
 - deadline misses: commands sent later than 1.5 periods after their joint state's stamp
@@ -523,7 +524,8 @@ class ControlCycle:
     def sent(self, now: float, published: float) -> CycleReport | None:
         """The command just returned went out at `published` (s, on the joint stamps' clock)
         at `now`: deadline miss, the command's echo, the report when due (V computed now,
-        after the command), then theta_hat's update (eq. 19) of a law cycle."""
+        after the command), then theta_hat's update (eq. 19) of a law cycle, unless a limit
+        held the command off the law's torque."""
         if self._sent is None:
             return None
         output, command, stamp = self._sent
@@ -541,7 +543,10 @@ class ControlCycle:
             due = self._next_state + state_period
             self._next_state = due if due > now else now + state_period
             report = self._report(now, output, command)
-        if output is not None and not self.law.adapt():
+        # eq. 19 only for a torque the drives get: the rate limit or the applied band acting
+        # (the gravity ramp at start, a loaded machine's skipped cycles) would otherwise count
+        # the torque withheld as a parameter error (ArmController.adapt).
+        if output is not None and not self.law.adapt(applied=not self._rate_limited):
             # theta_hat stays; the next cycle's torque is computed with it as before.
             self._warn('adaptation', 'parameter update dropped: not finite')
         return report

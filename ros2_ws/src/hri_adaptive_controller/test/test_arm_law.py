@@ -315,6 +315,31 @@ def test_an_arm_without_gains_of_its_own_follows_a_still_hand(robot):
     assert np.all(np.abs(result.tau) <= model.limits.effort + 1e-9)
 
 
+def test_the_ur10_holds_a_still_hand_when_its_controller_takes_every_other_state():
+    # The node takes the newest joint state: on a loaded machine the UR10's controller
+    # computed 2866 commands from 5986 states, each 2 ms late. At 1 N m a command the
+    # shoulder's 115 N m of gravity then took 0.23 s while the arm fell, and eq. 19, run on
+    # commands the rate limit held off the law's torque, wound the wrist's 5e-4 kg m^2 up to
+    # 0.84 kg m^2: the wrist oscillated and the tool never entered the region (0.050-0.609 m
+    # from the hand). Eq. 19 pauses while the limit acts (ArmController.adapt): in at 2.9 s.
+    model = robot_model('ur10')
+    rng = np.random.default_rng(0)  # the true arm: masses and inertias 10 % off (as arm_sim)
+    arm = model.with_inertias(rng.uniform(0.9, 1.1, model.dof), model.damping)
+    inward = np.array([-0.2, 0.15, 0.15]) / np.linalg.norm([-0.2, 0.15, 0.15])
+    hand = model.tool_position(model.home) + 0.3 * inward
+    result = simulate({'follow': FOLLOW}, [], still_target(hand), 5.0, LoopConditions(
+        arm=arm, model=model, initial_task='follow', monitor=False, target_period=0.01,
+        control_period=2, command_delay=2))
+    distance = np.linalg.norm(
+        np.array([model.tool_position(q) for q in result.q[::10]]) - hand, axis=1)
+    inside = distance <= FOLLOW.d2
+    entered = int(np.argmax(inside))
+    assert inside[entered] and result.time[::10][entered] <= 4.0, distance.min()
+    assert inside[entered:].all(), distance[entered:].max()
+    assert np.all(np.abs(result.tau) <= model.limits.effort + 1e-9)
+    assert np.abs(np.diff(result.tau, axis=0)).max() <= 1.0 + 1e-9  # 1 N m a command
+
+
 def test_a_joint_started_in_its_limit_band_is_pushed_out(panda):
     """Joint 4 starts 0.08 rad (4.6 deg) from its upper limit, inside the 0.15 rad band, the
     hand still at the tool: the barrier and the null-space push take it out of the band

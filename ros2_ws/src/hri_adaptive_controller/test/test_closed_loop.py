@@ -201,6 +201,8 @@ def test_simulate_rejects_bad_input():
         simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, LoopConditions(target_period=0.0))
     with pytest.raises(ValueError, match='command_delay'):
         simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, LoopConditions(command_delay=-1))
+    with pytest.raises(ValueError, match='control_period'):
+        simulate(TASKS, [], still_target([0.4, 0.1]), 1.0, LoopConditions(control_period=0))
     with pytest.raises(ValueError, match='duration'):
         minimum_jerk_target([0.0, 0.0], [1.0, 1.0], 0.0, -1.0)
 

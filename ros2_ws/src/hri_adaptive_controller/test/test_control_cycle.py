@@ -393,6 +393,39 @@ def test_the_effort_changes_by_at_most_the_rate_times_the_time_between_states(sc
     assert limited > 500  # the limit acted
 
 
+def test_theta_hat_adapts_only_on_cycles_whose_command_no_limit_changed(panda):
+    """The Panda still at a pose off its home, the hand 0.2 m away: the first commands ramp
+    the gravity torque (18 N m) up at 1 N m a cycle, and theta_hat stays while they do (eq. 19
+    would count the torque withheld as a parameter error); once the command is the law's,
+    it adapts. The same with the applied band holding the command near an echoed effort."""
+    rig = Rig(panda)
+    q = panda.home + np.array([0.3, -0.2, 0.1, 0.4, -0.3, 0.2, 0.1])
+    rig.target(rig.tool(q) + np.array([0.0, 0.2, 0.0]))
+    rig.task()
+    limited, free = [], []
+    previous = np.zeros(panda.dof)
+    for _ in range(50):
+        before = rig.cycle.law.theta_hat.copy()
+        command = np.array(rig.joint(q))
+        moved = not np.array_equal(rig.cycle.law.theta_hat, before)
+        # A command 1 N m from the one before on some joint: the rate limit acted.
+        (limited if np.abs(command - previous).max() >= 1.0 - 1e-12 else free).append(moved)
+        previous = command
+    assert len(limited) > 10 and len(free) > 20
+    assert not any(limited) and all(free)
+    # The simulator reports a ramp command as applied (a late burst): the band (2 N m around
+    # it) moves the command, and theta_hat stays; it adapts again once the states without the
+    # echo have ramped the command back to the law's.
+    echo = rig.commands[5]
+    assert np.abs(np.array(echo) - previous).max() > 4.0
+    before = rig.cycle.law.theta_hat.copy()
+    rig.joint(q, effort=echo)
+    assert np.array_equal(rig.cycle.law.theta_hat, before)
+    for _ in range(20):  # 13 N m back at 1 N m a cycle
+        rig.joint(q)
+    assert not np.array_equal(rig.cycle.law.theta_hat, before)
+
+
 def test_a_command_stays_in_the_band_of_an_echoed_applied_effort(scara):
     """A simulator that still applies an old command (a late burst): the next command stays
     within max_effort_rate * applied_effort_cycles / rate_hz (2 N m) of it. A measured effort

@@ -115,7 +115,10 @@ def check_commands_and_limits(model, q, efforts) -> tuple[float, float]:
     """Every command within the per-joint effort limits and <= MAX_STEP from the one before;
     no joint within LIMIT_MARGIN of a limit. Returns (largest step N m, nearest limit rad)."""
     margin = np.minimum(q - model.limits.lower, model.limits.upper - q)
-    assert margin.min() > LIMIT_MARGIN, np.degrees(margin.min())
+    sample, joint = np.unravel_index(int(np.argmin(margin)), margin.shape)
+    assert margin.min() > LIMIT_MARGIN, (
+        f'joint {joint + 1} {np.degrees(margin.min()):.1f} deg from its limit at joint state '
+        f'{sample} of {len(q)}: q {np.round(q[sample], 3).tolist()}')
     assert efforts.shape[1] == model.dof
     assert np.all(np.abs(efforts) <= model.limits.effort + 1e-9)
     step = np.abs(np.diff(efforts, axis=0)).max()

@@ -42,7 +42,7 @@ within 0.5 s; a contact that stays above longer is held (quasi-static) and fails
 still above the quasi-static limit when the trace ends shows no release and fails too. Force
 equal to a limit is within it (the limits are maximum permissible values). Table A.2 has no
 time in it: the 0.5 s is the project's reading of the standard's transient contact (one the
-body part can recoil from, released at once), given with the issue that asked for this judge.
+body part can recoil from, released at once), `TRANSIENT_CONTACT_TIME`.
 
 **The body parts** (`BODY_PART_SPANS`, `BODY_PART_REGIONS`): each capsule of the person
 (hri_core.bodies.HUMAN_CAPSULES) spans one or more regions and is judged by the one with the

@@ -19,7 +19,8 @@ to start calling `hold(now)` every period, which returns the hold's command, or 
 joint states pace the cycles again; each hold command is followed by `sent` too.
 
 Safety (the choices are argued in docs/design.md):
-- zero torque while joint states are missing; older than `joint_state_timeout` (one
+- no command before the first joint state (an arm's brakes hold it; the first command then
+  starts from the gravity hold where it is, not from zero); older than `joint_state_timeout` (one
   warning per outage, one info line when they resume) the arm is held against gravity at
   the last one, Y(q, 0, 0, 0) theta_hat reached at the effort rate (zero torque would drop
   an arm under gravity; the horizontal SCARA's is zero). A watchdog call more than two
@@ -347,7 +348,14 @@ class ControlCycle:
         # stand still), bounded to 10 periods after a gap.
         dt = stamp - previous if stamp > previous else now - self._joint_time
         dt = min(max(dt, 1e-6), 10.0 * self.settings.period)
+        first = self._q is None
         self._q, self._dq = tuple(q), tuple(dq)
+        if first and not self.settings.velocity_mode:
+            # No command went out before this (hold): the arm's brakes held it against gravity,
+            # so the torque starts from the gravity hold where it is, not from zero. From zero,
+            # at 1 N m a command, a loaded machine that halved the controller's rate let the
+            # Panda fall 0.7 rad into joint 4's limit in 0.27 s.
+            self._limiter.reset(self.law.gravity_hold(np.array(self._q)).tolist())
         self._applied = self._echo.applied(effort)
         self._joint_stamp, self._joint_time = stamp, now
         self.holding = False
@@ -469,13 +477,25 @@ class ControlCycle:
 
     def hold(self, now: float) -> tuple | None:
         """A hold cycle at `now` (every period while holding): its command, the gravity hold
-        at the last joint state (zero before any, in velocity mode and for an arm without
-        gravity), or None when joint states are fresh again (stop the hold cycles). Follow a
-        command with `sent`."""
+        at the last joint state (zero in velocity mode and for an arm without gravity), ()
+        before any joint state (send nothing), or None when joint states are fresh again (stop
+        the hold cycles). Follow a command, () included, with `sent`."""
         if now - self._joint_time <= self.settings.joint_state_timeout:
             self.holding = False  # joint states are back: they pace the cycles
             return None
-        status = 'no_joint_states' if self._q is None else 'stale_joint_states'
+        if self._q is None:
+            # No joint state yet: no command (an empty one; the report still comes). An arm's
+            # brakes (arm_sim's, a real arm's) hold it until its first command, which then
+            # starts from the gravity hold (joint_state); a zero command now would release
+            # them into a fall.
+            if self._status != 'no_joint_states':
+                self._warn(None, 'no command: no joint states')
+            self._status = 'no_joint_states'
+            self._weight = 0.0
+            self._rate_limited = False
+            self._sent = (None, (), None)
+            return ()
+        status = 'stale_joint_states'
         if status != self._status:  # once per outage, as scara_sim's command timeout
             # An arm under gravity is held where its last joint state put it (gravity with
             # theta_hat, reached at the effort rate): zero torque dropped the Panda's 29 N m
@@ -530,7 +550,7 @@ class ControlCycle:
             return None
         output, command, stamp = self._sent
         self._sent = None
-        if self._applied_band > 0.0 and not self.settings.velocity_mode:
+        if self._applied_band > 0.0 and not self.settings.velocity_mode and command:
             self._echo.sent(command)  # velocities echo nothing
         if stamp is not None:
             self._input_age = published - stamp

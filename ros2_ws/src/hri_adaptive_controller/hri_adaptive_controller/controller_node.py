@@ -312,8 +312,10 @@ class Controller(Node):
         self._send(now, command)
 
     def _send(self, now: float, command: tuple) -> None:
-        """Publish the cycle's command, then the ControllerState when the cycle has one."""
-        self._command_pub.publish(self._command_template.encode(command))
+        """Publish the cycle's command (none if empty: no joint state yet), then the
+        ControllerState when the cycle has one."""
+        if command:
+            self._command_pub.publish(self._command_template.encode(command))
         # One read of the clock for input_age and the ControllerState's stamp: the stamp minus
         # input_age is then exactly the stamp of the joint state the cycle ran on. The node's
         # clock is the system clock unless ROS time is active (use_sim_time): time.time_ns()

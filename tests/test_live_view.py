@@ -1,16 +1,18 @@
 """Tests of the `live_view` node: the Foxglove WebSocket protocol as a client sees it.
 
-The topic-level tests start scara_sim and hand_sim and the live view on a free port, connect
-with a `websockets` client as the Foxglove app does (subprotocol foxglove.sdk.v1, the older
-foxglove.websocket.v1 offered too), read the server's `serverInfo` and `advertise`, subscribe
-to /joint_states and the scene, and decode what arrives: the joint states' CDR with rclpy, the
-scene's protobuf with a small wire-format reader guided by the advertised schema (the
-protobuf package is not installed). The first two tests need no ROS process.
+The topic-level tests start scara_sim and hand_sim and the live view on port 0 (the server
+picks a free one), connect with a `websockets` client as the Foxglove app does (subprotocol
+foxglove.sdk.v1, the older foxglove.websocket.v1 offered too), read the server's `serverInfo`
+and `advertise`, subscribe to /joint_states and the scene, and decode what arrives: the joint
+states' CDR with rclpy, the scene's protobuf with a small wire-format reader guided by the
+advertised schema (the protobuf package is not installed). The first two tests need no ROS
+process.
 """
 
 import base64
 import json
 import math
+import re
 import signal
 import socket
 import struct
@@ -37,11 +39,12 @@ MESSAGE_DATA_OPCODE = 1
 SCENE_TOPIC = '/live_view/scene'
 
 
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on now."""
-    with socket.socket() as probe:
-        probe.bind(('127.0.0.1', 0))
-        return probe.getsockname()[1]
+def served_url(view, timeout: float) -> str:
+    """The URL a live view started with port 0 serves on, read from its start line. Port 0
+    lets the server bind any free port itself: a port probed free beforehand can be taken by
+    a test running beside this one before the view binds it."""
+    assert view.wait_for_line('live view on ws://127.0.0.1:', timeout), view.log()
+    return re.search(r'live view on (ws://127\.0\.0\.1:\d+)', view.log()).group(1)
 
 
 def varint(data: bytes, offset: int) -> tuple[int, int]:
@@ -159,13 +162,12 @@ def test_yaml_gives_every_parameter_and_streams_every_topic_of_the_suite():
 def test_streams_the_topics_and_the_scene_to_a_foxglove_client(nodes):
     nodes('scara_sim', 'scara_sim')
     nodes('scara_sim', 'hand_sim', params={'profile': 'circle'})
-    port = free_port()
-    view = nodes('hri_bringup', 'live_view', params={'port': port})
+    view = nodes('hri_bringup', 'live_view', params={'port': 0})
     streamed = len(load_defaults('hri_bringup', 'live_view')['topics'])
-    assert view.wait_for_line(f'live view on ws://127.0.0.1:{port} streaming {streamed} topics',
-                              START_TIMEOUT), view.log()
+    url = served_url(view, START_TIMEOUT)
+    assert f'live view on {url} streaming {streamed} topics' in view.log()
 
-    with websockets.sync.client.connect(f'ws://127.0.0.1:{port}', subprotocols=SUBPROTOCOLS,
+    with websockets.sync.client.connect(url, subprotocols=SUBPROTOCOLS,
                                         proxy=None, open_timeout=5.0,
                                         max_queue=1024) as connection:
         assert connection.subprotocol == 'foxglove.sdk.v1'
@@ -253,10 +255,9 @@ def test_draws_the_arm_of_the_robot_description_in_3d(nodes):
     panda = robot_model('panda')
     nodes('scara_sim', 'arm_sim', params={'robot': 'panda', 'teach_mode': True})
     nodes('scara_sim', 'hand_sim', params={'profile': 'circle'})
-    port = free_port()
-    view = nodes('hri_bringup', 'live_view', params={'port': port})
-    assert view.wait_for_line(f'live view on ws://127.0.0.1:{port}', START_TIMEOUT), view.log()
-    with websockets.sync.client.connect(f'ws://127.0.0.1:{port}', subprotocols=SUBPROTOCOLS,
+    view = nodes('hri_bringup', 'live_view', params={'port': 0})
+    url = served_url(view, START_TIMEOUT)
+    with websockets.sync.client.connect(url, subprotocols=SUBPROTOCOLS,
                                         proxy=None, open_timeout=5.0,
                                         max_queue=1024) as connection:
         _, channels = read_channels(connection, {SCENE_TOPIC, '/robot_description'}, 5.0)
@@ -289,11 +290,10 @@ def test_a_robot_description_it_cannot_read_is_one_warning_and_the_scara_is_draw
     broken = probe.publisher(topics.ROBOT_DESCRIPTION.name, String,
                              topics.ROBOT_DESCRIPTION.qos)
     broken.publish(String(data='<robot name="arm"><link name="a"/></robot>'))
-    port = free_port()
-    view = nodes('hri_bringup', 'live_view', params={'port': port})
+    view = nodes('hri_bringup', 'live_view', params={'port': 0})
     assert view.wait_for_line('cannot draw the arm of /robot_description', START_TIMEOUT), \
         view.log()
-    with websockets.sync.client.connect(f'ws://127.0.0.1:{port}', subprotocols=SUBPROTOCOLS,
+    with websockets.sync.client.connect(served_url(view, START_TIMEOUT), subprotocols=SUBPROTOCOLS,
                                         proxy=None, open_timeout=5.0,
                                         max_queue=1024) as connection:
         _, channels = read_channels(connection, {SCENE_TOPIC}, 5.0)

@@ -131,7 +131,9 @@ def test_a_body_moving_in_gives_its_speed_along_the_normal(nodes, probe, tmp_pat
     Publisher(probe, 1.5, velocity=VELOCITY).start().join()
     time.sleep(0.1)
     body_messages = [m for m in separation if m.body_part][5:]
-    assert len(body_messages) >= 30
+    # The speeds are the check, not the detector's rate (which a loaded machine halves: 25 of
+    # a nominal 70 seen with three test workers beside the unit tests).
+    assert len(body_messages) >= 10
     for m in body_messages:
         _, _, _, normal = expected(body_at(0.0, np.zeros(3)))
         assert m.human_speed == pytest.approx(-float(VELOCITY @ normal), abs=0.02)

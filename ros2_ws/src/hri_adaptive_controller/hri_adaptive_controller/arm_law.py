@@ -49,6 +49,11 @@ that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is, and 
 caller's effort rate limit holds the command off the law's torque (`adapt(applied=False)`).
 A non-finite result gives zero torque and fault=True, theta_hat unchanged.
 
+Speed and separation monitoring (`limit_approach`, the separation cap's): where the row
+n^T J_p of the arm's point nearest the person takes qdot_r towards the person faster than
+the limit, qdot_r loses the excess along that row (the least joint motion that does it);
+qddot_r leaves the change out, as it does the pull limit's.
+
 Avoid tasks (open outward; task_variable's module docstring): the reference drops the hand's
 velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds the
 return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the
@@ -570,6 +575,7 @@ class ArmController(TaskDrives):
         self._max_damping2 = gains.damping.max_damping ** 2
         self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._last: tuple = (None, 0.0, None)
+        self._approach = None  # limit_approach: (row (n,), allowed m/s, |row|^2) or None
         self._reach = reach_round(gains.reach_round, model, self._lower, self._upper,
                                   gains.limit_band, self._task_reach)
         # The per-cycle arithmetic compiled (arm_kernels; numba, imported here so that a
@@ -873,6 +879,9 @@ class ArmController(TaskDrives):
                     (q, dq), (jac, jac_rate, pinv, pinv_rate), (ff, ff_rate),
                     (task_velocity[0], task_rate), blend, (near, g_b, g_b_rate))
                 s = dq - qdot_r
+            if self._approach is not None:
+                qdot_r = self._limited_approach(qdot_r)
+                s = dq - qdot_r
             regressor = self.model.regressor_unchecked(q, dq, qdot_r, qddot_r)  # eq. 18
             task_force = (gains.kp * scale) * weighted
             if self._compiled:
@@ -905,6 +914,36 @@ class ArmController(TaskDrives):
                          limited, False, '', lam2, near, g_b, weighted,
                          blend=0.0 if blend is None else blend[0],
                          barrier_task_velocity=barrier_task, reference_offset=offset, body=body)
+
+    def limit_approach(self, row, allowed: float) -> None:
+        """From the next step on, hold the reference's speed along `row` at or below `allowed`
+        m/s (ISO/TS 15066 speed and separation monitoring: the separation cap's limit for the
+        point of the arm nearest the person). row (n,) m/rad: n^T J_p, the joint-space row of
+        that point's velocity along the unit normal n towards the person (J_p its point
+        Jacobian at q); None: no limit. qdot_r loses the least joint motion that brings it
+        within the limit, qdot_r - (row qdot_r - allowed) row^T / |row|^2, and nothing
+        where it is within; qddot_r leaves the change out (as the pull limit's), and the
+        caller changes `allowed` gradually. A row of norm below 1e-9 (a point the joints do
+        not move along n) is no limit."""
+        if row is None:
+            self._approach = None
+            return
+        if not (allowed >= 0.0):  # also NaN
+            raise ValueError(f'approach speed limit must be >= 0 m/s, got {allowed}')
+        row = np.asarray(row, dtype=float)
+        if row.shape != (self.model.dof,) or not np.all(np.isfinite(row)):
+            raise ValueError(f'approach row must be {self.model.dof} finite values, got {row}')
+        norm2 = float(row @ row)
+        self._approach = (row, float(allowed), norm2) if norm2 > 1e-18 else None
+
+    def _limited_approach(self, qdot_r: np.ndarray) -> np.ndarray:
+        """qdot_r (n,) with its speed along the approach row held at the limit
+        (limit_approach)."""
+        row, allowed, norm2 = self._approach
+        excess = float(row @ qdot_r) - allowed
+        if excess <= 0.0:
+            return qdot_r
+        return qdot_r - (excess / norm2) * row
 
     def _exempt(self, drive, avoid: bool, human: Capsules):
         """(every robot capsule, the tracked hand's capsules) where the task's region reaches

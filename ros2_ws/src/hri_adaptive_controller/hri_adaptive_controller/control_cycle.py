@@ -55,7 +55,12 @@ Safety (the choices are argued in docs/design.md):
   effort is a command sent before (effort_rate.CommandEcho); zero torque bypasses the limit;
   theta_hat does not adapt (eq. 19) on a cycle whose command either limit changed;
 - with a `separation` (ISO/TS 15066's S_p constants) the task's pull towards the hand is
-  capped from each separation (separation_cap), 0 while none is recent;
+  capped from each separation (separation_cap), 0 while none is recent; and the point of the
+  arm nearest the person (the separation's pair: a link's point and the body's, or the tool
+  and the hand) moves towards the person at most at the speed S_p allows,
+  (1 + CAP_BAND) times the knee, while the cap acts (ArmController.limit_approach: the
+  reference loses the excess along that point's normal, whatever asked for it: the pull,
+  the hand's velocity fed forward, the null space, the body's barrier);
 - deadline misses: commands sent later than 1.5 periods after their joint state's stamp
   (`sent`'s published time, on the stamps' clock); ControllerState goes out with the first
   cycle after each 1/`state_rate_hz` s, which alone computes V once the command is out.
@@ -82,7 +87,8 @@ from hri_adaptive_controller.event_weight import (
 from hri_adaptive_controller.separation_cap import SeparationCap
 from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
-from hri_core.bodies import human_capsules
+from hri_adaptive_controller.task_variable import CAP_BAND
+from hri_core.bodies import RobotBody, human_capsules
 from hri_core.potential import TaskShape
 from hri_core.separation import ProtectiveSeparation
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
@@ -207,13 +213,16 @@ class ControlCycle:
     """The controller's decisions on each input (module docstring).
 
     law: the ArmController (its gains' max_effort_rate and max_task_speed are the cycle's);
-    settings: CycleSettings; note: called with each Note (default: appended to `notes`).
+    settings: CycleSettings; note: called with each Note (default: appended to `notes`);
+    robot_body: the arm's capsules, whose link names a separation's pair gives (default: the
+    law's; None: a pair naming a link is not limited, the tool-hand pair is).
     `holding`: whether the caller is to run the hold cycles (True from the start: no joint
     state yet).
     """
 
     def __init__(self, law: ArmController, settings: CycleSettings,
-                 note: Callable[[Note], None] | None = None):
+                 note: Callable[[Note], None] | None = None,
+                 robot_body: RobotBody | None = None):
         self.notes: list[Note] = []
         self._note = note or self.notes.append
         self.law = law
@@ -245,6 +254,10 @@ class ControlCycle:
         self._cap = None
         if settings.separation is not None:
             self._cap = SeparationCap(settings.separation, law.gains.max_task_speed)
+        self._robot_body = law.body if robot_body is None else robot_body
+        # The latest separation's closest pair: (robot capsule index, or None for the tool
+        # and the hand; the robot's point (3,) m; the unit normal (3,) towards the person).
+        self._pair = None
         self._rest = settings.rest_position
         self._human = None  # the person's capsules (body) and when they came
         self._human_time = None
@@ -453,11 +466,54 @@ class ControlCycle:
         return self._human
 
     def separation(self, now: float, separation: float, human_speed_used: float,
-                   closing_speed: float) -> None:
+                   closing_speed: float, pair: tuple | None = None) -> None:
         """A separation (m), the hand speed S_p counted (m/s) and the closing speed (m/s),
-        received at `now`; ignored without a cap."""
-        if self._cap is not None:
-            self._cap.observe(now, separation, human_speed_used, closing_speed)
+        received at `now`; ignored without a cap. pair: (robot link name, its point (3,) m,
+        the body's point (3,) m) of a whole-body separation; None or a link '' for the tool
+        and the hand."""
+        if self._cap is None:
+            return
+        self._cap.observe(now, separation, human_speed_used, closing_speed)
+        self._pair = self._closest_pair(separation, pair)
+
+    def _closest_pair(self, separation: float, pair: tuple | None):
+        """The pair the approach limit holds (the `_pair` layout), or None where it cannot be
+        placed (one warning per link the robot body does not know)."""
+        if pair is None or not pair[0]:
+            return (None, None, None)
+        link, robot_point, body_point = pair
+        body = self._robot_body
+        if body is None or link not in body.names:
+            self._warn('pair', f'separation pair on {link!r}, a link the controller does not '
+                       'know: the tool and the hand are limited instead')
+            return (None, None, None)
+        robot_point = np.asarray(robot_point, dtype=float)
+        towards = np.asarray(body_point, dtype=float) - robot_point
+        if body.planar:
+            towards[2] = 0.0
+        length = math.sqrt(float(towards @ towards))
+        if not (length > 1e-9 and math.isfinite(separation)):
+            return None  # touching: no direction to hold
+        # Overlapping capsules (a negative separation) have their surface points crossed.
+        sign = 1.0 if separation >= 0.0 else -1.0
+        return (body.names.index(link), robot_point, sign * towards / length)
+
+    def _approach_row(self, now: float, knee: float):
+        """n^T J_p (n,) of the pair's robot point at the latest joint state (m/rad), or None
+        while the cap lets the task run at full speed, or there is no fresh pair."""
+        if self._pair is None or self._cap.stale(now) \
+                or knee >= self.law.gains.max_task_speed:
+            return None
+        index, point, normal = self._pair
+        q = np.array(self._q)
+        if index is None:
+            if self._target is None:
+                return None
+            x, jac, _ = self.law.model.task_kinematics(q, np.zeros(q.size))
+            towards = np.array(self._target) - x
+            length = math.sqrt(float(towards @ towards))
+            return None if length <= 1e-9 else (towards / length) @ jac
+        return normal @ self._robot_body.point_jacobian(q, index, point, checked=False)
 
     # -- the watchdog and the hold -----------------------------------------------------------
     def watchdog(self, now: float) -> bool:
@@ -658,7 +714,9 @@ class ControlCycle:
         k = 0.0 if shape is None else k
         self._cycle_task = (shape, k)
         if self._cap is not None:
-            self.law.limit_pull_speed(self._cap.knee(now))
+            knee = self._cap.knee(now)
+            self.law.limit_pull_speed(knee)
+            self.law.limit_approach(self._approach_row(now, knee), (1.0 + CAP_BAND) * knee)
         return self._arm_step((target, target_velocity), weight, rate,
                               None if shape is None else (shape, k), dt, self._body_at(now))
 

@@ -99,7 +99,9 @@ class Controller(Node):
             model = model_from(values)
             gains = gains_from(values, model)
             body, problem = robot_body_from(values, model)
-            law = ArmController(model, gains, initial_estimate(values, model, gains), body=body)
+            # The law keeps clear of the person with a clearance; the cap uses the body alone.
+            law = ArmController(model, gains, initial_estimate(values, model, gains),
+                                body=body if values['clearance'] > 0.0 else None)
             # ISO/TS 15066 speed cap with S_p's constants from the detector's YAML.
             separation = (ProtectiveSeparation.from_mapping(
                 load_defaults(PACKAGE, 'event_detector'))
@@ -109,8 +111,8 @@ class Controller(Node):
         except ValueError as error:
             raise StartupError(f'bad controller parameters: {error}') from None
         if problem:
-            self.get_logger().warning(f'whole-body clearance off: {problem}')
-        self._cycle = ControlCycle(law, settings, self._log)
+            self.get_logger().warning(f'whole-body clearance and separation pairs off: {problem}')
+        self._cycle = ControlCycle(law, settings, self._log, body)
         self._joint_names = model.joint_names
         self._dof, self._axes = model.dof, model.task_axes
         self._joint_index = (None, None)  # (names of the last joint state, indices of ours)
@@ -142,7 +144,7 @@ class Controller(Node):
         # The arm a simulator or robot_state_publisher describes, checked once it comes.
         self.create_subscription(String, topics.ROBOT_DESCRIPTION.name,
                                  self._on_robot_description, topics.ROBOT_DESCRIPTION.qos)
-        if body is not None:  # the person's body points, kept clear of by every link
+        if law.body is not None:  # the person's body points, kept clear of by every link
             self.create_subscription(topics.HUMAN_BODY.type, topics.HUMAN_BODY.name,
                                      self._on_body, topics.HUMAN_BODY.qos)
         if separation is not None:
@@ -277,8 +279,11 @@ class Controller(Node):
             stamp_seconds(msg.header.stamp), msg.weight, msg.weight_rate)
 
     def _on_separation(self, msg: SeparationState) -> None:
+        robot, body = msg.robot_point, msg.body_point
         self._cycle.separation(time.monotonic(), msg.separation, msg.human_speed_used,
-                               msg.human_speed + msg.robot_speed)
+                               msg.human_speed + msg.robot_speed,
+                               (msg.robot_link, (robot.x, robot.y, robot.z),
+                                (body.x, body.y, body.z)))
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
         changed = {p.name: p.value for p in parameters if p.name in GAIN_PARAMETERS}
@@ -287,7 +292,8 @@ class Controller(Node):
         values = {**self._values, **changed}
         try:
             model = self._cycle.law.model
-            law = ArmController(model, gains_from(values, model), self._cycle.law.theta_hat)
+            law = ArmController(model, gains_from(values, model), self._cycle.law.theta_hat,
+                                body=self._cycle.law.body)
         except (ValueError, TypeError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         self._values = values

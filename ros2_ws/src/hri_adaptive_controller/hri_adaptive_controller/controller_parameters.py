@@ -100,8 +100,9 @@ PARAMETERS = {
                                     "the task's largest)", low=0.0, high=100.0),
     'separation_speed_limit': ParameterSpec(
         bool, "cap the task's speed towards the hand from /hri/separation so that ISO/TS "
-        "15066's S_p stays within the separation (separation_cap; no approach while "
-        '/hri/separation is stale)', read_only=True),
+        "15066's S_p stays within the separation, and the closest pair's robot point's speed "
+        'towards the person (separation_cap; no approach while /hri/separation is stale)',
+        read_only=True),
     'reach_round': ParameterSpec(bool, 'blend in a joint-space motion where the straight '
                                  'task-space descent is blocked or the hand out of reach'),
     'target_max_speed': ParameterSpec(float, 'a /target implying a faster hand is held as a '
@@ -187,10 +188,11 @@ def rest_position_from(values: dict, model: RobotModel) -> tuple[float, ...] | N
 
 
 def robot_body_from(values: dict, model: RobotModel) -> tuple[RobotBody | None, str]:
-    """(the robot's capsules for the whole-body clearance, '') or (None, why not): off with
-    clearance 0, or where the arm's collision geometry cannot be read (its meshes are looked
-    for where example-robot-data's and the URDF file's folders hold them)."""
-    if values.get('clearance', 0.0) <= 0.0:
+    """(the robot's capsules for the whole-body clearance and the separation cap's pairs, '')
+    or (None, why not): None with clearance 0 and the cap off, or where the arm's collision
+    geometry cannot be read (its meshes are looked for where example-robot-data's and the
+    URDF file's folders hold them)."""
+    if values.get('clearance', 0.0) <= 0.0 and not values.get('separation_speed_limit'):
         return None, ''
     folders = [str(Path(values['urdf_file']).resolve().parent)] if values['urdf_file'] else []
     try:

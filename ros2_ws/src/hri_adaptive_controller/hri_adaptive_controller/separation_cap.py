@@ -15,7 +15,12 @@ task's pull towards the hand (Q' > 0) and an avoid task's return to rest are cap
 push out of d1, the retreat and the hand's velocity fed forward move the arm with or away
 from the hand and keep their caps. The arm itself runs up to 1.25 times its reference (the
 Kp term; adaptive_law.DEFAULT_GAINS), which T_r's margin has to cover. The paper has no
-such limit; this is the "monitor that acts".
+such limit; this is the "monitor that acts". While the knee is below max_task_speed, the
+point of the arm nearest the person (the separation's pair: a link's point against the body
+on a whole-body /hri/separation, else the tool against the hand) also moves towards the
+person at most at (1 + CAP_BAND) times the knee, whatever else asks for the motion (the
+hand's velocity fed forward, the null space, a barrier): control_cycle gives the law that
+point's row n^T J_p and arm_law.ArmController.limit_approach takes the excess out of qdot_r.
 
 The separation is taken LOOKAHEAD s ahead at the measured closing speed (s - LOOKAHEAD
 max(v_closing, 0)): between a separation and the arm's response to it lie the detector's

@@ -141,6 +141,37 @@ def test_null_space_motion_leaves_the_tool_velocity_unchanged(panda):
     assert checked >= 10
 
 
+def test_the_approach_limit_takes_the_least_joint_motion_and_only_the_excess(panda):
+    """limit_approach(row, v): where row qdot_r exceeds v, qdot_r loses the excess along row
+    alone (the least joint motion, s follows); where it does not, nothing changes."""
+    rng = np.random.default_rng(5)
+    task = ActiveTask(FOLLOW, 1.0, 0.0)
+    for _ in range(10):
+        q = panda.home + rng.uniform(-0.5, 0.5, 7)
+        dq = rng.uniform(-0.3, 0.3, 7)
+        hand = HandState(panda.tool_position(q) + rng.uniform(-0.2, 0.2, 3), np.zeros(3),
+                         np.zeros(3))
+        free = ArmController(panda, PANDA_GAINS).command(q, dq, hand, task, DT)
+        row = rng.normal(size=7)
+        row *= np.sign(row @ free.qdot_r)
+        speed = float(row @ free.qdot_r)
+        law = ArmController(panda, PANDA_GAINS)
+        law.limit_approach(row, 0.25 * speed)
+        held = law.command(q, dq, hand, task, DT)
+        assert row @ held.qdot_r == pytest.approx(0.25 * speed, abs=1e-12)
+        change = held.qdot_r - free.qdot_r
+        assert np.linalg.norm(change - (change @ row) / (row @ row) * row) <= 1e-12
+        assert np.allclose(held.s, dq - held.qdot_r, atol=1e-12)
+        law = ArmController(panda, PANDA_GAINS)
+        law.limit_approach(row, 2.0 * speed)
+        assert np.array_equal(law.command(q, dq, hand, task, DT).qdot_r, free.qdot_r)
+    law = ArmController(panda, PANDA_GAINS)
+    with pytest.raises(ValueError, match='approach speed limit must be >= 0'):
+        law.limit_approach(np.ones(7), math.nan)
+    with pytest.raises(ValueError, match='approach row must be 7 finite values'):
+        law.limit_approach(np.ones(3), 0.1)
+
+
 def test_barrier_gradient_rate_and_energy_are_exact_on_both_arms(panda):
     """g = dB/dq and its rate (the diagonal Hessian times qdot) by central differences of B,
     on random states in and near every joint's band, the SCARA's (band 0.1 rad) and the

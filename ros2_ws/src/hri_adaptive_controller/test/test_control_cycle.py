@@ -26,6 +26,7 @@ from hri_adaptive_controller.control_cycle import (
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
 from hri_adaptive_controller.separation_cap import pull_speed_knee
 from hri_adaptive_controller.task_variable import CAP_BAND
+from hri_core.bodies import panda_package_dirs, robot_body
 from hri_core.robot_model import robot_model
 from hri_core.separation import ProtectiveSeparation
 
@@ -56,10 +57,10 @@ class Rig:
     """A ControlCycle driven like the node drives it, on one simulated clock (the joint
     stamps' clock is the same as `now`). `commands` and `reports`: what each cycle sent."""
 
-    def __init__(self, model, gains=None, separation=None, **values):
+    def __init__(self, model, gains=None, separation=None, robot_body=None, **values):
         law = ArmController(model, gains or default_gains(model))
         settings = CycleSettings.from_values({**DEFAULTS, **values}, separation=separation)
-        self.cycle = ControlCycle(law, settings)
+        self.cycle = ControlCycle(law, settings, robot_body=robot_body)
         self.model = model
         self.now = T0
         self.commands: list[tuple] = []
@@ -493,6 +494,50 @@ def test_the_separation_cap_caps_the_pull_towards_the_hand(scara):
     assert capped.max() <= (1.0 + CAP_BAND) * knee + 1e-9
     assert capped[-1] > 0.5 * knee  # and the pull the separation allows
     assert np.all(pull_speeds(separation, False) < 1e-9)
+
+
+def test_the_cap_holds_the_arm_point_nearest_the_person_from_moving_towards_it(panda):
+    """Velocity mode on the Panda (the command is qdot_r), away from its home pose, so the
+    null space moves its elbow while the task pulls the tool. A whole-body separation names
+    the pair (a point of panda_link4 and the body's point 0.2 m along the direction the
+    elbow moves): while the cap acts, that point's speed towards the person, n^T J_p
+    qdot_r, stays within what S_p allows, (1 + CAP_BAND) times the knee. With the tool-hand
+    pair alone the elbow moves towards the person faster."""
+    body = robot_body(panda, panda_package_dirs())
+    separation = ProtectiveSeparation.from_mapping(DETECTOR)
+    room = 0.03 * separation.reaction_time * (1.0 + CAP_BAND)  # a knee of 0.03 m/s
+    gap = separation.distance(separation.near_speed, 0.0) + room
+    limit = (1.0 + CAP_BAND) * pull_speed_knee(gap, separation.near_speed, separation,
+                                               DEFAULTS['max_task_speed'])
+    q = tuple(panda.home + np.array([0.4, 0.3, -0.4, 0.4, 0.3, -0.3, 0.3]))
+    link = body.names.index('panda_link4')
+    elbow = body.capsules(q).a[link]
+    jacobian = body.point_jacobian(q, link, elbow)
+
+    def elbow_velocities(pair):
+        rig = Rig(panda, separation=separation, robot_body=body, mode='velocity')
+        hand = rig.tool(q) + np.array([0.0, 0.15, 0.0])
+        velocities = []
+        for i in range(300):
+            if i % 10 == 0:
+                rig.target(hand)
+            if i % 100 == 0:
+                rig.task()
+            if i % 20 == 0:
+                rig.cycle.separation(rig.now, gap, separation.near_speed, 0.0,
+                                     pair and pair())
+            rig.joint(q)
+            velocities.append(jacobian @ np.array(rig.commands[-1]))
+        return np.array(velocities)
+
+    tool_hand = elbow_velocities(None)
+    normal = tool_hand[-1] / np.linalg.norm(tool_hand[-1])
+    towards = tool_hand @ normal
+    assert towards[-1] > 2.0 * limit
+    person = elbow + 0.2 * normal
+    held = elbow_velocities(lambda: ('panda_link4', tuple(elbow), tuple(person))) @ normal
+    assert held.max() <= limit + 1e-9
+    assert held[-1] > 0.5 * limit  # it may still come as close as S_p lets it
 
 
 def test_reports_come_on_the_state_schedule_and_count_late_commands(scara):

@@ -15,8 +15,9 @@ Use, for a joint state:
     report = cycle.sent(now, published)   # the ControllerState when due (None otherwise)
 
 and while joint states are missing or stale: `watchdog(now)` every watchdog_period says when
-to start calling `hold(now)` every period, which returns the hold's command, or None once
-joint states pace the cycles again; each hold command is followed by `sent` too.
+to start calling `hold(now)` every period, which returns the hold's command, () before any
+joint state (nothing to send), or None once joint states pace the cycles again; each hold
+command is followed by `sent` too.
 
 Safety (the choices are argued in docs/design.md):
 - no command before the first joint state (an arm's brakes hold it; the first command then
@@ -364,10 +365,11 @@ class ControlCycle:
         first = self._q is None
         self._q, self._dq = tuple(q), tuple(dq)
         if first and not self.settings.velocity_mode:
-            # No command went out before this (hold): the arm's brakes held it against gravity,
-            # so the torque starts from the gravity hold where it is, not from zero. From zero,
-            # at 1 N m a command, a loaded machine that halved the controller's rate let the
-            # Panda fall 0.7 rad into joint 4's limit in 0.27 s.
+            # No command went out before this (hold sends none before the first joint
+            # state): the arm's brakes held it against gravity, so the torque starts from the
+            # gravity hold where it is, not from zero. From zero, at 1 N m a command, a loaded
+            # machine that halved the controller's rate let the Panda fall 0.7 rad into joint
+            # 4's limit in 0.27 s.
             self._limiter.reset(self.law.gravity_hold(np.array(self._q)).tolist())
         self._applied = self._echo.applied(effort)
         self._joint_stamp, self._joint_time = stamp, now

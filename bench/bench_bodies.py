@@ -9,7 +9,10 @@ time.perf_counter_ns after a warm-up: the distances (R, H) alone, with the close
 pair's points and normal (`Distances.pair`), and with every pair's points; beside it the
 placing of the capsules
 (`RobotBody.capsules(q)`)
-and one point Jacobian, and the cost of one small numpy ufunc call
+and one point Jacobian; the law's whole barrier with its rate (arm_law.body_barrier: every
+pair within clearance + influence pushed through its point's Jacobian, at q and at q + h qdot,
+qdot uniform in +-0.5 rad/s), with the count of such pairs; and the cost of one small numpy
+ufunc call
 (x * x on a (9, 10) array) as the host's yardstick: a loaded host slows every numpy call
 alike, so compare the ratio. Reported: median, p99 in µs, and the load average.
 
@@ -24,6 +27,7 @@ import time
 
 import numpy as np
 
+from hri_adaptive_controller.arm_law import ClearanceSettings, body_barrier
 from hri_core.bodies import (
     Capsules,
     capsule_distances,
@@ -84,12 +88,22 @@ def main() -> None:
     placing = timed(body.capsules, [(configurations[k % 200],) for k in range(5000)])
     jacobian = timed(body.point_jacobian, [(configurations[k % 200], 5, robots[k % 200].a[5])
                                            for k in range(5000)])
+    velocities = rng.uniform(-0.5, 0.5, (200, model.dof))
+    settings = ClearanceSettings()
+    states = [(body, configurations[k % 200], velocities[k % 200], humans[(7 * k) % 200],
+               settings) for k in range(2000)]
+    barrier = timed(body_barrier, states, warm_up=200)
+    reach = settings.clearance + settings.influence
+    figures['barrier_close_pairs_median'] = float(np.median([
+        np.sum(capsule_distances(body.capsules(q), human).distance < reach)
+        for _, q, _, human, _ in states]))
     x = rng.uniform(size=(9, 10))
     yardstick = timed(np.multiply, [(x, x)] * 20000)
     for name, values in (('capsule_distances', distances),
                          ('distances_closest_pair', with_pair),
                          ('distances_all_points', all_points), ('robot_capsules_at_q', placing),
-                         ('point_jacobian', jacobian), ('numpy_multiply_9x10', yardstick)):
+                         ('point_jacobian', jacobian), ('body_barrier', barrier),
+                         ('numpy_multiply_9x10', yardstick)):
         figures[f'{name}_median_us'] = round(float(np.median(values)), 2)
         figures[f'{name}_p99_us'] = round(float(np.percentile(values, 99)), 2)
     figures['load_average_1min'] = os.getloadavg()[0]
@@ -99,9 +113,11 @@ def main() -> None:
     print(f"Panda {figures['robot_capsules']} capsules x person "
           f"{figures['human_capsules']} capsules, load average {figures['load_average_1min']}")
     for name in ('capsule_distances', 'distances_closest_pair', 'distances_all_points',
-                 'robot_capsules_at_q', 'point_jacobian', 'numpy_multiply_9x10'):
+                 'robot_capsules_at_q', 'point_jacobian', 'body_barrier',
+                 'numpy_multiply_9x10'):
         print(f"  {name:22s} median {figures[f'{name}_median_us']:8.2f} us   "
               f"p99 {figures[f'{name}_p99_us']:8.2f} us")
+    print(f"  body_barrier's close pairs: median {figures['barrier_close_pairs_median']:g}")
 
 
 if __name__ == '__main__':

@@ -198,6 +198,24 @@ def test_the_point_jacobian_matches_finite_differences_on_the_panda(panda):
                                 rng)
 
 
+@pytest.mark.parametrize('robot', ['panda', 'scara'])
+def test_normal_rows_are_the_point_jacobians_along_the_normals(robot, panda):
+    """normal_rows(q, capsules, points, normals) row k = n_k^T point_jacobian(q, k, p_k),
+    every capsule (the Panda's base link included: a zero row)."""
+    model, body = panda if robot == 'panda' else (robot_model('scara'),
+                                                  robot_body(robot_model('scara')))
+    rng = np.random.default_rng(10)
+    q = model.home + rng.uniform(-0.5, 0.5, model.dof)
+    capsules = np.arange(len(body.names)).repeat(2)
+    points = rng.normal(size=(capsules.size, 3))
+    normals = rng.normal(size=(capsules.size, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    expected = [n @ body.point_jacobian(q, k, p)
+                for k, p, n in zip(capsules, points, normals, strict=True)]
+    np.testing.assert_allclose(body.normal_rows(q, capsules, points, normals), expected,
+                               atol=1e-12)
+
+
 def test_the_scaras_capsules_and_its_analytic_jacobian():
     model = robot_model('scara')
     body = robot_body(model)

@@ -1,18 +1,28 @@
-"""The Panda under arm_sim's engine:=mujoco in the live loop: the event_manager with Table I's
-follow, the controller robot:=panda (which knows nothing of MuJoCo's damping and armature)
-and a still 3-D hand 0.3 m from the tool on /target. The tool enters follow's region within
-8 s and stays there under gravity while theta_hat adapts; every command within the Panda's
-effort limits and at most 1 N m from the one before, and the torque the sim applied changes
-by at most 1 N m per 1 ms cycle. The sim's CPU share and its joint-state rate are printed
-(docs/design.md has the figures)."""
+"""arm_sim's engine:=mujoco on the topics.
 
+The person's forearm on /human/body standing into the SCARA's link 1: contacts on
+/hri/contacts (link, part, force, point in the base frame), then an empty message once the
+arm is pushed clear.
+
+The Panda in the live loop: the event_manager with Table I's follow, the controller
+robot:=panda (which knows nothing of MuJoCo's damping and armature) and a still 3-D hand
+0.3 m from the tool on /target. The tool enters follow's region within 8 s and stays there
+under gravity while theta_hat adapts; every command within the Panda's effort limits and at
+most 1 N m from the one before, and the torque the sim applied changes by at most 1 N m per
+1 ms cycle. The sim's CPU share and its joint-state rate are printed (docs/design.md has the
+figures)."""
+
+import math
 import time
 
 import numpy as np
 import psutil
 import pytest
+from geometry_msgs.msg import Point
+from std_msgs.msg import Float64MultiArray
 
-from hri_bringup.processes import paper_tasks_dir
+from hri_bringup.processes import paper_tasks_dir, wait_for
+from hri_core import topics
 from hri_core.robot_model import robot_model
 from hri_core.task_file import load_task_file
 from tests.fault_tools import effort_change_per_step
@@ -24,7 +34,8 @@ from tests.test_panda_loop import (
     run_panda_loop,
 )
 
-pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # a 1 kHz loop, timed
+pytestmark = pytest.mark.integration
+START_TIMEOUT = 15.0  # s for `ros2 run` to bring a node up
 
 ENTER_TIME = 8.0  # s from the first joint state (the issue's bar for the MuJoCo engine)
 RUN_TIME = 9.0  # s of the run: entered by 8 s, then held
@@ -43,6 +54,49 @@ def sim_cpu() -> dict:
     return found
 
 
+def test_a_forearm_standing_into_the_scara_gives_contacts_until_it_is_pushed_clear(
+        nodes, probe):
+    """The SCARA at home (link 1 along x), its brakes released by one zero command, then at
+    zero torque; a forearm (radius 0.066 m) standing upright 1 cm into link 1's capsule
+    (radius 0.05 m): contacts on link1 and r_forearm, positive finite forces, points near
+    the forearm, in `base`; pushed clear, one empty message ends them."""
+    contacts = probe.collect(topics.CONTACTS.name, topics.CONTACTS.type, topics.CONTACTS.qos)
+    sim = nodes('scara_sim', 'arm_sim', params={'robot': 'scara', 'engine': 'mujoco'})
+    assert sim.wait_for_line('simulating scara', START_TIMEOUT), sim.log()
+    body = probe.publisher(topics.HUMAN_BODY.name, topics.HUMAN_BODY.type,
+                           topics.HUMAN_BODY.qos)
+    release = probe.publisher(topics.EFFORT_COMMANDS.name, Float64MultiArray,
+                              topics.EFFORT_COMMANDS.qos)
+    x, y = 0.2, 0.05 + 0.066 - 0.01  # m: the forearm's axis, 1 cm into link 1
+    msg = topics.HUMAN_BODY.type(names=['r_elbow', 'r_wrist'],
+                                 points=[Point(x=x, y=y, z=-0.3), Point(x=x, y=y, z=0.5)])
+    msg.header.frame_id = 'base'
+
+    def publish():
+        msg.header.stamp = probe.now()
+        body.publish(msg)
+        release.publish(Float64MultiArray(data=[0.0, 0.0]))
+        return False
+
+    wait_for(lambda: publish() or (contacts and not contacts[-1].normal_forces), 10.0,
+             period=0.05)
+    received = list(contacts)
+    assert received, sim.log()
+    touching = [m for m in received if m.normal_forces]
+    assert touching and not received[-1].normal_forces, [len(m.normal_forces) for m in received]
+    for message in touching:
+        assert message.header.frame_id == 'base'
+        assert set(message.robot_links) == {'link1'}, message.robot_links
+        assert set(message.body_parts) == {'r_forearm'}, message.body_parts
+        assert all(math.isfinite(f) and f >= 0.0 for f in message.normal_forces)
+        for point in message.points:
+            assert math.hypot(point.x - x, point.y - y) < 0.066 + 0.02
+    peak = max(max(m.normal_forces) for m in touching)
+    assert peak > 0.0
+    print(f'{len(touching)} messages with contacts, peak {peak:.1f} N, then one empty')
+
+
+@pytest.mark.exclusive  # a 1 kHz loop, timed
 def test_the_panda_under_mujoco_follows_a_still_3d_hand(nodes, probe):
     model = robot_model('panda')
     region = load_task_file(paper_tasks_dir() / 'follow.yaml').d2

@@ -72,12 +72,13 @@ def publish_hand(probe, position, started: dict, stop: threading.Event) -> threa
 
 
 def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=None,
-                   arm=None):
+                   arm=None, sim_only=None):
     """The loop with `task` (of `tasks_dir`; None: Table I's) faded in and the hand `hand` for
     `duration` s after the first joint state: (joint states, commands, controller states,
     controller). `hand`: a point or a function of time for the probe to publish (see
     publish_hand), or a dict of hand_sim parameters (hand_sim starts once the arm publishes).
-    `arm`: the arm parameters of arm_sim and the controller (default robot:=panda).
+    `arm`: the arm parameters of arm_sim and the controller (default robot:=panda);
+    `sim_only`: more parameters of arm_sim alone (engine:=mujoco).
     The event_manager and the controller start first, so the arm is controlled from its first
     step (a Panda without torque sags)."""
     stop, started = threading.Event(), {}
@@ -94,7 +95,7 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=Non
         assert controller.wait_for_line('control on each /joint_states', START_TIMEOUT), \
             controller.log()
         assert manager.wait_for_line('task(s) loaded', START_TIMEOUT), manager.log()
-        sim = nodes('scara_sim', 'arm_sim', params=arm)
+        sim = nodes('scara_sim', 'arm_sim', params={**arm, **(sim_only or {})})
         assert wait_for(lambda: len(states) > 0, START_TIMEOUT), sim.log()
         hand_sim = nodes('scara_sim', 'hand_sim', params=hand) if isinstance(hand, dict) \
             else None

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from geometry_msgs.msg import PointStamped, WrenchStamped
 from hri_interfaces.msg import (
+    Contacts,
     ControllerState,
     HumanBody,
     SeparationState,
@@ -77,8 +78,10 @@ TASK_STATE = Topic('/hri/task_state', TaskState, TASK_STATE_QOS)
 SEPARATION = Topic('/hri/separation', SeparationState, MONITOR_QOS)
 CONTROLLER_STATE = Topic('/hri/controller_state', ControllerState, MONITOR_QOS)
 ROBOT_DESCRIPTION = Topic('/robot_description', String, ROBOT_DESCRIPTION_QOS)
+# The arm's contacts with the person's body (arm_sim engine:=mujoco): link, part, N, m.
+CONTACTS = Topic('/hri/contacts', Contacts, MONITOR_QOS)
 
 # What the recorder writes by default: everything the learner and the reports read, and the
 # arm that made the demonstration (its URDF, latched: the recorder gets it however late it joins).
 DEMONSTRATION_TOPICS = (JOINT_STATES, EE_POSITION, DEMO_REFERENCE, TARGET, HUMAN_WRENCH,
-                        ROBOT_DESCRIPTION, HUMAN_BODY)
+                        ROBOT_DESCRIPTION, HUMAN_BODY, CONTACTS)

@@ -90,6 +90,10 @@ class ArmSimulator:
     teach_damping (N m s/rad, >= 0) for teaching by hand (module docstring).
     """
 
+    # No person in this engine's scene: the node neither feeds it /human/body nor publishes
+    # contacts (mujoco_simulation.MujocoArmSimulator does both).
+    touches_bodies = False
+
     arm: PinocchioModel
     q: np.ndarray
     dq: np.ndarray

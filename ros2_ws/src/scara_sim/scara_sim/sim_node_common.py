@@ -18,7 +18,9 @@ rejected with a throttled warning; the last good one stays in force.
 
 The subclass gives: `joint_names`, `command_topics` (mode -> Topic),
 `stepping_thread_name`, `wrench_values(msg)` (the wrench components its simulator takes),
-`tool_point(q)` (x, y, z) in m, and optionally `on_new_mode(mode)`.
+`tool_point(q)` (x, y, z) in m, and optionally `on_new_mode(mode)`, `before_steps()` (the
+stepping thread, each tick before its steps: inputs other than the joint commands) and
+`after_steps(states)` (after the tick's states are published: more output of those steps).
 """
 
 import math
@@ -151,6 +153,13 @@ class SteppedSimNode(Node):
 
     def on_new_mode(self, mode: str) -> None:
         """Called from the stepping thread when a command switches the drive to `mode`."""
+
+    def before_steps(self) -> None:
+        """Called from the stepping thread at each tick before its steps run."""
+
+    def after_steps(self, states: list) -> None:
+        """Called from the stepping thread after the tick's `states` (StepState, one per step
+        integrated, oldest first) are published."""
 
     def start_stepping_setup(self, sim, values: dict, startup_line: str) -> None:
         """Publishers, subscriptions and the stepping thread for `sim`; `startup_line` is
@@ -331,6 +340,7 @@ class SteppedSimNode(Node):
             self._publish_tip(state)
             return
         self._take_commands()
+        self.before_steps()
         states = self._stepper.advance(now, self._inputs)
         offset = None if self._clock_offset0 is None else clock_offset()
         if offset is not None:
@@ -339,8 +349,13 @@ class SteppedSimNode(Node):
             self._publish_joint_state(state)
         if states:
             self._publish_tip(states[-1])
+            self.after_steps(states)
         if now - self._last_report >= self._report_period:
             self._report(now)
+
+    def stamp_of(self, state: StepState) -> tuple[int, int]:
+        """(sec, nanosec) of the time `state` stands for (as its /joint_states carries)."""
+        return self._stamp(state)
 
     def _stamp(self, state: StepState) -> tuple[int, int]:
         """(sec, nanosec) of the time `state` stands for."""

@@ -55,6 +55,10 @@ AWAY = np.array([0.0, 0.0, -1.0e3])  # m: where an absent capsule waits
 MAX_CONTACT_STEPS = 10_000  # steps of contacts kept between two take_contacts
 
 
+def _ignore_warning(text: str) -> None:
+    """MuJoCo's warning handler: the step reads data.warning itself (MujocoArmSimulator)."""
+
+
 @dataclass(frozen=True)
 class Contact:
     """One arm-person contact: the robot's URDF link, the person's capsule (HUMAN_CAPSULES'
@@ -125,6 +129,10 @@ class MujocoArmSimulator:
                  armature: float = 0.1, package_dirs=(), base_dir: str = ''):
         import mujoco  # a heavy import, only for this engine
 
+        # MuJoCo's warnings otherwise go to a MUJOCO_LOG.TXT in the working directory (a
+        # user's checkout); the one that matters here, a bad acceleration, is read from
+        # data.warning after each step and raised as a ValueError with its reason.
+        mujoco.set_mju_user_warning(_ignore_warning)
         self._mj = mujoco
         self.arm = arm
         self.q = arm.joint_position(q, 'initial q')

@@ -480,7 +480,8 @@ class ControlCycle:
 
     def _closest_pair(self, separation: float, pair: tuple | None):
         """The pair the approach limit holds (the `_pair` layout), or None where it cannot be
-        placed (one warning per link the robot body does not know)."""
+        placed (a warning, throttled as every note of its kind, for a link the robot body
+        does not know: the tool and the hand stand in)."""
         if pair is None or not pair[0]:
             return (None, None, None)
         link, robot_point, body_point = pair

@@ -538,6 +538,11 @@ def test_the_cap_holds_the_arm_point_nearest_the_person_from_moving_towards_it(p
     held = elbow_velocities(lambda: ('panda_link4', tuple(elbow), tuple(person))) @ normal
     assert held.max() <= limit + 1e-9
     assert held[-1] > 0.5 * limit  # it may still come as close as S_p lets it
+    rig = Rig(panda, separation=separation, robot_body=body, mode='velocity')
+    rig.cycle.separation(rig.now, gap, separation.near_speed, 0.0,
+                         ('gripper', tuple(elbow), tuple(person)))
+    assert "separation pair on 'gripper', a link the controller does not know" in \
+        texts(rig.notes, WARNING)[0]
 
 
 def test_reports_come_on_the_state_schedule_and_count_late_commands(scara):

@@ -177,6 +177,16 @@ def assert_all_finite(messages: list, topic: str) -> None:
     assert not bad, f'non-finite values on {topic}: {bad[:3]}'
 
 
+def from_the_first_command(joint_states: list) -> list:
+    """The joint states from the first one whose effort is not all zero: before it the sim's
+    brakes hold the arm (effort 0), and the controller's first command is the gravity hold
+    where the arm stands (control_cycle), a step by design: the brakes' torque passes to the
+    drive, and the arm, held either way, does not move. The Panda's joint 2 steps by 11-21 N
+    m there, in one 1 ms step when the first command answers the first state at once."""
+    return next((joint_states[i:] for i, msg in enumerate(joint_states) if any(msg.effort)),
+                [])
+
+
 def effort_change_per_step(joint_states: list, step: float = 1e-3,
                            commands: list | None = None) -> float:
     """Largest change (N m) of the applied torque per control cycle, on the sim's clock.

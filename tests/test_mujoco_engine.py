@@ -25,7 +25,7 @@ from hri_bringup.processes import paper_tasks_dir, wait_for
 from hri_core import topics
 from hri_core.robot_model import robot_model
 from hri_core.task_file import load_task_file
-from tests.fault_tools import effort_change_per_step
+from tests.fault_tools import effort_change_per_step, from_the_first_command
 from tests.test_panda_loop import (
     HAND_OFFSET,
     MAX_STEP,
@@ -116,12 +116,7 @@ def test_the_panda_under_mujoco_follows_a_still_3d_hand(nodes, probe):
     entered, times, q, held = enters_band_and_stays(model, sample, hand, (0.0, region),
                                                     ENTER_TIME, controller)
     step, margin = check_commands_and_limits(model, q, efforts)
-    # From the first command applied on: the brakes' zero before it and the gravity hold it
-    # starts from are a step by design (the controller's first command). The pinocchio engine
-    # passed the same check on the whole run only because its first command came 41 ms after
-    # the first state (each change is divided by the steps since the last one): 21 N m / 41.
-    commanded = next(i for i, msg in enumerate(sample) if any(msg.effort))
-    per_cycle = effort_change_per_step(sample[commanded:],
+    per_cycle = effort_change_per_step(from_the_first_command(sample),
                                        commands=[tuple(row) for row in efforts])
     print(f'panda under MuJoCo, follow: in the region {entered:.2f} s after the first state '
           f'(farthest then {held.max():.4f} m of {region} m); largest command step '

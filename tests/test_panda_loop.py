@@ -27,7 +27,7 @@ from hri_bringup.processes import paper_tasks_dir, wait_for
 from hri_core import topics
 from hri_core.robot_model import robot_model
 from hri_core.task_file import load_task_file
-from tests.fault_tools import effort_change_per_step
+from tests.fault_tools import effort_change_per_step, from_the_first_command
 
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # a 1 kHz loop, timed
 
@@ -239,7 +239,8 @@ def test_the_panda_follows_a_hand_moving_in_3d(nodes, probe):
     assert settled.sum() > 100
     farthest = float(distance[settled].max())
     step, margin = check_commands_and_limits(model, q, efforts)
-    per_cycle = effort_change_per_step(sample, commands=[tuple(row) for row in efforts])
+    per_cycle = effort_change_per_step(from_the_first_command(sample),
+                                       commands=[tuple(row) for row in efforts])
     print(f'panda follows a moving 3-D hand: tool to hand after {SETTLE_TIME:g} s median '
           f'{np.median(distance[settled]):.4f} m, farthest {farthest:.4f} m '
           f'(d2 {region} m); hand z {hand_points[:, 2].min():.3f}..'

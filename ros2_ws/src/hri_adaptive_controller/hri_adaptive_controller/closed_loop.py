@@ -189,7 +189,12 @@ class LoopConditions:
     velocity that leaves it. body: the person over time (still_body, recorded_body; None:
     none), which the law keeps every robot capsule clear of when robot_body
     (hri_core.bodies.RobotBody of the model) is given; the smallest robot-person distance is
-    recorded either way (SimulationResult.body_distance).
+    recorded either way (SimulationResult.body_distance). plant: another engine integrating
+    the arm in place of arm_law.rk4_step and the stops (None: those): an object with
+    ArmSimulator's `step(mode, command, wrench)` contract (q, dq and the applied torque as
+    tuples after one step of dt) and its `q`, `dq` as the start (q0, dq0 then unused), e.g.
+    scara_sim's MujocoArmSimulator; with a body and the plant's `touches_bodies`, each new
+    body sample goes to its `set_body(capsules, over=dt)` (the person in its scene).
     """
 
     arm: RobotModel = field(default_factory=ScaraModel)
@@ -214,6 +219,7 @@ class LoopConditions:
     stops: bool = True
     body: BodyTrajectory | None = None
     robot_body: RobotBody | None = None
+    plant: object | None = None
 
 
 def still_body(names, points) -> BodyTrajectory:
@@ -308,8 +314,12 @@ class _Run:
         self.event_index = 0
         self.schedule = EventWeightSchedule(c.ramp_time, c.initial_task)
         self.friction = arm.friction_torque(np.ones(n))  # viscous: F's diagonal
-        self.q = model.home.copy() if c.q0 is None else arm.joint_vector(c.q0, 'q0')
-        self.dq = np.zeros(n) if c.dq0 is None else arm.joint_vector(c.dq0, 'dq0')
+        if c.plant is not None:
+            self.q, self.dq = np.array(c.plant.q, dtype=float), np.array(c.plant.dq, dtype=float)
+        else:
+            self.q = model.home.copy() if c.q0 is None else arm.joint_vector(c.q0, 'q0')
+            self.dq = np.zeros(n) if c.dq0 is None else arm.joint_vector(c.dq0, 'dq0')
+        self.plant_body = None  # the body sample the plant was last given
         self.lower, self.upper = arm.limits.lower, arm.limits.upper
         self.gains_k = dict(c.task_gains or {})
         self.fixed_rest = (None if c.rest_position is None
@@ -360,6 +370,9 @@ class _Run:
         applied = self.in_flight.pop(0)
         self.rows['q'][i], self.rows['dq'][i], self.rows['tau'][i] = self.q, self.dq, applied
         q, dq, dt = self.q, self.dq, c.dt
+        if c.plant is not None:
+            self.q, self.dq = self._plant_step(t, applied)
+            return
         q_next, dq_next = rk4_step(self.arm, q, dq, applied, dt)
         if not (np.all(np.isfinite(q_next)) and np.all(np.isfinite(dq_next))):
             raise ValueError(f'the arm\'s state became non-finite at t = {t:.3f} s')
@@ -370,6 +383,18 @@ class _Run:
                                    dq_next)
                 q_next = np.clip(q_next, self.lower, self.upper)
         self.q, self.dq = q_next, dq_next
+
+    def _plant_step(self, t: float, applied: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The plant's step over dt with the applied torque, the person moved in its scene
+        first when the body has a new sample."""
+        c = self.conditions
+        if c.body is not None and getattr(c.plant, 'touches_bodies', False):
+            human = c.body(t)
+            if human is not self.plant_body:
+                c.plant.set_body(human, over=c.dt)
+                self.plant_body = human
+        q, dq, _ = c.plant.step('effort', tuple(applied.tolist()), (0.0,) * 6)
+        return np.array(q), np.array(dq)
 
     def _control(self, i: int, t: float) -> None:
         """The controller's cycle at step i, time t (s): its command (self.command) and the

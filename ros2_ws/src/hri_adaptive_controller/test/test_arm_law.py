@@ -331,7 +331,7 @@ def test_the_default_gains_are_the_robots_own_or_derived(panda, tmp_path):
     assert default_gains(copy).ks == default_arm_ks(copy)
 
 
-@pytest.mark.parametrize('robot', ['ur3', 'ur10'])
+@pytest.mark.parametrize('robot', ['ur3', 'ur5', 'ur10'])
 def test_an_arm_without_gains_of_its_own_follows_a_still_hand(robot):
     # With the Panda's adaptation rates the UR3 and the UR10 ran away from the hand (0.90 and
     # 1.72 m after 4 s); with the default gains' (ADAPTATION_SCALE) they follow it.

@@ -80,8 +80,45 @@ def true_arm(model: PinocchioModel, perturbation: float, seed: int,
     return model.with_inertias(link_scales, damping * damping_scales)
 
 
+class DriveTorques:
+    """The drive of a simulated arm, one for both engines (ArmSimulator here,
+    mujoco_simulation.MujocoArmSimulator): the command clipped at the effort limits, teach
+    mode's gravity compensation and damping, the human's wrench at the tool. Uses the
+    engine's arm, q, dq, teach_mode, teach_damping and _effort / _least_effort (the arm's
+    effort limits, + and -)."""
+
+    def actuator_torque(self, mode: str, command) -> np.ndarray:
+        """Drive torque (n,) N m for `mode` in COMMAND_MODES: the command clipped at the
+        effort limits, or zero."""
+        if mode == 'effort':  # np.minimum/maximum: a third of np.clip's time on 7 values
+            return np.minimum(np.maximum(np.array(command, dtype=float), self._least_effort),
+                              self._effort)
+        if mode == 'idle':
+            return np.zeros(self.arm.dof)
+        raise ValueError(f'unknown command mode {mode!r}; expected one of {COMMAND_MODES}')
+
+    def guided_torque(self, tau: np.ndarray) -> np.ndarray:
+        """Teach mode's drive torque (n,) N m: `tau` plus the arm's gravity torque at the
+        step's start minus teach_damping dq, clipped at the effort limits."""
+        total = tau + self.arm.gravity_torque(self.q) - self.teach_damping * self.dq
+        return np.minimum(np.maximum(total, self._least_effort), self._effort)
+
+    def drive_torques(self, mode: str, command, wrench) -> tuple[np.ndarray, np.ndarray]:
+        """(the drive's torque (n,) N m, the joint torque (n,) N m with the human's wrench
+        (6,) at the tool ((fx, fy, fz) N, (mx, my, mz) N m; shorter: the rest zero)) for a
+        step in `mode` other than 'brake'."""
+        tau = self.actuator_torque(mode, command)
+        if self.teach_mode:
+            tau = self.guided_torque(tau)
+        if not any(wrench):
+            return tau, tau
+        full = np.zeros(6)
+        full[:len(wrench)] = wrench
+        return tau, tau + self.arm.tool_wrench_jacobian(self.q).T @ full
+
+
 @dataclass
-class ArmSimulator:
+class ArmSimulator(DriveTorques):
     """State and fixed-step update of the simulated arm (see the module docstring).
 
     arm: the true arm (true_arm); q, dq: joint state (n,) in rad and rad/s, q within the
@@ -124,22 +161,6 @@ class ArmSimulator:
                        else arm)
         self._lower, self._upper = limits.lower, limits.upper
         self._effort, self._least_effort = limits.effort, -limits.effort
-
-    def actuator_torque(self, mode: str, command) -> np.ndarray:
-        """Drive torque (n,) N m for `mode` in COMMAND_MODES: the command clipped at the
-        effort limits, or zero."""
-        if mode == 'effort':  # np.minimum/maximum: a third of np.clip's time on 7 values
-            return np.minimum(np.maximum(np.array(command, dtype=float), self._least_effort),
-                              self._effort)
-        if mode == 'idle':
-            return np.zeros(self.arm.dof)
-        raise ValueError(f'unknown command mode {mode!r}; expected one of {COMMAND_MODES}')
-
-    def guided_torque(self, tau: np.ndarray) -> np.ndarray:
-        """Teach mode's drive torque (n,) N m: `tau` plus the arm's gravity torque at the
-        step's start minus teach_damping dq, clipped at the effort limits."""
-        total = tau + self.arm.gravity_torque(self.q) - self.teach_damping * self.dq
-        return np.minimum(np.maximum(total, self._least_effort), self._effort)
 
     def acceleration(self, q, dq, torque, stops=None) -> np.ndarray:
         """ddq (n,) rad/s^2 of the true arm under the joint torque (n,) N m (gravity
@@ -189,14 +210,7 @@ class ArmSimulator:
             self.applied_effort = np.zeros(self.arm.dof)
             return tuple(self.q.tolist()), tuple(self.dq.tolist()), tuple(
                 self.applied_effort.tolist())
-        tau = self.actuator_torque(mode, command)
-        if self.teach_mode:
-            tau = self.guided_torque(tau)
-        torque = tau
-        if any(wrench):
-            full = np.zeros(6)
-            full[:len(wrench)] = wrench
-            torque = tau + self.arm.tool_wrench_jacobian(self.q).T @ full
+        tau, torque = self.drive_torques(mode, command, wrench)
         stops = self._stops_holding(torque)
         q, dq, dt = self.q, self.dq, self.dt
         half = 0.5 * dt

@@ -44,7 +44,7 @@ import numpy as np
 
 from hri_core.bodies import HUMAN_CAPSULES, HUMAN_RADII
 from hri_core.robot_model import PinocchioModel
-from scara_sim.arm_simulation import COMMAND_MODES
+from scara_sim.arm_simulation import DriveTorques
 
 LINK_RADIUS = 0.05  # m: the capsule of a link without collision geometry (bodies' SCARA's)
 # MuJoCo's limit constraint: time constant (s) and damping ratio; 4 steps of 1 ms, stiffer
@@ -113,7 +113,7 @@ def _capsule_pose(a, b) -> tuple[np.ndarray, np.ndarray, float]:
     return 0.5 * (a + b), quat, 0.5 * length
 
 
-class MujocoArmSimulator:
+class MujocoArmSimulator(DriveTorques):
     """The arm `arm` (a PinocchioModel, the true arm of arm_simulation.true_arm) in MuJoCo
     (module docstring), from q (n,) rad, dq (n,) rad/s, in steps of dt s.
 
@@ -291,21 +291,6 @@ class MujocoArmSimulator:
 
     # Stepping ---------------------------------------------------------------------------
 
-    def actuator_torque(self, mode: str, command) -> np.ndarray:
-        """Drive torque (n,) N m for `mode` in COMMAND_MODES: the command clipped at the
-        effort limits, or zero."""
-        if mode == 'effort':
-            return np.minimum(np.maximum(np.array(command, dtype=float), self._least_effort),
-                              self._effort)
-        if mode == 'idle':
-            return np.zeros(self.arm.dof)
-        raise ValueError(f'unknown command mode {mode!r}; expected one of {COMMAND_MODES}')
-
-    def guided_torque(self, tau: np.ndarray) -> np.ndarray:
-        """Teach mode's drive torque (n,) N m, as ArmSimulator's: tau + g(q) - D dq, clipped."""
-        total = tau + self.arm.gravity_torque(self.q) - self.teach_damping * self.dq
-        return np.minimum(np.maximum(total, self._least_effort), self._effort)
-
     def step(self, mode: str, command, wrench) -> tuple[tuple[float, ...], ...]:
         """Advance one step of dt (ArmSimulator.step's contract): the new q (rad, clipped to
         the limits), dq (rad/s) and the applied drive torque (N m) as tuples of floats.
@@ -317,14 +302,7 @@ class MujocoArmSimulator:
             self.applied_effort = np.zeros(dof)
             self._record(())
             return tuple(self.q.tolist()), (0.0,) * dof, (0.0,) * dof
-        tau = self.actuator_torque(mode, command)
-        if self.teach_mode:
-            tau = self.guided_torque(tau)
-        torque = tau
-        if any(wrench):
-            full = np.zeros(6)
-            full[:len(wrench)] = wrench
-            torque = tau + self.arm.tool_wrench_jacobian(self.q).T @ full
+        tau, torque = self.drive_torques(mode, command, wrench)
         self._move_person()
         data.qfrc_applied[:] = torque
         bad_before = data.warning[self._mj.mjtWarning.mjWARN_BADQACC].number

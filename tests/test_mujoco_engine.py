@@ -2,7 +2,8 @@
 
 The person's forearm on /human/body standing into the SCARA's link 1: contacts on
 /hri/contacts (link, part, force, point in the base frame), then an empty message once the
-arm is pushed clear.
+arm is pushed clear; each force within 10 % of MuJoCo's own for that step, computed in the
+test from a twin of the simulated arm.
 
 The Panda in the live loop: the event_manager with Table I's follow, the controller
 robot:=panda (which knows nothing of MuJoCo's damping and armature) and a still 3-D hand
@@ -10,8 +11,10 @@ robot:=panda (which knows nothing of MuJoCo's damping and armature) and a still 
 under gravity while theta_hat adapts; every command within the Panda's effort limits and at
 most 1 N m from the one before, and the torque the sim applied changes by at most 1 N m per
 1 ms cycle. The sim's CPU share and its joint-state rate are printed (docs/design.md has the
-figures)."""
+figures). avoid: a hand coming down along z onto the tool; the tool ends at least d1 - 3 cm
+from it, with the same checks on the efforts."""
 
+import bisect
 import math
 import time
 
@@ -23,12 +26,14 @@ from std_msgs.msg import Float64MultiArray
 
 from hri_bringup.processes import paper_tasks_dir, wait_for
 from hri_core import topics
-from hri_core.robot_model import robot_model
+from hri_core.bodies import human_capsules
+from hri_core.robot_model import generic_model, robot_model
 from hri_core.task_file import load_task_file
 from tests.fault_tools import effort_change_per_step, from_the_first_command
 from tests.test_panda_loop import (
     HAND_OFFSET,
     MAX_STEP,
+    backs_away_from_a_hand_reaching_in,
     check_commands_and_limits,
     enters_band_and_stays,
     run_panda_loop,
@@ -56,22 +61,66 @@ def sim_cpu() -> dict:
     return found
 
 
-def test_a_forearm_standing_into_the_scara_gives_contacts_until_it_is_pushed_clear(
+# The SCARA of the contact test: its arm_sim parameters, from which the test builds its own
+# MuJoCo twin of the simulated arm.
+SCARA_MUJOCO = {'robot': 'scara', 'engine': 'mujoco', 'perturbation': 0.1,
+                'perturbation_seed': 3, 'mujoco_damping': 1.0, 'mujoco_armature': 0.1}
+FORCE_TOLERANCE = (0.1, 0.01)  # relative, and N: the issue's 10 %, and a floor for ~0 N
+
+
+def scara_twin():
+    """A MujocoArmSimulator of the arm arm_sim simulates with SCARA_MUJOCO."""
+    from scara_sim.arm_simulation import true_arm
+    from scara_sim.mujoco_simulation import MujocoArmSimulator
+
+    arm = true_arm(generic_model(robot_model('scara')), SCARA_MUJOCO['perturbation'],
+                   SCARA_MUJOCO['perturbation_seed'])
+    return MujocoArmSimulator(arm, arm.home, np.zeros(arm.dof),
+                              joint_damping=SCARA_MUJOCO['mujoco_damping'],
+                              armature=SCARA_MUJOCO['mujoco_armature'])
+
+
+def steps_and_states_before(contacts, states) -> list:
+    """(contact message, the joint state of its step, the one a step before) for each
+    message with contacts whose two states arrived."""
+    by_stamp = sorted((stamp_nanoseconds(msg), msg) for msg in states)
+    stamps = [stamp for stamp, _ in by_stamp]
+    found = []
+    for message in contacts:
+        if not message.normal_forces:
+            continue
+        index = bisect.bisect_left(stamps, stamp_nanoseconds(message))
+        if 0 < index < len(stamps) and stamps[index] == stamp_nanoseconds(message) and \
+                500_000 < stamps[index] - stamps[index - 1] < 1_500_000:
+            found.append((message, by_stamp[index][1], by_stamp[index - 1][1]))
+    return found
+
+
+def stamp_nanoseconds(msg) -> int:
+    return msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec
+
+
+def test_a_forearm_standing_into_the_scara_gives_mujocos_contacts_until_pushed_clear(
         nodes, probe):
     """The SCARA at home (link 1 along x), its brakes released by one zero command, then at
     zero torque; a forearm (radius 0.066 m) standing upright 1 cm into link 1's capsule
     (radius 0.05 m): contacts on link1 and r_forearm, positive finite forces, points near
-    the forearm, in `base`; pushed clear, one empty message ends them."""
+    the forearm, in `base`; pushed clear, one empty message ends them. Each published force
+    is within 10 % of the one MuJoCo gives, in a twin of the simulated arm built here, for
+    the same step: the state the step started from (the /joint_states before it), the
+    torque it applied (its own /joint_states effort) and the forearm where it stood."""
     contacts = probe.collect(topics.CONTACTS.name, topics.CONTACTS.type, topics.CONTACTS.qos)
-    sim = nodes('scara_sim', 'arm_sim', params={'robot': 'scara', 'engine': 'mujoco'})
+    states = probe.collect(topics.JOINT_STATES.name, topics.JOINT_STATES.type,
+                           topics.JOINT_STATES.qos)
+    sim = nodes('scara_sim', 'arm_sim', params=SCARA_MUJOCO)
     assert sim.wait_for_line('simulating scara', START_TIMEOUT), sim.log()
     body = probe.publisher(topics.HUMAN_BODY.name, topics.HUMAN_BODY.type,
                            topics.HUMAN_BODY.qos)
     release = probe.publisher(topics.EFFORT_COMMANDS.name, Float64MultiArray,
                               topics.EFFORT_COMMANDS.qos)
     x, y = 0.2, 0.05 + 0.066 - 0.01  # m: the forearm's axis, 1 cm into link 1
-    msg = topics.HUMAN_BODY.type(names=['r_elbow', 'r_wrist'],
-                                 points=[Point(x=x, y=y, z=-0.3), Point(x=x, y=y, z=0.5)])
+    names, ends = ['r_elbow', 'r_wrist'], [(x, y, -0.3), (x, y, 0.5)]
+    msg = topics.HUMAN_BODY.type(names=names, points=[Point(x=a, y=b, z=c) for a, b, c in ends])
     msg.header.frame_id = 'base'
 
     def publish():
@@ -82,6 +131,7 @@ def test_a_forearm_standing_into_the_scara_gives_contacts_until_it_is_pushed_cle
 
     wait_for(lambda: publish() or (contacts and not contacts[-1].normal_forces), 10.0,
              period=0.05)
+    time.sleep(0.1)  # the last joint states
     received = list(contacts)
     assert received, sim.log()
     touching = [m for m in received if m.normal_forces]
@@ -95,7 +145,23 @@ def test_a_forearm_standing_into_the_scara_gives_contacts_until_it_is_pushed_cle
             assert math.hypot(point.x - x, point.y - y) < 0.066 + 0.02
     peak = max(max(m.normal_forces) for m in touching)
     assert peak > 0.0
-    print(f'{len(touching)} messages with contacts, peak {peak:.1f} N, then one empty')
+    twin = scara_twin()
+    twin.set_body(human_capsules(names, ends))
+    compared = steps_and_states_before(touching, list(states))
+    assert len(compared) >= len(touching) // 2, (len(compared), len(touching))
+    worst = 0.0
+    for message, state, before in compared:
+        expected = twin.contacts_in_state(before.position, before.velocity, state.effort)
+        assert [(c.robot_link, c.body_part) for c in expected] == \
+            list(zip(message.robot_links, message.body_parts, strict=True))
+        for force, contact in zip(message.normal_forces, expected, strict=True):
+            assert force == pytest.approx(contact.normal_force, rel=FORCE_TOLERANCE[0],
+                                          abs=FORCE_TOLERANCE[1])
+            worst = max(worst, abs(force - contact.normal_force)
+                        / max(contact.normal_force, FORCE_TOLERANCE[1]))
+    print(f'{len(touching)} messages with contacts, peak {peak:.1f} N, then one empty; '
+          f'{len(compared)} compared with MuJoCo in the test, largest difference '
+          f'{100 * worst:.2g} %')
 
 
 @pytest.mark.exclusive  # a 1 kHz loop, timed
@@ -129,3 +195,14 @@ def test_the_panda_under_mujoco_follows_a_still_3d_hand(nodes, probe):
     # theta_hat adapts from the URDF's values while the tool is held under gravity.
     thetas = [np.array(msg.theta_hat) for msg in reports if msg.status == 'ok']
     assert np.linalg.norm(thetas[-1] - model.theta) > 1e-3
+
+
+@pytest.mark.exclusive  # a 1 kHz loop, timed
+def test_the_panda_under_mujoco_backs_away_from_a_hand_reaching_in_along_z(nodes, probe):
+    """avoid (Table I) with engine:=mujoco: the hand comes down along z onto the tool's start
+    at 0.5 m/s; 2 s after it stops the tool is at least d1 - 3 cm from it (the issue's bar),
+    every command within the limits and at most 1 N m from the one before, the applied
+    torque at most 1 N m per cycle (test_panda_loop's checks)."""
+    backs_away_from_a_hand_reaching_in(
+        nodes, probe, load_task_file(paper_tasks_dir() / 'avoid.yaml').d1,
+        sim_only={'engine': 'mujoco'}, margin=0.03)

@@ -177,9 +177,12 @@ def test_the_panda_backs_away_from_a_hand_reaching_in_along_z(nodes, probe):
         nodes, probe, load_task_file(paper_tasks_dir() / 'avoid.yaml').d1)
 
 
-def backs_away_from_a_hand_reaching_in(nodes, probe, d1: float, tasks_dir=None) -> None:
-    """The avoid task of `tasks_dir` (None: Table I's) with d1 (m) on the live Panda loop, the
-    hand coming down along z onto the tool's start: the tool ends >= d1 - 2 cm from it."""
+def backs_away_from_a_hand_reaching_in(nodes, probe, d1: float, tasks_dir=None,
+                                       sim_only=None, margin: float = 0.02) -> np.ndarray:
+    """The avoid task of `tasks_dir` (None: Table I's) with d1 (m) on the live Panda loop
+    (`sim_only`: more arm_sim parameters, as run_panda_loop's), the hand coming down along z
+    onto the tool's start: the tool ends >= d1 - `margin` (m) from it. Returns the joint
+    states' q (rad)."""
     model = robot_model('panda')
     start = model.tool_position(model.home)
     height, speed, wait = 0.35, 0.5, 1.5  # m, m/s, s still before it moves
@@ -189,16 +192,23 @@ def backs_away_from_a_hand_reaching_in(nodes, probe, d1: float, tasks_dir=None) 
         return start + [0.0, 0.0, max(height - moved, 0.0)]
 
     sample, efforts, _, _ = run_panda_loop(nodes, probe, 'avoid', hand,
-                                           wait + height / speed + 2.0, tasks_dir=tasks_dir)
+                                           wait + height / speed + 2.0, tasks_dir=tasks_dir,
+                                           sim_only=sim_only)
     q = np.array([msg.position for msg in sample])
     distance = np.linalg.norm(np.array([model.tool_position(row) for row in q[::10]]) - start,
                               axis=1)
     assert distance.min() < d1  # the tool began within d1 of where the hand comes to rest
-    assert distance[-1] >= d1 - 0.02, distance[-1]
-    step, margin = check_commands_and_limits(model, q, efforts)
-    print(f'panda avoid along z: tool {distance[-1]:.3f} m from the hand 2 s after it '
-          f'stopped (d1 {d1:.3f} m); largest effort step {step:.3f} N m; nearest limit '
-          f'{np.degrees(margin):.1f} deg')
+    assert distance[-1] >= d1 - margin, distance[-1]
+    step, nearest = check_commands_and_limits(model, q, efforts)
+    per_cycle = effort_change_per_step(from_the_first_command(sample),
+                                       commands=[tuple(row) for row in efforts])
+    engine = (sim_only or {}).get('engine', 'pinocchio')
+    print(f'panda avoid along z ({engine}): tool {distance[-1]:.3f} m from '
+          f'the hand 2 s after it stopped (d1 {d1:.3f} m); largest effort step {step:.3f} '
+          f'N m, applied {per_cycle:.3f} N m per cycle; nearest limit '
+          f'{np.degrees(nearest):.1f} deg')
+    assert per_cycle <= MAX_STEP + 1e-9
+    return q
 
 
 # The moving hand: back and forth between two points 0.25 m apart, 0.15 m lower at the far

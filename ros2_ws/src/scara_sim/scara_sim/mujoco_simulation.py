@@ -401,6 +401,25 @@ class MujocoArmSimulator(DriveTorques):
                                  float(force[0]), tuple(contact.pos.tolist())))
         return tuple(found)
 
+    def contacts_in_state(self, q, dq, torque) -> tuple[Contact, ...]:
+        """The arm-person contacts MuJoCo finds with the arm at q (rad), dq (rad/s) under the
+        drive torque `torque` (N m), the person where it is now (a pending set_body motion
+        advanced by one step, as `step` does): one mj_forward, nothing integrated; the arm's
+        state is put back. A step's own contacts are those of the state it started from,
+        under that step's torque, so a published step is checked against the state before
+        it. ValueError for a wrong length or a non-finite value."""
+        arm, data = self.arm, self.data
+        q, dq = arm.joint_vector(q, 'q'), arm.joint_vector(dq, 'dq')
+        torque = arm.joint_vector(torque, 'torque')
+        saved = data.qpos.copy(), data.qvel.copy(), data.qfrc_applied.copy()
+        self._move_person()
+        data.qpos[:], data.qvel[:], data.qfrc_applied[:] = q, dq, torque
+        try:
+            self._mj.mj_forward(self.model, data)
+            return self._arm_person_contacts() if data.ncon else ()
+        finally:
+            data.qpos[:], data.qvel[:], data.qfrc_applied[:] = saved
+
     def _record(self, contacts: tuple) -> None:
         self.contacts = contacts
         self._contact_log.append(contacts)

@@ -150,6 +150,36 @@ def test_a_capsule_pushed_by_the_arm_carries_the_drive_torque():
     del mujoco
 
 
+def test_a_steps_contacts_are_those_of_the_state_it_started_from():
+    """A forearm standing 1 cm into the SCARA's link 1 pushes the unbraked arm away; a twin
+    sim told each published state (q, dq) and the next step's torque finds, by
+    contacts_in_state, the next step's contacts: the same links and parts, forces within
+    1e-6 N. The twin's own state is left as it was."""
+    arm = true_arm(generic_model(robot_model('scara')), 0.1, SEED)
+    sim, twin = mujoco_sim(arm), mujoco_sim(arm)
+    radius = HUMAN_RADII['forearm']
+    x, y = 0.2, 0.05 + radius - 0.01
+    forearm = Capsules(('r_forearm',), np.array([[x, y, -0.2]]), np.array([[x, y, 0.2]]),
+                       np.array([radius]))
+    sim.set_body(forearm)
+    twin.set_body(forearm)
+    compared = 0
+    for _ in range(200):
+        expected = twin.contacts_in_state(sim.q, sim.dq, np.zeros(2))
+        sim.step('effort', (0.0, 0.0), ())
+        assert [(c.robot_link, c.body_part) for c in sim.contacts] == \
+            [(c.robot_link, c.body_part) for c in expected]
+        for got, want in zip(sim.contacts, expected, strict=True):
+            assert got.normal_force == pytest.approx(want.normal_force, abs=1e-6)
+        compared += len(expected)
+    assert compared > 0 and sim.contacts == ()  # pushed clear within 0.2 s
+    assert np.array_equal(twin.data.qpos, arm.home)
+    with pytest.raises(ValueError, match=r'dq must have shape \(2,\)'):
+        twin.contacts_in_state(arm.home, np.zeros(3), np.zeros(2))
+    with pytest.raises(ValueError, match='torque must be finite'):
+        twin.contacts_in_state(arm.home, np.zeros(2), [np.nan, 0.0])
+
+
 def test_a_hand_moved_onto_the_panda_touches_its_hand_only_while_they_meet(panda):
     """The right hand's sphere moved in over 50 ms steps (set_body's blend) onto the Panda's
     gripper held by its gravity torque: contacts on the gripper's links and the hand, forces

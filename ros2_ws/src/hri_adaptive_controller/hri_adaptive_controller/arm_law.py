@@ -117,37 +117,72 @@ class ClearanceSettings:
     """How the law keeps every robot capsule off every human capsule (module docstring).
 
     clearance (m, >= 0): the distance the barrier holds; influence (m, > 0): it starts this
-    far beyond; force (N, >= 0): its push at the clearance (0: off); tracked: the human
-    capsules of the tracked hand (/target), which the arm may reach in a task whose region
-    reaches the hand (d1 below the clearance, a follow task)."""
+    far beyond for a still person, and further by reaction_time (s, >= 0) times the speed
+    (m/s) at which the person's closest point comes towards the robot, up to max_influence
+    (m, >= influence); force (N, >= 0): its push at the clearance (0: off);
+    posture_influence (m, >= 0): a redundant arm's posture (its null space, which leaves the
+    tool where the task puts it) is pushed off the person from this far beyond the
+    clearance (0: not); tracked: the human capsules of the tracked hand (/target), which the
+    arm may reach in a task whose region reaches the hand (d1 below the clearance, a follow
+    task); tracked_arm: the rest of that arm, kept at its capsules' surface (not the
+    clearance) in such a task."""
 
     clearance: float = 0.10
+    # 0.10 m for a still person: 0.03 let the tool nearer the hand (follow's median on the
+    # recorded people 0.13-0.28 m against 0.18-0.43 m) but put HumanRobotHandover_0's arm
+    # within clearance - 3 cm of the torso in 9.3 % of the samples (0 % with 0.10 m).
+    # A person coming at 0.3 m/s widens it to the most, 0.19 m.
     influence: float = 0.10
+    reaction_time: float = 0.3
+    max_influence: float = 0.19
     # 5 N at the clearance: above the task's largest pull, Kp (1 + CAP_BAND) v_max = 3 N, so
     # the two balance before the clearance; its reference, 5 N / Kp = 0.5 m/s away, matches
     # the hand's largest feed-forward. 10 N drove the SCARA into its effort limits.
     force: float = 5.0
+    posture_influence: float = 0.10
     tracked: tuple[str, ...] = ('r_forearm', 'r_hand')
+    tracked_arm: tuple[str, ...] = ('r_upper_arm',)
 
     def __post_init__(self):
         if not (math.isfinite(self.clearance) and self.clearance >= 0.0):
             raise ValueError(f'clearance must be finite and >= 0 m, got {self.clearance}')
         if not (math.isfinite(self.influence) and self.influence > 0.0):
             raise ValueError(f'influence must be finite and > 0 m, got {self.influence}')
+        if not (math.isfinite(self.max_influence) and self.max_influence >= self.influence):
+            raise ValueError(f'max_influence must be finite and >= influence '
+                             f'({self.influence} m), got {self.max_influence}')
+        if not (math.isfinite(self.reaction_time) and self.reaction_time >= 0.0):
+            raise ValueError(f'reaction_time must be finite and >= 0 s, got '
+                             f'{self.reaction_time}')
+        if not (math.isfinite(self.posture_influence) and self.posture_influence >= 0.0):
+            raise ValueError(f'posture_influence must be finite and >= 0 m, got '
+                             f'{self.posture_influence}')
         if not (math.isfinite(self.force) and self.force >= 0.0):
             raise ValueError(f'clearance force must be finite and >= 0 N, got {self.force}')
+
+    @property
+    def reach(self) -> float:
+        """m: the farthest a pair can be and still be pushed (by either part)."""
+        return self.clearance + max(self.max_influence, self.posture_influence)
 
 
 class BodyBarrier(NamedTuple):
     """The whole-body barrier at one state: g (n,) N m = dU/dq, its rate (n,) N m/s, U (J),
     and the nearest robot-human pair: its distance (m; inf without a body), the robot and
-    human capsules' names."""
+    human capsules' names; posture (n,) N m and its rate: the push on a redundant arm's
+    posture (None: none), which the law takes through its null space only; gate in [0, 1)
+    and its rate (1/s): 1 - prod(1 - w_k) over the pairs' barrier weights w_k / force, how
+    far some pair is into its band (the hand's velocity is fed forward times 1 - gate)."""
 
     gradient: np.ndarray | None
     rate: np.ndarray | None
     energy: float
     distance: float
     pair: tuple[str, str]
+    posture: np.ndarray | None = None
+    posture_rate: np.ndarray | None = None
+    gate: float = 0.0
+    gate_rate: float = 0.0
 
 
 NO_BODY = BodyBarrier(None, None, 0.0, math.inf, ('', ''))
@@ -473,54 +508,92 @@ is within 1.2e-5 of the rate's size of a central difference (20 random Panda sta
 speeds up to 1 rad/s), which cost a third evaluation of every close pair."""
 
 
-def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSettings,
-                   exempt) -> tuple[np.ndarray | None, float, float, tuple[int, int]]:
-    """g = dU/dq (n,) N m (None where no pair is within clearance + influence), U (J), the
-    nearest pair's distance (m) and indices, for the robot `body` at q (n,) rad and the
-    person's capsules `human`; exempt: (robot indices, human indices) left out, or None.
+def _smoothstep_energy(distance: float, reach: float, width: float,
+                       force: float) -> tuple[float, float]:
+    """One pair's barrier weight (N: dU/dd = -weight) and energy (J) for a band of `width`
+    m ending at `reach` m: u = (reach - d) / width, v = min(u, 1), weight = force w(v) (w the
+    quintic smoothstep), energy = force width (2.5 v^4 - 3 v^5 + v^6 + max(u - 1, 0))."""
+    u = (reach - distance) / width
+    if u <= 0.0:
+        return 0.0, 0.0
+    v = min(u, 1.0)
+    return (force * v * v * v * (10.0 - 15.0 * v + 6.0 * v * v),
+            force * width * (v ** 4 * (2.5 - 3.0 * v + v * v) + max(u - 1.0, 0.0)))
 
-    U = sum over pairs of force influence (2.5 v^4 - 3 v^5 + v^6 + max(u - 1, 0)), u = (c +
-    i - d) / i, v = min(u, 1): dU/dd = -force w(v), w the quintic smoothstep; dd/dq = -n^T
-    J_p, n the unit normal from the robot's closest point towards the person's, J_p that
-    point's Jacobian (RobotBody.normal_rows gives n^T J_p of every close pair at once), so
-    g = sum force w J_p^T n."""
+
+def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSettings,
+                   exempt, posture: bool):
+    """(g = dU/dq (n,) N m or None where no pair is within its band, U (J), the posture
+    push (n,) N m or None, the nearest pair's distance (m) and indices) for the robot
+    `body` at q (n,) rad and the person's capsules `human`; exempt: (human capsules every
+    robot capsule leaves out, human capsules it keeps at their surface instead of the
+    clearance) (index lists), or None; posture: the arm is redundant (the push is wanted).
+
+    Per pair, U = the barrier energy of _smoothstep_energy over the band from clearance + i
+    to clearance, i = min(influence + reaction_time c, max_influence), c the speed (m/s) at
+    which the person's closest point comes towards the robot (0 for a still person, so U is
+    then a function of q alone); dU/dd = -weight, dd/dq = -n^T J_p, n the unit normal from
+    the robot's closest point towards the person's, J_p that point's Jacobian
+    (RobotBody.normal_rows gives n^T J_p of every close pair at once), so g = sum weight
+    J_p^T n. The posture push is the same sum over the wider band posture_influence, with
+    no energy: the law puts it through its null space only."""
     distances = capsule_distances(body.capsules(q, checked=False), human, planar=body.planar)
     table = distances.distance
     if exempt is not None:
         table = table.copy()
-        table[exempt[0], exempt[1]] = math.inf
+        table[:, exempt[0]] = math.inf
     nearest = divmod(int(np.argmin(table)), table.shape[1])
-    reach = settings.clearance + settings.influence
+    least = float(table[nearest])
+    if exempt is not None and exempt[1]:
+        table[:, exempt[1]] += settings.clearance  # held at their surface
+    clearance = settings.clearance
+    reach = clearance + (max(settings.max_influence, settings.posture_influence) if posture
+                         else settings.max_influence)
     robot_index, human_index = np.nonzero(table < reach)
     if robot_index.size == 0:
-        return None, 0.0, float(table[nearest]), nearest
-    # The few close pairs' weights and energy in floats (numpy's per-call cost dominates).
-    weights, energy = [], 0.0
-    for distance in table[robot_index, human_index].tolist():
-        u = (reach - distance) / settings.influence
-        v = min(u, 1.0)
-        weights.append(settings.force * v * v * v * (10.0 - 15.0 * v + 6.0 * v * v))
-        energy += settings.force * settings.influence * (
-            v ** 4 * (2.5 - 3.0 * v + v * v) + max(u - 1.0, 0.0))
+        return None, 0.0, None, least, nearest, 0.0
     points, normals = distances.robot_points_and_normals(robot_index, human_index)
+    closing = distances.closing_speeds(robot_index, human_index, normals).tolist()
+    # The few close pairs' weights and energy in floats (numpy's per-call cost dominates).
+    weights, pushes, energy, force, free = [], [], 0.0, settings.force, 1.0
+    for k, distance in enumerate(table[robot_index, human_index].tolist()):
+        width = min(settings.influence + settings.reaction_time * max(closing[k], 0.0),
+                    settings.max_influence)
+        weight, pair_energy = _smoothstep_energy(distance, clearance + width, width, force)
+        weights.append(weight)
+        energy += pair_energy
+        free *= 1.0 - weight / force
+        if posture and settings.posture_influence > 0.0:
+            pushes.append(_smoothstep_energy(distance, clearance + settings.posture_influence,
+                                             settings.posture_influence, force)[0])
     rows = body.normal_rows(q, robot_index, points, normals)
-    return np.array(weights) @ rows, energy, float(table[nearest]), nearest
+    gradient = np.array(weights) @ rows if energy > 0.0 else None
+    push = np.array(pushes) @ rows if pushes and max(pushes) > 0.0 else None
+    return gradient, energy, push, least, nearest, 1.0 - free
 
 
 def body_barrier(body: RobotBody, q, dq, human: Capsules, settings: ClearanceSettings,
-                 exempt=None) -> BodyBarrier:
-    """The whole-body barrier (BodyBarrier) at q, dq (n,) for a still person `human`: g and U
-    of _body_gradient, g's rate along the motion (BODY_RATE_STEP), the nearest pair."""
+                 exempt=None, posture: bool = False) -> BodyBarrier:
+    """The whole-body barrier (BodyBarrier) at q, dq (n,) with the person `human` held where
+    it is: g, U and the posture push of _body_gradient, their rates along the motion
+    (BODY_RATE_STEP), the nearest pair. posture: compute the posture push (a redundant
+    arm)."""
     if len(human) == 0:
         return NO_BODY
-    gradient, energy, distance, (i, j) = _body_gradient(body, q, human, settings, exempt)
+    gradient, energy, push, distance, (i, j), gate = _body_gradient(body, q, human, settings,
+                                                                    exempt, posture)
     pair = (body.names[i], human.names[j])
-    if gradient is None:
+    if gradient is None and push is None:
         return BodyBarrier(None, None, 0.0, distance, pair)
     h = BODY_RATE_STEP
-    ahead = _body_gradient(body, q + h * dq, human, settings, exempt)[0]
-    rate = ((np.zeros(q.size) if ahead is None else ahead) - gradient) / h
-    return BodyBarrier(gradient, rate, energy, distance, pair)
+    ahead, _, push_ahead, _, _, gate_ahead = _body_gradient(body, q + h * dq, human,
+                                                            settings, exempt, posture)
+    zero = np.zeros(q.size)
+    rate = None if gradient is None else ((zero if ahead is None else ahead) - gradient) / h
+    push_rate = None if push is None else (
+        (zero if push_ahead is None else push_ahead) - push) / h
+    return BodyBarrier(gradient, rate, energy, distance, pair, push, push_rate, gate,
+                       (gate_ahead - gate) / h)
 
 
 class ArmController(TaskDrives):
@@ -706,12 +779,14 @@ class ArmController(TaskDrives):
             0.0 if task is None else task.weight_rate, potential, self._ks, self._gains.kp,
             self._zero_joints if friction is None else friction, output.reference_offset)
 
-    def _joint_reference(self, joints, jacobians, feed, task, blend, barrier_state):
+    def _joint_reference(self, joints, jacobians, feed, task, blend, barrier_state,
+                         posture=(None, None)):
         """qdot_r, qddot_r (n,) and the barrier's task-space velocity (k,) or None, in numpy:
         the reference of arm_kernels.joint_reference and the path within a barrier band.
         joints (q, dq); jacobians (J, Jdot, J+, dJ+/dt); feed (ff, dff/dt) and task (v, dv/dt)
         (k,) each; blend (sigma, dsigma/dt, a u, d(a u)/dt) or None; barrier_state (near,
-        g_B, dg_B/dt), g_B None outside every band."""
+        g_B, dg_B/dt), g_B None outside every band; posture (the body barrier's posture
+        push (n,) N m, its rate) or Nones."""
         (q, dq), (jac, jac_rate, pinv, pinv_rate) = joints, jacobians
         (ff, ff_rate), (velocity, rate), (near, g_b, g_b_rate) = feed, task, barrier_state
         gains = self._gains
@@ -739,7 +814,7 @@ class ArmController(TaskDrives):
             qdot_r = qdot_r - pinv @ barrier_task
             qddot_r = qddot_r - pinv_rate @ barrier_task - pinv @ barrier_task_rate
         if self._null_space:
-            z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate, blend)
+            z, z_rate = self._null_velocity(q, dq, g_b, g_b_rate, blend, posture)
             # N z = z - J+ (J z), dN/dt z + N dz/dt as products with vectors: no n x n
             # matrix is formed.
             jz = jac @ z
@@ -747,10 +822,13 @@ class ArmController(TaskDrives):
             qddot_r = qddot_r + (z_rate - pinv_rate @ jz - pinv @ (jac_rate @ z + jac @ z_rate))
         return qdot_r, qddot_r, barrier_task
 
-    def _null_velocity(self, q, dq, barrier_gradient, barrier_rate, blend):
+    def _null_velocity(self, q, dq, barrier_gradient, barrier_rate, blend,
+                       posture=(None, None)):
         """z (n,) rad/s and dz/dt: towards home (each joint capped at posture_speed; weighted
-        1 - sigma while the reach-round blend moves the joints, blend = (sigma, dsigma/dt))
-        and off the joint limits (module docstring)."""
+        1 - sigma while the reach-round blend moves the joints, blend = (sigma, dsigma/dt)),
+        off the joint limits and the person (the barriers' g_B), and off the person from
+        further (the body barrier's posture push, posture = (push, its rate) or Nones), the
+        pushes at v_B / kb (rad/s per N m) (module docstring)."""
         gains = self._gains
         z = -gains.posture_gain * (q - self._home)
         z_rate = -gains.posture_gain * dq
@@ -762,10 +840,14 @@ class ArmController(TaskDrives):
         if blend is not None:
             sigma, sigma_rate = blend
             z, z_rate = (1.0 - sigma) * z, (1.0 - sigma) * z_rate - sigma_rate * z
-        if gains.barrier_torque > 0.0 and barrier_gradient is not None:
+        if gains.barrier_torque > 0.0:
             push = gains.limit_speed / gains.barrier_torque
-            z = z - push * barrier_gradient
-            z_rate = z_rate - push * barrier_rate
+            if barrier_gradient is not None:
+                z = z - push * barrier_gradient
+                z_rate = z_rate - push * barrier_rate
+            if posture[0] is not None:
+                z = z - push * posture[0]
+                z_rate = z_rate - push * posture[1]
         return z, z_rate
 
     def _feed_forward(self, velocity, acceleration):
@@ -850,11 +932,15 @@ class ArmController(TaskDrives):
             body = NO_BODY
             if human is not None and self.body is not None and gains.body.force > 0.0:
                 body = body_barrier(self.body, q, dq, human, gains.body,
-                                    self._exempt(drive, avoid, human))
+                                    self._exempt(drive, avoid, human), self._null_space)
                 if body.gradient is not None:
                     # The person's barrier joins the joint limits' (one g_B in V and eq. 22).
                     g_b = body.gradient if g_b is None else g_b + body.gradient
                     g_b_rate = body.rate if g_b_rate is None else g_b_rate + body.rate
+                    # Within the barrier's band the hand's velocity is not fed forward: a
+                    # hand drawn back to the chest at 0.5 m/s would cancel its 0.5 m/s push.
+                    keep, keep_rate = 1.0 - body.gate, -body.gate_rate
+                    ff, ff_rate = keep * ff, keep * ff_rate + keep_rate * ff
             region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
             blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
             scale = 1.0
@@ -864,7 +950,7 @@ class ArmController(TaskDrives):
                 blend = (sigma, sigma_rate, a * u, da * u + a * u_rate)
                 scale = 1.0 - sigma
             barrier_task = None
-            if g_b is None and self._compiled:
+            if g_b is None and body.posture is None and self._compiled:
                 # The usual case, compiled: J+ (ff + v), the blend and N z in one call.
                 if blend is None:
                     on, u, u_rate = (0.0, 0.0, 0.0), self._zero_joints, self._zero_joints
@@ -877,7 +963,8 @@ class ArmController(TaskDrives):
             else:
                 qdot_r, qddot_r, barrier_task = self._joint_reference(
                     (q, dq), (jac, jac_rate, pinv, pinv_rate), (ff, ff_rate),
-                    (task_velocity[0], task_rate), blend, (near, g_b, g_b_rate))
+                    (task_velocity[0], task_rate), blend, (near, g_b, g_b_rate),
+                    (body.posture, body.posture_rate))
                 s = dq - qdot_r
             if self._approach is not None:
                 qdot_r = self._limited_approach(qdot_r)
@@ -946,17 +1033,21 @@ class ArmController(TaskDrives):
         return qdot_r - (excess / norm2) * row
 
     def _exempt(self, drive, avoid: bool, human: Capsules):
-        """(every robot capsule, the tracked hand's capsules) where the task's region reaches
-        the hand (a follow task with d1 below the clearance: there the learned task governs
-        how near the arm comes to the hand), else None. Not the tool's capsule alone: the
-        links next to it are within the clearance of a hand held at the tool (the Panda's
-        link7 beside its hand; the SCARA's elbow 0.3 m from its tip, with the hand's 0.1 m
-        radius), so a handover would be refused."""
+        """(the tracked hand's capsules, the rest of its arm's) where the task's region
+        reaches the hand (a follow task with d1 below the clearance: there the learned task
+        governs how near the arm comes to the hand), else None: every robot capsule leaves
+        out the first and keeps the second at their surface, not the clearance. Not the
+        tool's capsule alone: the links next to it are within the clearance of a hand held
+        at the tool (the Panda's link7 beside its hand; the SCARA's elbow 0.3 m from its tip,
+        with the hand's 0.1 m radius), so a handover would be refused; nor the clearance from
+        the upper arm, whose capsule (0.10 m radius) lies 0.12-0.17 m from the recorded hands
+        (docs/design.md)."""
         settings = self._gains.body
         if drive is None or avoid or drive.shape.d1 >= settings.clearance:
             return None
         hand = [j for j, name in enumerate(human.names) if name in settings.tracked]
-        return (slice(None), hand) if hand else None
+        arm = [j for j, name in enumerate(human.names) if name in settings.tracked_arm]
+        return (hand, arm) if hand or arm else None
 
     def gravity_hold(self, q) -> np.ndarray:
         """The torque (n,) N m that holds the arm at q (n,) rad against gravity with theta_hat:

@@ -43,7 +43,13 @@ from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_adaptive_controller.task_variable import task_potentials
-from hri_core.bodies import Capsules, RobotBody, capsule_distances, human_capsules
+from hri_core.bodies import (
+    Capsules,
+    RobotBody,
+    body_point_velocities,
+    capsule_distances,
+    human_capsules,
+)
 from hri_core.potential import TaskShape
 from hri_core.robot_model import RobotModel, ScaraModel
 
@@ -230,8 +236,10 @@ def still_body(names, points) -> BodyTrajectory:
 
 def recorded_body(times, names, points) -> BodyTrajectory:
     """A recorded person: the latest frame at or before t of `points` (N, K, 3) m at `times`
-    (N,) s, named `names` (K,); a point lost in a frame (NaN) is left out of it (and with it
-    its capsules), as hand_sim's /human/body leaves it out."""
+    (N,) s, named `names` (K,), its points' velocities from the frame before
+    (bodies.body_point_velocities, as the controller takes them from two /human/body
+    messages); a point lost in a frame (NaN) is left out of it (and with it its capsules),
+    as hand_sim's /human/body leaves it out."""
     times = np.asarray(times, dtype=float)
     points = np.asarray(points, dtype=float)
     cache: dict[int, Capsules] = {}
@@ -241,8 +249,13 @@ def recorded_body(times, names, points) -> BodyTrajectory:
         if index not in cache:
             cache.clear()
             seen = np.all(np.isfinite(points[index]), axis=1)
-            cache[index] = human_capsules([n for n, k in zip(names, seen, strict=True) if k],
-                                          points[index][seen])
+            kept = [n for n, k in zip(names, seen, strict=True) if k]
+            before = {} if index == 0 else {
+                name: point for name, point in zip(names, points[index - 1], strict=True)
+                if np.all(np.isfinite(point))}
+            cache[index] = human_capsules(kept, points[index][seen], velocities=(
+                body_point_velocities(kept, points[index][seen], before,
+                                      float(times[index] - times[max(index - 1, 0)]))))
         return cache[index]
 
     return sample

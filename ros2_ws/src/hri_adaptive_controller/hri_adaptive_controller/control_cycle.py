@@ -89,7 +89,7 @@ from hri_adaptive_controller.separation_cap import SeparationCap
 from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_adaptive_controller.task_variable import CAP_BAND
-from hri_core.bodies import RobotBody, human_capsules
+from hri_core.bodies import RobotBody, body_point_velocities, human_capsules
 from hri_core.potential import TaskShape
 from hri_core.separation import ProtectiveSeparation
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
@@ -261,6 +261,7 @@ class ControlCycle:
         self._pair = None
         self._rest = settings.rest_position
         self._human = None  # the person's capsules (body) and when they came
+        self._human_points = ({}, -math.inf)  # the last body's points by name, its stamp
         self._human_time = None
         self._rest_key = None  # the task the rest position was taken for
         self._rest_array = None  # (rest, the same as an array): built once per rest position
@@ -441,16 +442,24 @@ class ControlCycle:
             self._link.request(LINK, now)
         return True
 
-    def body(self, now: float, names, points) -> bool:
+    def body(self, now: float, names, points, stamp: float | None = None) -> bool:
         """The person's body points (REP-155 names (K,), points (K, 3) m in the base frame)
-        received at `now`: their capsules (hri_core.bodies.human_capsules) are what the law
+        received at `now`, stamped `stamp` (s; None: now): their capsules
+        (hri_core.bodies.human_capsules), moving at the velocities from the body before (its
+        stamp's difference; still after a gap longer than body_timeout), are what the law
         keeps clear of until body_timeout s without a body. False (the body dropped, a
         throttled warning) for a bad message."""
+        stamp = now if stamp is None else stamp
         try:
-            self._human = human_capsules(names, points)
+            before, then = self._human_points
+            seconds = stamp - then if stamp - then <= self.settings.body_timeout else 0.0
+            velocities = body_point_velocities(names, points, before, seconds)
+            self._human = human_capsules(names, points, velocities=velocities)
         except ValueError as error:
             self._warn('body', f'body dropped: {error}')
             return False
+        self._human_points = (dict(zip(names, np.asarray(points, dtype=float).reshape(-1, 3),
+                                       strict=True)), stamp)
         if self._human_time is not None and now - self._human_time > self.settings.body_timeout:
             self._info('the body is back: keeping clear of it again')
         self._human_time = now

@@ -177,7 +177,9 @@ class Controller(Node):
             self.get_logger().warning(note.text)
 
     def _on_body(self, msg) -> None:
-        self._cycle.body(time.monotonic(), msg.names, [(p.x, p.y, p.z) for p in msg.points])
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        self._cycle.body(time.monotonic(), msg.names, [(p.x, p.y, p.z) for p in msg.points],
+                         stamp if stamp > 0.0 else None)
 
     def _on_robot_description(self, msg: String) -> None:
         """One line when the published arm lacks a joint the controller drives."""

@@ -14,7 +14,13 @@ from hri_adaptive_controller.arm_law import (
     body_barrier,
 )
 from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_body, still_target
-from hri_core.bodies import human_capsules, panda_package_dirs, robot_body
+from hri_core.bodies import (
+    HUMAN_RADII,
+    body_point_velocities,
+    human_capsules,
+    panda_package_dirs,
+    robot_body,
+)
 from hri_core.human_body import BODY_POINTS, standing_body
 from hri_core.potential import TaskShape
 from hri_core.robot_model import robot_model
@@ -59,13 +65,16 @@ def run(robot, where, force, duration=4.0, monitor=False, **changes):
 
 
 @pytest.mark.parametrize('robot', ['scara', 'panda'])
-def test_the_exemption_is_the_arm_against_the_hands_wrist_and_forearm_in_follow_only(robot):
+def test_follow_exempts_the_hands_wrist_and_forearm_and_holds_its_upper_arm_at_its_surface(
+        robot):
     model, body, _, hand_at = scene(robot, 'chest')
     law = ArmController(model, body=body)
     person = human_capsules(BODY_POINTS, standing_body([0.7, 0.0], math.pi, 0.0, hand_at))
     tracked = [j for j, n in enumerate(person.names) if n in SETTINGS.tracked]
     assert sorted(person.names[j] for j in tracked) == ['r_forearm', 'r_hand']
-    assert law._exempt(law.drive(FOLLOW), False, person) == (slice(None), tracked)
+    upper = [j for j, n in enumerate(person.names) if n in SETTINGS.tracked_arm]
+    assert [person.names[j] for j in upper] == ['r_upper_arm']
+    assert law._exempt(law.drive(FOLLOW), False, person) == (tracked, upper)
     # and the rest of the person stays in the barrier: the hand's own capsules alone go.
     q, still = model.home, np.zeros(model.dof)
     near = human_capsules(['r_wrist', 'head'], [body.capsules(q).b[-1] + [0.0, 0.0, 0.12]] * 2)
@@ -123,3 +132,46 @@ def test_the_clearance_is_kept_where_the_tool_alone_was_not(robot):
         robot, float(np.min(kept.body_distance)))
     assert not kept.fault.any() and np.all(np.isfinite(kept.tau))
     assert np.max(np.abs(np.diff(kept.tau, axis=0))) <= 1.0 + 1e-9  # N m per cycle
+
+
+@pytest.mark.parametrize('robot', ['scara', 'panda'])
+def test_the_upper_arm_in_follow_is_kept_at_its_surface_not_the_clearance(robot):
+    """The tracked upper arm pointing away 0.12 m from the tool's capsule: beyond its band
+    in follow (held at its surface: 0 + influence 0.10 m), within it in avoid (the clearance
+    0.10 m + 0.10 m)."""
+    model, body, _, _ = scene(robot, 'chest')
+    law = ArmController(model, body=body)
+    q, still = model.home, np.zeros(model.dof)
+    tool = body.names.index(body.tool)
+    end = body.capsules(q).b[tool]
+    side = np.array([0.0, 1.0, 0.0])
+    gap = body.radius[tool] + HUMAN_RADII['upper_arm'] + 0.12
+    arm = human_capsules(['r_shoulder', 'r_elbow'], [end + (gap + 0.3) * side, end + gap * side])
+    assert arm.names == ('r_upper_arm',)
+    follow = body_barrier(body, q, still, arm, SETTINGS,
+                          law._exempt(law.drive(FOLLOW), False, arm))
+    assert follow.distance == pytest.approx(0.12, abs=1e-6)
+    assert follow.gradient is None and follow.gate == 0.0
+    avoid = body_barrier(body, q, still, arm, SETTINGS, law._exempt(law.drive(AVOID), True, arm))
+    assert avoid.gradient is not None and 0.0 < avoid.gate < 1.0
+
+
+def test_a_person_coming_closer_widens_the_band_and_a_still_one_does_not():
+    """A head 0.22 m beyond the Panda tool's clearance: no push while still (band 0.10 m);
+    coming at 0.5 m/s towards the arm, the band is max_influence (0.19 m) and it pushes; going
+    away at 0.5 m/s, none. Velocities from two frames (bodies.body_point_velocities)."""
+    model, body, _, _ = scene('panda', 'chest')
+    q, still = model.home, np.zeros(model.dof)
+    tool = body.names.index(body.tool)
+    end = body.capsules(q).b[tool]
+    away = np.array([0.0, 1.0, 0.0])
+    centre = end + away * (body.radius[tool] + HUMAN_RADII['head'] + SETTINGS.clearance + 0.15)
+    for speed, pushed in ((0.0, False), (0.5, True), (-0.5, False)):
+        before = {'head': centre + away * speed * 0.01}
+        velocity = body_point_velocities(['head'], [centre], before, 0.01)
+        np.testing.assert_allclose(velocity, [-speed * away], atol=1e-9)
+        head = human_capsules(['head'], [centre], velocities=velocity)
+        barrier = body_barrier(body, q, still, head, SETTINGS)
+        assert (barrier.gradient is not None) == pushed, (speed, barrier.distance)
+    glitch = body_point_velocities(['head'], [centre], {'head': centre + away}, 0.01)
+    assert np.linalg.norm(glitch) == pytest.approx(3.0)  # MAX_BODY_SPEED, not 100 m/s

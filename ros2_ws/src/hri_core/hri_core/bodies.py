@@ -65,6 +65,7 @@ HUMAN_CAPSULES = (
     ('r_hand', 'r_wrist', 'r_wrist', 'hand'),
 )
 SCARA_LINK_RADIUS = 0.05  # m, the SCARA's links (no collision geometry of its own)
+MAX_BODY_SPEED = 3.0  # m/s: a body point's speed between two frames is capped here (a glitch)
 _TINY = 1e-300  # a divisor floor: degenerate segments (spheres) never divide by zero
 _ONES = np.ones(3)
 _FLAT = np.array([1.0, 1.0, 0.0])
@@ -72,13 +73,17 @@ _FLAT = np.array([1.0, 1.0, 0.0])
 
 @dataclass(frozen=True)
 class Capsules:
-    """K capsules: names (K,), ends a and b (K, 3) m, radius (K,) m. What the distances need
-    of one set alone (axes, their dot products) is computed once per set and kept."""
+    """K capsules: names (K,), ends a and b (K, 3) m, radius (K,) m; velocity_a and
+    velocity_b (K, 3) m/s: how fast each end moves (a person's, from the last two frames;
+    None: still). What the distances need of one set alone (axes, their dot products) is
+    computed once per set and kept."""
 
     names: tuple[str, ...]
     a: np.ndarray
     b: np.ndarray
     radius: np.ndarray
+    velocity_a: np.ndarray | None = None
+    velocity_b: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.names)
@@ -102,12 +107,41 @@ class Capsules:
     @cached_property
     def flat(self) -> 'Capsules':
         """The capsules projected onto the plane z = 0."""
-        return Capsules(self.names, self.a * _FLAT, self.b * _FLAT, self.radius)
+        moving = self.velocity_a is not None
+        return Capsules(self.names, self.a * _FLAT, self.b * _FLAT, self.radius,
+                        self.velocity_a * _FLAT if moving else None,
+                        self.velocity_b * _FLAT if moving else None)
+
+    def point_velocity(self, index: int, t: float) -> np.ndarray:
+        """The velocity (3,) m/s of the point a + t (b - a) of capsule `index`, t in [0, 1]
+        (zeros for still capsules)."""
+        if self.velocity_a is None:
+            return np.zeros(3)
+        return (1.0 - t) * self.velocity_a[index] + t * self.velocity_b[index]
 
 
-def human_capsules(names, points, radii=None) -> Capsules:
+def body_point_velocities(names, points, before: dict, seconds: float) -> np.ndarray:
+    """Each point's velocity (K, 3) m/s from where it was `seconds` s before (`before`: name
+    -> point (3,) m of the previous frame): zero for a point not in it or for seconds <= 0,
+    each capped at MAX_BODY_SPEED (a faster step is a tracking glitch, not a motion)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(points) != len(names):
+        raise ValueError(f'{len(names)} names for {len(points)} points')
+    velocities = np.zeros_like(points)
+    if not seconds > 0.0:
+        return velocities
+    for k, name in enumerate(names):
+        if name in before:
+            step = (points[k] - before[name]) / seconds
+            speed = float(np.linalg.norm(step))
+            velocities[k] = step if speed <= MAX_BODY_SPEED else step * (MAX_BODY_SPEED / speed)
+    return velocities
+
+
+def human_capsules(names, points, radii=None, velocities=None) -> Capsules:
     """The person's capsules (HUMAN_CAPSULES) from REP-155 names (K,) and points (K, 3) m;
-    radii: {part: m} overriding HUMAN_RADII. A capsule with a point missing is left out.
+    radii: {part: m} overriding HUMAN_RADII; velocities (K, 3) m/s of the points (None:
+    still), the capsules' ends move with them. A capsule with a point missing is left out.
     ValueError (one line) for non-finite points, repeated names or a bad radius."""
     radii = {**HUMAN_RADII, **(radii or {})}
     for part, value in radii.items():
@@ -122,12 +156,20 @@ def human_capsules(names, points, radii=None) -> Capsules:
     if not np.all(np.isfinite(points)):
         raise ValueError('body points must be finite')
     where = dict(zip(names, points, strict=True))
-    kept = [(name, where[start], where[end], radii[part])
+    kept = [(name, start, end, radii[part])
             for name, start, end, part in HUMAN_CAPSULES if start in where and end in where]
     if not kept:
         return Capsules((), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-    return Capsules(tuple(k[0] for k in kept), np.array([k[1] for k in kept]),
-                    np.array([k[2] for k in kept]), np.array([k[3] for k in kept], float))
+    moving = None
+    if velocities is not None:
+        velocities = np.asarray(velocities, dtype=float).reshape(-1, 3)
+        if velocities.shape != points.shape or not np.all(np.isfinite(velocities)):
+            raise ValueError('body point velocities must be finite, one per point')
+        moving = dict(zip(names, velocities, strict=True))
+    return Capsules(tuple(k[0] for k in kept), np.array([where[k[1]] for k in kept]),
+                    np.array([where[k[2]] for k in kept]), np.array([k[3] for k in kept], float),
+                    None if moving is None else np.array([moving[k[1]] for k in kept]),
+                    None if moving is None else np.array([moving[k[2]] for k in kept]))
 
 
 class Distances:
@@ -198,6 +240,17 @@ class Distances:
         point = (robot.a[i] + self._s[i, j][:, None] * robot.axis[i]
                  + robot.radius[i][:, None] * normal)
         return point, normal
+
+    def closing_speeds(self, i, j, normals) -> np.ndarray:
+        """How fast (m,) m/s the person's closest point of each pair (i[k], j[k]) moves towards
+        the robot along the pair's normal (m, 3): -n . v_h, v_h that point's velocity
+        (Capsules' velocities; zeros for a still person)."""
+        human = self.human
+        if human.velocity_a is None:
+            return np.zeros(len(normals))
+        t = self._t[i, j][:, None]
+        velocity = (1.0 - t) * human.velocity_a[j] + t * human.velocity_b[j]
+        return -(normals * velocity) @ _ONES
 
     def pair(self, i: int, j: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """(distance m, robot_point (3,) m, human_point (3,) m, normal (3,)) of pair (i, j)."""

@@ -584,3 +584,22 @@ def test_bad_inputs_are_dropped_with_the_lines_the_logs_are_searched_for(scara):
     assert 'stamp went back 0.1000 s' in rig.notes[1].text
     assert 'farther than max_target_distance 1 m' in rig.notes[3].text
     assert "task state dropped: task 'broken'" in rig.notes[6].text
+
+
+def test_a_body_moves_at_the_speed_of_its_stamped_frames_and_a_gap_leaves_it_still(scara):
+    """Two /human/body frames 10 ms apart by their stamps (received 30 ms apart): the head
+    comes at 0.5 m/s, which the law's band widens with; after a gap longer than
+    body_timeout the next frame is still; a glitch of 1 m in 10 ms is capped at 3 m/s."""
+    rig = Rig(scara)
+    cycle, timeout = rig.cycle, rig.cycle.settings.body_timeout
+    assert cycle.body(T0, ['head'], [(1.0, 0.0, 1.0)], stamp=50.0)
+    assert cycle.body(T0 + 0.03, ['head'], [(0.995, 0.0, 1.0)], stamp=50.01)
+    np.testing.assert_allclose(cycle._body_at(T0 + 0.03).velocity_a, [[-0.5, 0.0, 0.0]])
+    assert cycle.body(T0 + 0.04 + timeout, ['head'], [(0.99, 0.0, 1.0)],
+                      stamp=50.02 + timeout)
+    np.testing.assert_allclose(cycle._body_at(T0 + 0.04 + timeout).velocity_a, [[0, 0, 0]])
+    assert cycle.body(T0 + 0.05 + timeout, ['head'], [(1.99, 0.0, 1.0)],
+                      stamp=50.03 + timeout)
+    assert np.linalg.norm(cycle._body_at(T0 + 0.05 + timeout).velocity_a) == \
+        pytest.approx(3.0)
+    assert not cycle.body(T0 + 0.06 + timeout, ['head'], [(float('nan'), 0.0, 1.0)])

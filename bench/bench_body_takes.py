@@ -67,7 +67,7 @@ SAMPLE_EVERY = 10  # steps (10 ms) between the trunk checks
 
 def task(name: str) -> TaskShape:
     record = load_task_file(TASKS / f'{name}.yaml')
-    return TaskShape(record.s, record.a1, record.a2, record.d1, record.d2, record.n)
+    return record.shape
 
 
 def trunk_capsules(frame: np.ndarray) -> Capsules | None:

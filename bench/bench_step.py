@@ -52,8 +52,7 @@ def installed_tasks() -> dict[str, tuple[TaskShape, float]]:
     tasks = {}
     for path in sorted(folder.glob('*.yaml')):
         record = load_task_file(path)
-        tasks[path.stem] = (TaskShape(record.s, record.a1, record.a2, record.d1, record.d2,
-                                      record.n), record.k)
+        tasks[path.stem] = (record.shape, record.k)
     return tasks
 
 

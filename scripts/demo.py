@@ -286,7 +286,7 @@ def engine_run(job: tuple) -> EngineRun:
     shapes, gains = {}, {}
     for task in ('follow', 'avoid', 'follow_safe'):
         record = load_task_file(Path(tasks_dir) / f'{task}.yaml')
-        shapes[task] = TaskShape(record.s, record.a1, record.a2, record.d1, record.d2, record.n)
+        shapes[task] = record.shape
         if record.k > 0.0:
             gains[task] = record.k
     return run_scenario(scenario, shapes, engine, gains)
@@ -295,8 +295,7 @@ def engine_run(job: tuple) -> EngineRun:
 def mujoco_take(job: tuple) -> TakeRun:
     """One of the MuJoCo stage's runs (a process of its pool): (take, task, clearance, s)."""
     take, task, clearance, seconds = job
-    record = load_task_file(paper_tasks_dir() / f'{task}.yaml')
-    shape = TaskShape(record.s, record.a1, record.a2, record.d1, record.d2, record.n)
+    shape = load_task_file(paper_tasks_dir() / f'{task}.yaml').shape
     return run_take(REPO_ROOT / 'data' / 'human-motion' / f'{take}.csv', task, shape,
                     clearance, seconds)
 

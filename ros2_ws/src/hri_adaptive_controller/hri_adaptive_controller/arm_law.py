@@ -160,11 +160,6 @@ class ClearanceSettings:
         if not (math.isfinite(self.force) and self.force >= 0.0):
             raise ValueError(f'clearance force must be finite and >= 0 N, got {self.force}')
 
-    @property
-    def reach(self) -> float:
-        """m: the farthest a pair can be and still be pushed (by either part)."""
-        return self.clearance + max(self.max_influence, self.posture_influence)
-
 
 class BodyBarrier(NamedTuple):
     """The whole-body barrier at one state: g (n,) N m = dU/dq, its rate (n,) N m/s, U (J),

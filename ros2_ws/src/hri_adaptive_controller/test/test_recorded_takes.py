@@ -44,7 +44,7 @@ CLOSE_FRACTION = 0.05
 
 def task(name: str) -> TaskShape:
     record = load_task_file(TASKS_DIR / f'{name}.yaml')
-    return TaskShape(record.s, record.a1, record.a2, record.d1, record.d2, record.n)
+    return record.shape
 
 
 def replay(path: Path, name: str):

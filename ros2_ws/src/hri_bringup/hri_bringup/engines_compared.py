@@ -25,13 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_target
+from hri_bringup.clearance_in_mujoco import PERTURBATION, SEED
 from hri_core.potential import TaskShape
 from hri_core.robot_model import robot_model
 from scara_sim.arm_simulation import true_arm
 
 ENGINES = ('pinocchio', 'mujoco')
-PERTURBATION, SEED = 0.1, 0
-"""The simulated arm's mass and inertia error (+-10 %, arm_sim's default) and its seed."""
 SAMPLE_EVERY = 10
 """steps (10 ms) between the distances read for the time to region."""
 

@@ -8,7 +8,6 @@ import pytest
 
 from hri_bringup.clearance_in_mujoco import contact_trace, run_take
 from hri_bringup.processes import paper_tasks_dir
-from hri_core.potential import TaskShape
 from hri_core.task_file import load_task_file
 from scara_sim.mujoco_simulation import Contact
 
@@ -30,8 +29,7 @@ def test_follow_presses_into_the_person_without_the_clearance_and_not_with_it():
     """ObjectInspection_0's first 2 s under follow (the person's inspection at the chest,
     placed by auto_place): without the whole-body clearance the Panda presses into the
     torso past Table A.2's limits (the first contact at 1.6 s); with it, no contact."""
-    record = load_task_file(paper_tasks_dir() / 'follow.yaml')
-    shape = TaskShape(record.s, record.a1, record.a2, record.d1, record.d2, record.n)
+    shape = load_task_file(paper_tasks_dir() / 'follow.yaml').shape
     take = TAKES / 'ObjectInspection_0.csv'
     off = run_take(take, 'follow', shape, clearance=False, seconds=2.0)
     assert off.contact_steps > 0 and off.trunk_touched and not off.passed

@@ -13,8 +13,7 @@ from hri_core.task_file import load_task_file
 def table_i() -> dict[str, TaskShape]:
     shapes = {}
     for task in ('follow', 'avoid', 'follow_safe'):
-        record = load_task_file(paper_tasks_dir() / f'{task}.yaml')
-        shapes[task] = TaskShape(record.s, record.a1, record.a2, record.d1, record.d2, record.n)
+        shapes[task] = load_task_file(paper_tasks_dir() / f'{task}.yaml').shape
     return shapes
 
 

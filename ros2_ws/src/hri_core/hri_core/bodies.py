@@ -112,13 +112,6 @@ class Capsules:
                         self.velocity_a * _FLAT if moving else None,
                         self.velocity_b * _FLAT if moving else None)
 
-    def point_velocity(self, index: int, t: float) -> np.ndarray:
-        """The velocity (3,) m/s of the point a + t (b - a) of capsule `index`, t in [0, 1]
-        (zeros for still capsules)."""
-        if self.velocity_a is None:
-            return np.zeros(3)
-        return (1.0 - t) * self.velocity_a[index] + t * self.velocity_b[index]
-
 
 def body_point_velocities(names, points, before: dict, seconds: float) -> np.ndarray:
     """Each point's velocity (K, 3) m/s from where it was `seconds` s before (`before`: name

@@ -11,7 +11,9 @@ placing of the capsules
 (`RobotBody.capsules(q)`)
 and one point Jacobian; the law's whole barrier with its rate (arm_law.body_barrier: every
 pair within clearance + influence pushed through its point's Jacobian, at q and at q + h qdot,
-qdot uniform in +-0.5 rad/s), with the count of such pairs; and the cost of one small numpy
+qdot uniform in +-0.5 rad/s; the posture push on), with the count of such pairs, through
+pinocchio and numpy (the reference) and compiled on the arm's chain as the law runs it
+(ArmController.whole_body_barrier); and the cost of one small numpy
 ufunc call
 (x * x on a (9, 10) array) as the host's yardstick: a loaded host slows every numpy call
 alike, so compare the ratio. Reported: median, p99 in µs, and the load average.
@@ -21,13 +23,19 @@ Run it in the project's environment: `source scripts/env.sh; python bench/bench_
 """
 
 import argparse
+import dataclasses
 import json
 import os
 import time
 
 import numpy as np
 
-from hri_adaptive_controller.arm_law import ClearanceSettings, body_barrier
+from hri_adaptive_controller.arm_law import (
+    PANDA_GAINS,
+    ArmController,
+    ClearanceSettings,
+    body_barrier,
+)
 from hri_core.bodies import (
     Capsules,
     capsule_distances,
@@ -91,19 +99,22 @@ def main() -> None:
     velocities = rng.uniform(-0.5, 0.5, (200, model.dof))
     settings = ClearanceSettings()
     states = [(body, configurations[k % 200], velocities[k % 200], humans[(7 * k) % 200],
-               settings) for k in range(2000)]
+               settings, None, True) for k in range(2000)]
     barrier = timed(body_barrier, states, warm_up=200)
+    law = ArmController(model, dataclasses.replace(PANDA_GAINS, body=settings), body=body)
+    compiled = timed(law.whole_body_barrier, [(q, dq, human, None)
+                                              for _, q, dq, human, *_ in states], warm_up=200)
     reach = settings.clearance + settings.influence
     figures['barrier_close_pairs_median'] = float(np.median([
         np.sum(capsule_distances(body.capsules(q), human).distance < reach)
-        for _, q, _, human, _ in states]))
+        for _, q, _, human, *_ in states]))
     x = rng.uniform(size=(9, 10))
     yardstick = timed(np.multiply, [(x, x)] * 20000)
     for name, values in (('capsule_distances', distances),
                          ('distances_closest_pair', with_pair),
                          ('distances_all_points', all_points), ('robot_capsules_at_q', placing),
                          ('point_jacobian', jacobian), ('body_barrier', barrier),
-                         ('numpy_multiply_9x10', yardstick)):
+                         ('body_barrier_compiled', compiled), ('numpy_multiply_9x10', yardstick)):
         figures[f'{name}_median_us'] = round(float(np.median(values)), 2)
         figures[f'{name}_p99_us'] = round(float(np.percentile(values, 99)), 2)
     figures['load_average_1min'] = os.getloadavg()[0]
@@ -114,7 +125,7 @@ def main() -> None:
           f"{figures['human_capsules']} capsules, load average {figures['load_average_1min']}")
     for name in ('capsule_distances', 'distances_closest_pair', 'distances_all_points',
                  'robot_capsules_at_q', 'point_jacobian', 'body_barrier',
-                 'numpy_multiply_9x10'):
+                 'body_barrier_compiled', 'numpy_multiply_9x10'):
         print(f"  {name:22s} median {figures[f'{name}_median_us']:8.2f} us   "
               f"p99 {figures[f'{name}_p99_us']:8.2f} us")
     print(f"  body_barrier's close pairs: median {figures['barrier_close_pairs_median']:g}")

@@ -47,6 +47,7 @@ from hri_core.human_body import BODY_POINTS, standing_body
 from hri_core.robot_model import robot_model
 ArmController(robot_model("panda"), PANDA_GAINS)
 scara = robot_model("scara")
+ArmController(scara, body=robot_body(scara))  # and the whole-body barrier
 capsule_distances(robot_body(scara).capsules(scara.home), human_capsules(
     BODY_POINTS, standing_body([0.8, 0.0], 3.1, 0.0, [0.4, 0.0, 0.0])))' )
 echo "$sources" > "$stamp"

@@ -18,6 +18,11 @@ import numpy as np
 from numba import njit
 
 from hri_adaptive_controller import task_variable
+from hri_core.capsule_kernels import add_normal_row, chain_frames, placed_capsules, segment_table
+
+# A human capsule's part in the body barrier (arm_law.ArmController._exempt): kept at the
+# clearance, left out, or kept at its surface.
+KEPT, LEFT_OUT, AT_SURFACE = 0, 1, 2
 
 
 @njit(cache=True, nogil=True)
@@ -220,3 +225,106 @@ def adapt(regressor, s, rates, pace, theta, lower, upper):
         out[j] = value
         total += value
     return out, math.isfinite(total)
+
+
+@njit(cache=True, nogil=True)
+def _smoothstep_weight(distance, reach, width, force):
+    """arm_law._smoothstep_energy compiled: (weight N, energy J) of one pair's band."""
+    u = (reach - distance) / width
+    if u <= 0.0:
+        return 0.0, 0.0
+    v = min(u, 1.0)
+    return (force * v * v * v * (10.0 - 15.0 * v + 6.0 * v * v),
+            force * width * (v ** 4 * (2.5 - 3.0 * v + v * v) + max(u - 1.0, 0.0)))
+
+
+@njit(cache=True, nogil=True)
+def _body_gradient(q, parents, placements, axes, prismatic, index, joint, local_a, local_b,
+                   radius, human_a, human_axis, human_radius, human_va, human_vb, part,
+                   settings, posture):
+    """arm_law._body_gradient compiled, on the robot's chain (hri_core.bodies.Chain: parents,
+    placements, axes, prismatic, index; the capsules' joint (K,), ends local_a, local_b (K, 3)
+    m and radius (K,) m) and the person's capsules (human_a, human_axis (H, 3) m, radius (H,)
+    m, end velocities human_va, human_vb (H, 3) m/s; part (H,): KEPT, LEFT_OUT or AT_SURFACE).
+    settings: (clearance, influence, reaction_time, max_influence, force, posture_influence).
+    Returns (g (n,) N m, U J, the posture push (n,) N m, whether some pair pushes the posture,
+    the least distance m, its robot and human capsules, the gate)."""
+    clearance, influence, reaction_time, max_influence, force, posture_influence = settings
+    rotations, origins = chain_frames(q, parents, placements, axes, prismatic, index)
+    a, axis = placed_capsules(rotations, origins, joint, local_a, local_b)
+    s, t, between, centre = segment_table(a, axis, human_a, human_axis)
+    n = q.shape[0]
+    gradient, push = np.zeros(n), np.zeros(n)
+    normal, point = np.empty(3), np.empty(3)
+    reach = clearance + (max(max_influence, posture_influence) if posture else max_influence)
+    least, nearest_i, nearest_j = np.inf, 0, 0
+    energy, free, pushed = 0.0, 1.0, False
+    for i in range(a.shape[0]):
+        for j in range(human_a.shape[0]):
+            if part[j] == LEFT_OUT:
+                continue
+            distance = centre[i, j] - radius[i] - human_radius[j]
+            if distance < least:
+                least, nearest_i, nearest_j = distance, i, j
+            if part[j] == AT_SURFACE:
+                distance += clearance
+            if not distance < reach:
+                continue
+            if centre[i, j] >= 1e-12:
+                for c in range(3):
+                    normal[c] = between[i, j, c] / centre[i, j]
+            else:  # the centre lines meet: between the segments' midpoints, or +z
+                length = 0.0
+                for c in range(3):
+                    normal[c] = 0.5 * (2.0 * human_a[j, c] + human_axis[j, c]
+                                       - 2.0 * a[i, c] - axis[i, c])
+                    length += normal[c] * normal[c]
+                length = math.sqrt(length)
+                if length >= 1e-12:
+                    for c in range(3):
+                        normal[c] /= length
+                else:
+                    normal[0], normal[1], normal[2] = 0.0, 0.0, 1.0
+            closing = 0.0
+            for c in range(3):
+                point[c] = a[i, c] + s[i, j] * axis[i, c] + radius[i] * normal[c]
+                closing -= normal[c] * ((1.0 - t[i, j]) * human_va[j, c]
+                                        + t[i, j] * human_vb[j, c])
+            width = min(influence + reaction_time * max(closing, 0.0), max_influence)
+            weight, pair_energy = _smoothstep_weight(distance, clearance + width, width, force)
+            energy += pair_energy
+            free *= 1.0 - weight / force
+            posture_weight = 0.0
+            if posture and posture_influence > 0.0:
+                posture_weight = _smoothstep_weight(distance, clearance + posture_influence,
+                                                    posture_influence, force)[0]
+            if weight > 0.0:
+                add_normal_row(rotations, origins, parents, axes, prismatic, index, joint[i],
+                               point, normal, weight, gradient)
+            if posture_weight > 0.0:
+                pushed = True
+                add_normal_row(rotations, origins, parents, axes, prismatic, index, joint[i],
+                               point, normal, posture_weight, push)
+    return gradient, energy, push, pushed, least, nearest_i, nearest_j, 1.0 - free
+
+
+@njit(cache=True, nogil=True)
+def body_barrier(q, dq, step, parents, placements, axes, prismatic, index, joint, local_a,
+                 local_b, radius, human_a, human_axis, human_radius, human_va, human_vb, part,
+                 settings, posture):
+    """arm_law.body_barrier compiled (arguments as _body_gradient's; step: BODY_RATE_STEP s):
+    (g, its rate, U, the posture push, its rate, whether g and the push are there, the least
+    distance and its pair's capsules, the gate and its rate), the rates the forward difference
+    along q + step dq."""
+    gradient, energy, push, pushed, least, i, j, gate = _body_gradient(
+        q, parents, placements, axes, prismatic, index, joint, local_a, local_b, radius,
+        human_a, human_axis, human_radius, human_va, human_vb, part, settings, posture)
+    n = q.shape[0]
+    if energy <= 0.0 and not pushed:
+        return (gradient, np.zeros(n), 0.0, push, np.zeros(n), False, False, least, i, j, 0.0,
+                0.0)
+    ahead, _, push_ahead, _, _, _, _, gate_ahead = _body_gradient(
+        q + step * dq, parents, placements, axes, prismatic, index, joint, local_a, local_b,
+        radius, human_a, human_axis, human_radius, human_va, human_vb, part, settings, posture)
+    return (gradient, (ahead - gradient) / step, energy, push, (push_ahead - push) / step,
+            energy > 0.0, pushed, least, i, j, gate, (gate_ahead - gate) / step)

@@ -591,6 +591,25 @@ def body_barrier(body: RobotBody, q, dq, human: Capsules, settings: ClearanceSet
                        (gate_ahead - gate) / h)
 
 
+def _person_arrays(human: Capsules, exempt, planar: bool) -> tuple:
+    """The person's capsules as arm_kernels.body_barrier takes them: (a (H, 3) m, axis
+    (H, 3) m, radius (H,) m, end velocities (H, 3) m/s each (zeros for a still person), each
+    capsule's part (H,): KEPT, LEFT_OUT (exempt[0]) or AT_SURFACE (exempt[1])), projected
+    onto z = 0 for a planar arm."""
+    from hri_adaptive_controller.arm_kernels import AT_SURFACE, KEPT, LEFT_OUT
+
+    if planar:
+        human = human.flat
+    part = np.full(len(human), KEPT, dtype=np.int64)
+    if exempt is not None:
+        part[list(exempt[1])] = AT_SURFACE
+        part[list(exempt[0])] = LEFT_OUT
+    still = np.zeros((len(human), 3))
+    return (np.ascontiguousarray(human.a), np.ascontiguousarray(human.axis), human.radius,
+            still if human.velocity_a is None else human.velocity_a,
+            still if human.velocity_b is None else human.velocity_b, part)
+
+
 class ArmController(TaskDrives):
     """The adaptive law for the arm `model` (any RobotModel: the SCARA, the Panda, a URDF).
 
@@ -609,6 +628,8 @@ class ArmController(TaskDrives):
         # None: the law keeps off no person's body (the tool-hand task alone).
         self.body = body
         self._tool_capsule = None if body is None else body.names.index(body.tool)
+        self._body_joints = None if body is None else np.array(body.joint, dtype=np.int64)
+        self._body_inputs = None  # the last person's arrays for the compiled barrier
         gains = default_gains(model) if gains is None else gains
         n, axes = model.dof, model.task_axes
         if n < axes:
@@ -674,6 +695,9 @@ class ArmController(TaskDrives):
                        zeros_n, zeros_n)
         kernels.adapt(np.zeros((n, p)), zeros_n, np.zeros(p), 0.0, np.zeros(p),
                       self.model.theta_lower, self.model.theta_upper)
+        if self.body is not None and self.body.chain is not None:
+            far = Capsules(('far',), np.full((1, 3), 1e3), np.full((1, 3), 1e3), np.ones(1))
+            self.whole_body_barrier(self.model.home.astype(float), zeros_n, far, None)
 
     @property
     def gains(self) -> ArmGains:
@@ -926,8 +950,7 @@ class ArmController(TaskDrives):
                                               gains.limit_band, gains.barrier_torque)
             body = NO_BODY
             if human is not None and self.body is not None and gains.body.force > 0.0:
-                body = body_barrier(self.body, q, dq, human, gains.body,
-                                    self._exempt(drive, avoid, human), self._null_space)
+                body = self.whole_body_barrier(q, dq, human, self._exempt(drive, avoid, human))
                 if body.gradient is not None:
                     # The person's barrier joins the joint limits' (one g_B in V and eq. 22).
                     g_b = body.gradient if g_b is None else g_b + body.gradient
@@ -1043,6 +1066,34 @@ class ArmController(TaskDrives):
         hand = [j for j, name in enumerate(human.names) if name in settings.tracked]
         arm = [j for j, name in enumerate(human.names) if name in settings.tracked_arm]
         return (hand, arm) if hand or arm else None
+
+    def whole_body_barrier(self, q, dq, human: Capsules, exempt=None) -> BodyBarrier:
+        """body_barrier (a BodyBarrier) of this law's body and settings at q, dq (n,) for the
+        person `human`, exempt as _exempt gives it; compiled on the body's chain
+        (arm_kernels.body_barrier: 16 us median for the Panda against 225 us, benchmarks.md)
+        where the law is compiled and the body has a chain, else body_barrier itself, the
+        reference. The person's arrays are built once per Capsules object (a body message)."""
+        settings = self._gains.body
+        if not self._compiled or self.body.chain is None or len(human) == 0:
+            return body_barrier(self.body, q, dq, human, settings, exempt, self._null_space)
+        parts = None if exempt is None else (tuple(exempt[0]), tuple(exempt[1]))
+        if self._body_inputs is None or self._body_inputs[0] is not human \
+                or self._body_inputs[1] != parts:
+            self._body_inputs = (human, parts, _person_arrays(human, exempt, self.body.planar))
+        body = self.body
+        (gradient, rate, energy, push, push_rate, pulled, pushed, distance, i, j, gate,
+         gate_rate) = self._kernels.body_barrier(
+            q, dq, BODY_RATE_STEP, *body.chain, self._body_joints, body.local_a, body.local_b,
+            body.radius, *self._body_inputs[2],
+            (settings.clearance, settings.influence, settings.reaction_time,
+             settings.max_influence, settings.force, settings.posture_influence),
+            self._null_space)
+        pair = (body.names[i], human.names[j])
+        if not (pulled or pushed):
+            return BodyBarrier(None, None, 0.0, distance, pair)
+        return BodyBarrier(gradient if pulled else None, rate if pulled else None, energy,
+                           distance, pair, push if pushed else None,
+                           push_rate if pushed else None, gate, gate_rate)
 
     def gravity_hold(self, q) -> np.ndarray:
         """The torque (n,) N m that holds the arm at q (n,) rad against gravity with theta_hat:

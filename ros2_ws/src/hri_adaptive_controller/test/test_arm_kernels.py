@@ -15,11 +15,16 @@ from hri_adaptive_controller.arm_law import (
     PANDA_GAINS,
     ActiveTask,
     ArmController,
+    ClearanceSettings,
     HandState,
+    body_barrier,
     default_arm_ks,
+    default_gains,
     rk4_step,
 )
 from hri_adaptive_controller.task_variable import SECH_LIMIT, damped_pseudo_inverse, speed_cap
+from hri_core.bodies import human_capsules, panda_package_dirs, robot_body
+from hri_core.human_body import BODY_POINTS, standing_body
 from hri_core.potential import TaskShape
 from hri_core.robot_model import robot_model
 
@@ -240,3 +245,43 @@ def test_a_three_joint_arm_has_no_null_space_and_the_same_path(tmp_path):
                   for (q, dq), out in zip(states, outs, strict=True)]
     close(states[0][0], states[1][0], 'q after 1.5 s')
     assert outs[0].distance < 0.1  # it followed the hand (0.21 m away at the start)
+
+
+def test_the_compiled_body_barrier_is_the_reference(arm):
+    """The law's compiled whole-body barrier (arm_kernels.body_barrier on the body's chain)
+    gives body_barrier's g, rate, U, posture push, gate and nearest pair on random states:
+    people standing round the tool in any direction, still or moving, with and without the
+    follow exemption. The rates are forward differences over 1 us, so 1e-7 of their scale."""
+    body = robot_body(arm, panda_package_dirs()) if arm.name == 'panda' else robot_body(arm)
+    gains = dataclasses.replace(default_gains(arm), body=ClearanceSettings())
+    law = ArmController(arm, gains, body=body)
+    rng = np.random.default_rng(21)
+    pulled = 0
+    for trial in range(60):
+        q = rng.uniform(arm.limits.lower, arm.limits.upper)
+        dq = rng.normal(size=arm.dof)
+        tool = np.zeros(3)
+        tool[:arm.task_axes] = arm.task_kinematics(q, np.zeros(arm.dof))[0]
+        wrist = tool + rng.normal(scale=0.15, size=3)
+        place = wrist[:2] + rng.normal(scale=0.3, size=2)
+        points = standing_body(place, rng.uniform(-3.0, 3.0), rng.uniform(-0.6, 0.1), wrist)
+        moving = rng.normal(scale=0.3, size=points.shape) if trial % 2 else None
+        human = human_capsules(list(BODY_POINTS), points, velocities=moving)
+        hand = [j for j, name in enumerate(human.names) if name in ('r_forearm', 'r_hand')]
+        exempt = (hand, [human.names.index('r_upper_arm')]) if trial % 3 == 0 else None
+        reference = body_barrier(body, q, dq, human, gains.body, exempt, arm.dof > arm.task_axes)
+        compiled = law.whole_body_barrier(q, dq, human, exempt)
+        assert compiled.pair == reference.pair
+        for name in ('energy', 'distance', 'gate', 'gradient', 'posture'):
+            expected = getattr(reference, name)
+            assert (getattr(compiled, name) is None) == (expected is None), name
+            if expected is not None:
+                close(getattr(compiled, name), expected, name)
+        for name in ('rate', 'posture_rate', 'gate_rate'):
+            expected, got = getattr(reference, name), getattr(compiled, name)
+            assert (got is None) == (expected is None), name
+            if expected is not None:
+                scale = max(1.0, float(np.max(np.abs(expected))))
+                np.testing.assert_allclose(got, expected, rtol=0.0, atol=1e-7 * scale)
+        pulled += reference.gradient is not None
+    assert pulled >= 20  # most states put some link in the band

@@ -38,11 +38,18 @@ the SCARA's analytically. Zero for a capsule on the base. `RobotBody.normal_rows
 points, normals)` gives n^T J (m, n) for m points at once, what a barrier on the distances
 needs: one pinocchio pass for every joint's Jacobian (computeJointJacobians), then
 J_v^T n + J_w^T ((p - o) x n) per point.
+
+**The chain** (`RobotBody.chain`, a `Chain`): the arm's joints as placements and axes, from
+which hri_core.capsule_kernels places the capsules and forms a point's Jacobian row in compiled
+code (column i of a point p on a link below revolute joint i: z_i x (p - o_i), z_i its axis and
+o_i its origin in the base frame; of a prismatic joint: z_i), what the law's barrier runs on
+each cycle. The pinocchio path above is its reference (equal to rounding: tested).
 """
 
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
@@ -355,6 +362,56 @@ def _shape_points(geometry, coal) -> np.ndarray:
     raise ValueError(f'collision shape {type(geometry).__name__} is not supported')
 
 
+class Chain(NamedTuple):
+    """The arm's joints as a tree, what the compiled barrier places the capsules and forms
+    their point Jacobians from (hri_core.capsule_kernels.chain_frames). J entries, entry 0
+    the base (fixed): parents (J,) the parent entry of each (-1 for the base); placements
+    (J, 4, 4) each joint's placement in its parent's frame at q = 0 (m); axes (J, 3) its unit
+    axis in its own frame; prismatic (J,) True where it slides along the axis (m), False where
+    it turns about it (rad); index (J,) its entry in q (-1 for the base)."""
+
+    parents: np.ndarray
+    placements: np.ndarray
+    axes: np.ndarray
+    prismatic: np.ndarray
+    index: np.ndarray
+
+
+# pinocchio's one-degree-of-freedom joints a Chain holds: revolute about x, y, z or an axis,
+# prismatic along them.
+_REVOLUTE = {'JointModelRX': (1.0, 0.0, 0.0), 'JointModelRY': (0.0, 1.0, 0.0),
+             'JointModelRZ': (0.0, 0.0, 1.0)}
+_PRISMATIC = {'JointModelPX': (1.0, 0.0, 0.0), 'JointModelPY': (0.0, 1.0, 0.0),
+              'JointModelPZ': (0.0, 0.0, 1.0)}
+
+
+def pinocchio_chain(model) -> Chain | None:
+    """The Chain of a pinocchio model, or None if a joint is not one a Chain holds (a
+    spherical, planar or free joint, a continuous joint's (cos, sin) pair): the barrier then
+    takes pinocchio's own path."""
+    parents, placements, axes = [-1], [np.eye(4)], [(0.0, 0.0, 1.0)]
+    prismatic, index = [False], [-1]
+    for i in range(1, model.njoints):
+        joint = model.joints[i]
+        kind = joint.shortname()
+        if joint.nq != 1 or joint.nv != 1:
+            return None
+        if kind in _REVOLUTE or kind in _PRISMATIC:
+            axis = _REVOLUTE.get(kind) or _PRISMATIC[kind]
+        elif kind in ('JointModelRevoluteUnaligned', 'JointModelPrismaticUnaligned'):
+            axis = tuple(np.asarray(joint.extract().axis, dtype=float).tolist())
+        else:
+            return None
+        parents.append(int(model.parents[i]))
+        placements.append(np.asarray(model.jointPlacements[i].homogeneous, dtype=float))
+        axes.append(axis)
+        prismatic.append(kind.startswith('JointModelP'))
+        index.append(int(joint.idx_q))
+    return Chain(np.array(parents, dtype=np.int64), np.array(placements),
+                 np.array(axes, dtype=float), np.array(prismatic, dtype=np.bool_),
+                 np.array(index, dtype=np.int64))
+
+
 class RobotBody:
     """The robot's capsules (module docstring) in its moving joints' frames.
 
@@ -362,10 +419,11 @@ class RobotBody:
     joint each rides on (0: the base); local_a, local_b (K, 3) m in that joint's frame;
     radius (K,) m; planar: measured in the plane z = 0. `capsules(q)` places them for joint
     positions q (n,) rad; `point_jacobian(q, k, point)` gives J (3, n); `normal_rows` n^T J
-    of many points at once."""
+    of many points at once. chain: its joints as a Chain (None: not one a Chain holds), for
+    the compiled barrier."""
 
     def __init__(self, model: RobotModel, names, joint, local_a, local_b, radius, tool: str,
-                 planar: bool):
+                 planar: bool, chain: Chain | None = None):
         self.model = model
         self.names = tuple(names)
         self.joint = tuple(int(j) for j in joint)
@@ -374,6 +432,7 @@ class RobotBody:
         self.radius = np.asarray(radius, dtype=float)
         self.tool = tool
         self.planar = planar
+        self.chain = chain
         self._scara = isinstance(model, ScaraModel)
 
     def capsules(self, q, checked: bool = True) -> Capsules:
@@ -463,9 +522,14 @@ class RobotBody:
 
 def _scara_body(model: ScaraModel, radius: float) -> RobotBody:
     l1, l2 = model.params.l1, model.params.l2
+    elbow = np.eye(4)
+    elbow[0, 3] = l1  # the elbow joint l1 along the upper link; both turn about z
+    chain = Chain(np.array([-1, 0, 1], dtype=np.int64), np.array([np.eye(4), np.eye(4), elbow]),
+                  np.array([[0.0, 0.0, 1.0]] * 3), np.zeros(3, dtype=np.bool_),
+                  np.array([-1, 0, 1], dtype=np.int64))
     return RobotBody(model, ('link1', 'link2'), (1, 2),
                      [[0, 0, 0], [0, 0, 0]], [[l1, 0, 0], [l2, 0, 0]], (radius, radius),
-                     tool='link2', planar=True)
+                     tool='link2', planar=True, chain=chain)
 
 
 def _urdf_body(model: PinocchioModel, package_dirs, padding: float) -> RobotBody:
@@ -519,7 +583,8 @@ def _urdf_body(model: PinocchioModel, package_dirs, padding: float) -> RobotBody
         radii.append(radius + padding)
     if not tool:  # no link up from the tool has geometry: the last capsule's
         tool = names[int(np.argmax(joints))]
-    return RobotBody(model, names, joints, ends_a, ends_b, radii, tool=tool, planar=False)
+    return RobotBody(model, names, joints, ends_a, ends_b, radii, tool=tool, planar=False,
+                     chain=pinocchio_chain(reduced))
 
 
 def robot_body(model: RobotModel, package_dirs=(), padding: float = 0.0,

@@ -1,5 +1,7 @@
 """Every robot capsule against every human capsule, compiled (numba): the loop of
-`hri_core.bodies.segment_parameters` and `capsule_distances` over each pair at once.
+`hri_core.bodies.segment_parameters` and `capsule_distances` over each pair at once; and the
+arm's chain (hri_core.bodies.Chain): its joints' frames, its capsules placed by them, a point's
+Jacobian row along a normal (what RobotBody.capsules and normal_rows give through pinocchio).
 
 The numpy path in hri_core.bodies is the reference (the same formulas in the same order,
 equal to rounding: tested); this one is what runs each control cycle, since the numpy path is
@@ -55,3 +57,106 @@ def segment_table(robot_a, robot_axis, human_a, human_axis):
             between[i, j, 0], between[i, j, 1], between[i, j, 2] = bx, by, bz
             centre[i, j] = math.sqrt(bx * bx + by * by + bz * bz)
     return s_table, t_table, between, centre
+
+
+@njit(cache=True, nogil=True)
+def chain_frames(q, parents, placements, axes, prismatic, index):
+    """(rotations (J, 3, 3), origins (J, 3) m): every joint's frame in the base frame at joint
+    positions q (n,), the chain of hri_core.bodies.Chain (parents, placements, axes, prismatic,
+    index; a parent comes before its children). T_i = T_parent M_i X_i(q), X_i the turn about
+    (Rodrigues) or the slide along the joint's axis. Scalar loops: they compile in a fraction
+    of the time numba takes over slices and small matrix products."""
+    count = parents.shape[0]
+    rotations = np.empty((count, 3, 3))
+    origins = np.empty((count, 3))
+    for r in range(3):
+        origins[0, r] = placements[0, r, 3]
+        for c in range(3):
+            rotations[0, r, c] = placements[0, r, c]
+    turn = np.empty((3, 3))
+    placed = np.empty((3, 3))
+    for i in range(1, count):
+        p = parents[i]
+        for r in range(3):
+            origin = origins[p, r]
+            for k in range(3):
+                origin += rotations[p, r, k] * placements[i, k, 3]
+            origins[i, r] = origin
+            for c in range(3):
+                total = 0.0
+                for k in range(3):
+                    total += rotations[p, r, k] * placements[i, k, c]
+                placed[r, c] = total
+        value = q[index[i]]
+        ax, ay, az = axes[i, 0], axes[i, 1], axes[i, 2]
+        if prismatic[i]:
+            for r in range(3):
+                origins[i, r] += value * (placed[r, 0] * ax + placed[r, 1] * ay
+                                          + placed[r, 2] * az)
+                for c in range(3):
+                    rotations[i, r, c] = placed[r, c]
+            continue
+        cosine, sine = math.cos(value), math.sin(value)
+        v = 1.0 - cosine
+        turn[0, 0] = cosine + ax * ax * v
+        turn[0, 1] = ax * ay * v - az * sine
+        turn[0, 2] = ax * az * v + ay * sine
+        turn[1, 0] = ay * ax * v + az * sine
+        turn[1, 1] = cosine + ay * ay * v
+        turn[1, 2] = ay * az * v - ax * sine
+        turn[2, 0] = az * ax * v - ay * sine
+        turn[2, 1] = az * ay * v + ax * sine
+        turn[2, 2] = cosine + az * az * v
+        for r in range(3):
+            for c in range(3):
+                rotations[i, r, c] = (placed[r, 0] * turn[0, c] + placed[r, 1] * turn[1, c]
+                                      + placed[r, 2] * turn[2, c])
+    return rotations, origins
+
+
+@njit(cache=True, nogil=True)
+def placed_capsules(rotations, origins, joint, local_a, local_b):
+    """(a (K, 3) m, axis b - a (K, 3) m): the capsules' ends local_a, local_b (K, 3) m in their
+    joints' frames (joint (K,) entries of the chain) placed by chain_frames' frames."""
+    count = joint.shape[0]
+    a = np.empty((count, 3))
+    axis = np.empty((count, 3))
+    for k in range(count):
+        j = joint[k]
+        for r in range(3):
+            start = origins[j, r]
+            end = origins[j, r]
+            for c in range(3):
+                start += rotations[j, r, c] * local_a[k, c]
+                end += rotations[j, r, c] * local_b[k, c]
+            a[k, r] = start
+            axis[k, r] = end - start
+    return a, axis
+
+
+@njit(cache=True, nogil=True)
+def add_normal_row(rotations, origins, parents, axes, prismatic, index, joint, point, normal,
+                   scale, row):
+    """row (n,) += scale n^T J_p: J_p (3, n) the Jacobian of `point` (3,) m moving with the
+    chain's entry `joint` (the joints from it up to the base move it), n `normal` (3,); column
+    i: z_i x (p - o_i) for a revolute joint, z_i for a prismatic one (z_i = R_i axis_i)."""
+    i = joint
+    while i > 0:
+        zx = rotations[i, 0, 0] * axes[i, 0] + rotations[i, 0, 1] * axes[i, 1] \
+            + rotations[i, 0, 2] * axes[i, 2]
+        zy = rotations[i, 1, 0] * axes[i, 0] + rotations[i, 1, 1] * axes[i, 1] \
+            + rotations[i, 1, 2] * axes[i, 2]
+        zz = rotations[i, 2, 0] * axes[i, 0] + rotations[i, 2, 1] * axes[i, 1] \
+            + rotations[i, 2, 2] * axes[i, 2]
+        if prismatic[i]:
+            value = normal[0] * zx + normal[1] * zy + normal[2] * zz
+        else:
+            rx = point[0] - origins[i, 0]
+            ry = point[1] - origins[i, 1]
+            rz = point[2] - origins[i, 2]
+            # n . (z x r) = z . (r x n)
+            value = (zx * (ry * normal[2] - rz * normal[1])
+                     + zy * (rz * normal[0] - rx * normal[2])
+                     + zz * (rx * normal[1] - ry * normal[0]))
+        row[index[i]] += scale * value
+        i = parents[i]

@@ -7,6 +7,7 @@ import coal
 import numpy as np
 import pytest
 
+from hri_core import capsule_kernels
 from hri_core.bodies import (
     HUMAN_CAPSULES,
     Capsules,
@@ -14,6 +15,7 @@ from hri_core.bodies import (
     fit_capsule,
     human_capsules,
     panda_package_dirs,
+    pinocchio_chain,
     robot_body,
 )
 from hri_core.human_body import BODY_POINTS, standing_body
@@ -214,6 +216,57 @@ def test_normal_rows_are_the_point_jacobians_along_the_normals(robot, panda):
                 for k, p, n in zip(capsules, points, normals, strict=True)]
     np.testing.assert_allclose(body.normal_rows(q, capsules, points, normals), expected,
                                atol=1e-12)
+
+
+@pytest.mark.parametrize('robot', ['panda', 'scara'])
+def test_the_chain_places_the_capsules_and_forms_the_rows_as_pinocchio(robot, panda):
+    """The compiled chain (capsule_kernels) on random configurations within the limits gives
+    RobotBody.capsules' ends and normal_rows' rows (pinocchio's, the SCARA's analytic) to
+    1e-12."""
+    model, body = panda if robot == 'panda' else (robot_model('scara'),
+                                                  robot_body(robot_model('scara')))
+    rng = np.random.default_rng(12)
+    joints = np.array(body.joint, dtype=np.int64)
+    for _ in range(20):
+        q = rng.uniform(model.limits.lower, model.limits.upper)
+        rotations, origins = capsule_kernels.chain_frames(q, *body.chain)
+        a, axis = capsule_kernels.placed_capsules(rotations, origins, joints, body.local_a,
+                                                  body.local_b)
+        expected = body.capsules(q)
+        np.testing.assert_allclose(a, expected.a, atol=1e-12)
+        np.testing.assert_allclose(axis, expected.axis, atol=1e-12)
+        points = rng.normal(size=(joints.size, 3))
+        normals = rng.normal(size=(joints.size, 3))
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        rows = np.zeros((joints.size, model.dof))
+        for k in range(joints.size):
+            capsule_kernels.add_normal_row(rotations, origins, body.chain.parents,
+                                           body.chain.axes, body.chain.prismatic,
+                                           body.chain.index, joints[k], points[k], normals[k],
+                                           1.0, rows[k])
+        np.testing.assert_allclose(
+            rows, body.normal_rows(q, range(joints.size), points, normals), atol=1e-12)
+
+
+def test_a_chain_holds_revolute_and_prismatic_joints_only():
+    """A prismatic joint slides its child along the axis; a spherical joint has no chain (the
+    barrier then takes pinocchio's path)."""
+    import pinocchio as pin
+
+    slide = pin.Model()
+    joint = slide.addJoint(0, pin.JointModelPX(), pin.SE3(np.eye(3), np.array([0, 0, 0.5])),
+                           'slide')
+    chain = pinocchio_chain(slide)
+    rotations, origins = capsule_kernels.chain_frames(np.array([0.25]), *chain)
+    np.testing.assert_allclose(origins[joint], [0.25, 0.0, 0.5])
+    row = np.zeros(1)
+    capsule_kernels.add_normal_row(rotations, origins, chain.parents, chain.axes,
+                                   chain.prismatic, chain.index, joint, np.zeros(3),
+                                   np.array([0.6, 0.8, 0.0]), 1.0, row)
+    np.testing.assert_allclose(row, [0.6])
+    ball = pin.Model()
+    ball.addJoint(0, pin.JointModelSpherical(), pin.SE3.Identity(), 'ball')
+    assert pinocchio_chain(ball) is None
 
 
 def test_the_scaras_capsules_and_its_analytic_jacobian():

@@ -121,16 +121,22 @@ def _times(matrix, vector, out):
 
 @njit(cache=True, nogil=True)
 def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, blend, u, u_rate,
-                    home, posture_gain, posture_speed, null_space):
-    """qdot_r, qddot_r and s = qdot - qdot_r (n,) each, away from every barrier band (eq. 14,
-    17, 18; arm_law's module docstring).
+                    home, posture_gain, posture_speed, null_space, barrier, barrier_rate,
+                    posture, posture_rate, kp, push):
+    """qdot_r, qddot_r, s = qdot - qdot_r (n,) each and the barrier's task-space velocity
+    J+^T g_B / Kp (k,) m/s, outside the joint limits' bands (eq. 14, 17, 18; arm_law's module
+    docstring and ArmController._joint_reference, the reference).
 
     velocity, acceleration (k,): the task-space reference v (m/s) and its rate, fed forward
     and task terms together. blend (sigma, dsigma/dt, on) of the reach-round with u, u_rate
-    (n,) its joint motion (already weighted by a); on = 0.0: no blend (u unused). null_space:
-    add N z, z = cap(-k_n (q - home)) (posture_speed per joint) weighted 1 - sigma, with the
-    exact dN/dt z + N dz/dt."""
+    (n,) its joint motion (already weighted by a); on = 0.0: no blend (u unused). barrier,
+    barrier_rate (n,) N m, N m/s: the person's barrier g_B and its rate (zeros: none), taken
+    out of qdot_r as J+ J+^T g_B / Kp (kp N s/m). null_space: add N z, z = cap(-k_n (q -
+    home)) (posture_speed per joint) weighted 1 - sigma, less push (rad/s per N m) times g_B
+    and the posture push `posture` (n,) N m (rate posture_rate), with the exact dN/dt z + N
+    dz/dt."""
     n = q.shape[0]
+    axes = jac.shape[0]
     sigma, sigma_rate, on = blend
     qdot_r = np.empty(n)
     qddot_r = np.empty(n)
@@ -145,6 +151,24 @@ def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, b
         for i in range(n):
             qddot_r[i] = scale * qddot_r[i] + sigma_rate * (u[i] - qdot_r[i]) + sigma * u_rate[i]
             qdot_r[i] = scale * qdot_r[i] + sigma * u[i]
+    # J+^T g_B / Kp and its rate (dJ+/dt^T g_B + J+^T dg_B/dt) / Kp; zeros without a barrier.
+    barrier_task = np.zeros(axes)
+    barrier_task_rate = np.zeros(axes)
+    for b in range(axes):
+        for i in range(n):
+            barrier_task[b] += pinv[i, b] * barrier[i]
+            barrier_task_rate[b] += pinv_rate[i, b] * barrier[i] + pinv[i, b] * barrier_rate[i]
+        barrier_task[b] /= kp
+        barrier_task_rate[b] /= kp
+    _times(pinv, barrier_task, work)
+    for i in range(n):
+        qdot_r[i] -= work[i]
+    _times(pinv_rate, barrier_task, work)
+    for i in range(n):
+        qddot_r[i] -= work[i]
+    _times(pinv, barrier_task_rate, work)
+    for i in range(n):
+        qddot_r[i] -= work[i]
     if null_space:
         z = np.empty(n)
         z_rate = np.empty(n)
@@ -155,8 +179,9 @@ def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, b
             if on != 0.0:
                 z_rate[i] = (1.0 - sigma) * z_rate[i] - sigma_rate * z[i]
                 z[i] = (1.0 - sigma) * z[i]
+            z[i] -= push * barrier[i] + push * posture[i]
+            z_rate[i] -= push * barrier_rate[i] + push * posture_rate[i]
         # N z = z - J+ (J z); dN/dt z + N dz/dt = dz/dt - dJ+/dt (J z) - J+ (Jdot z + J dz/dt)
-        axes = jac.shape[0]
         jz = np.zeros(axes)
         jz_rate = np.zeros(axes)
         for i in range(n):
@@ -175,7 +200,7 @@ def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, b
     s = np.empty(n)
     for i in range(n):
         s[i] = dq[i] - qdot_r[i]
-    return qdot_r, qddot_r, s
+    return qdot_r, qddot_r, s, barrier_task
 
 
 @njit(cache=True, nogil=True)

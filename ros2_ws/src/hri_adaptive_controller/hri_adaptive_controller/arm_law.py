@@ -689,7 +689,7 @@ class ArmController(TaskDrives):
         pinv, pinv_rate, *_ = kernels.damped_pseudo_inverse(jac, jac, 1.0, 0.0)
         kernels.joint_reference(zeros_n, zeros_n, jac, jac, pinv, pinv_rate, zeros_k, zeros_k,
                                 (0.0, 0.0, 0.0), zeros_n, zeros_n, zeros_n, *self._posture,
-                                True)
+                                True, zeros_n, zeros_n, zeros_n, zeros_n, 1.0, 0.0)
         p = self.model.theta.size
         kernels.torque(np.zeros((n, p)), np.zeros(p), zeros_n, zeros_n, zeros_n, jac, zeros_k,
                        zeros_n, zeros_n)
@@ -968,16 +968,25 @@ class ArmController(TaskDrives):
                 blend = (sigma, sigma_rate, a * u, da * u + a * u_rate)
                 scale = 1.0 - sigma
             barrier_task = None
-            if g_b is None and body.posture is None and self._compiled:
-                # The usual case, compiled: J+ (ff + v), the blend and N z in one call.
+            if near == 0.0 and self._compiled:
+                # Outside the joint limits' bands (the usual case), compiled: J+ (ff + v), the
+                # blend, the person's barrier and N z in one call.
                 if blend is None:
                     on, u, u_rate = (0.0, 0.0, 0.0), self._zero_joints, self._zero_joints
                 else:
                     on, u, u_rate = (blend[0], blend[1], 1.0), blend[2], blend[3]
-                qdot_r, qddot_r, s = self._kernels.joint_reference(
+                zero = self._zero_joints
+                qdot_r, qddot_r, s, barrier_task = self._kernels.joint_reference(
                     q, dq, jac, jac_rate, pinv, pinv_rate, ff + task_velocity[0],
                     ff_rate + task_rate, on, u, u_rate, self._home, *self._posture,
-                    self._null_space)
+                    self._null_space, zero if g_b is None else g_b,
+                    zero if g_b is None else g_b_rate,
+                    zero if body.posture is None else body.posture,
+                    zero if body.posture is None else body.posture_rate, gains.kp,
+                    gains.limit_speed / gains.barrier_torque if gains.barrier_torque > 0.0
+                    else 0.0)
+                if g_b is None:
+                    barrier_task = None
             else:
                 qdot_r, qddot_r, barrier_task = self._joint_reference(
                     (q, dq), (jac, jac_rate, pinv, pinv_rate), (ff, ff_rate),

@@ -247,29 +247,40 @@ def test_a_three_joint_arm_has_no_null_space_and_the_same_path(tmp_path):
     assert outs[0].distance < 0.1  # it followed the hand (0.21 m away at the start)
 
 
+def random_person(arm, q, rng, moving: bool):
+    """The capsules of a person standing round the arm's tool at q, in any direction, the
+    right wrist within about 0.15 m of the tool; moving: its points at random velocities."""
+    tool = np.zeros(3)
+    tool[:arm.task_axes] = arm.task_kinematics(q, np.zeros(arm.dof))[0]
+    wrist = tool + rng.normal(scale=0.15, size=3)
+    place = wrist[:2] + rng.normal(scale=0.3, size=2)
+    points = standing_body(place, rng.uniform(-3.0, 3.0), rng.uniform(-0.6, 0.1), wrist)
+    velocities = rng.normal(scale=0.3, size=points.shape) if moving else None
+    return human_capsules(list(BODY_POINTS), points, velocities=velocities)
+
+
+def body_law(arm, compiled: bool = True) -> ArmController:
+    body = robot_body(arm, panda_package_dirs()) if arm.name == 'panda' else robot_body(arm)
+    gains = dataclasses.replace(default_gains(arm), body=ClearanceSettings())
+    return ArmController(arm, gains, theta_hat0=0.7 * arm.theta, compiled=compiled, body=body)
+
+
 def test_the_compiled_body_barrier_is_the_reference(arm):
     """The law's compiled whole-body barrier (arm_kernels.body_barrier on the body's chain)
     gives body_barrier's g, rate, U, posture push, gate and nearest pair on random states:
     people standing round the tool in any direction, still or moving, with and without the
     follow exemption. The rates are forward differences over 1 us, so 1e-7 of their scale."""
-    body = robot_body(arm, panda_package_dirs()) if arm.name == 'panda' else robot_body(arm)
-    gains = dataclasses.replace(default_gains(arm), body=ClearanceSettings())
-    law = ArmController(arm, gains, body=body)
+    law = body_law(arm)
     rng = np.random.default_rng(21)
     pulled = 0
     for trial in range(60):
         q = rng.uniform(arm.limits.lower, arm.limits.upper)
         dq = rng.normal(size=arm.dof)
-        tool = np.zeros(3)
-        tool[:arm.task_axes] = arm.task_kinematics(q, np.zeros(arm.dof))[0]
-        wrist = tool + rng.normal(scale=0.15, size=3)
-        place = wrist[:2] + rng.normal(scale=0.3, size=2)
-        points = standing_body(place, rng.uniform(-3.0, 3.0), rng.uniform(-0.6, 0.1), wrist)
-        moving = rng.normal(scale=0.3, size=points.shape) if trial % 2 else None
-        human = human_capsules(list(BODY_POINTS), points, velocities=moving)
+        human = random_person(arm, q, rng, moving=trial % 2 == 1)
         hand = [j for j, name in enumerate(human.names) if name in ('r_forearm', 'r_hand')]
         exempt = (hand, [human.names.index('r_upper_arm')]) if trial % 3 == 0 else None
-        reference = body_barrier(body, q, dq, human, gains.body, exempt, arm.dof > arm.task_axes)
+        reference = body_barrier(law.body, q, dq, human, law.gains.body, exempt,
+                                 arm.dof > arm.task_axes)
         compiled = law.whole_body_barrier(q, dq, human, exempt)
         assert compiled.pair == reference.pair
         for name in ('energy', 'distance', 'gate', 'gradient', 'posture'):
@@ -285,3 +296,25 @@ def test_the_compiled_body_barrier_is_the_reference(arm):
                 np.testing.assert_allclose(got, expected, rtol=0.0, atol=1e-7 * scale)
         pulled += reference.gradient is not None
     assert pulled >= 20  # most states put some link in the band
+
+
+def test_commands_with_a_person_equal_numpys(arm):
+    """With a person beside the arm the compiled law (the barrier and the reference motion
+    through the kernels) commands what the numpy law does: torque, s, qdot_r, qddot_r and the
+    barrier's task velocity to rounding (the body barrier's rate is a forward difference
+    over 1 us: 1e-6 of the scale for what depends on it)."""
+    rng = np.random.default_rng(22)
+    compiled, reference = body_law(arm), body_law(arm, compiled=False)
+    pushed = 0
+    for k, (q, dq, hand, task) in enumerate(random_states(arm, rng, 150)):
+        human = random_person(arm, q, rng, moving=k % 2 == 1)
+        out = compiled.step(q, dq, hand, task, DT, human=human)
+        expected = reference.step(q, dq, hand, task, DT, human=human)
+        assert out.fault == expected.fault
+        for name in ('tau', 'tau_requested', 's', 'qdot_r', 'qddot_r', 'barrier_gradient'):
+            got, want = np.asarray(getattr(out, name)), np.asarray(getattr(expected, name))
+            scale = max(1.0, float(np.max(np.abs(want))))
+            np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-6 * scale, err_msg=name)
+        assert (out.barrier_task_velocity is None) == (expected.barrier_task_velocity is None)
+        pushed += expected.barrier_task_velocity is not None and out.near == 0.0
+    assert pushed >= 20  # the person's barrier on, outside the joint limits' bands

@@ -353,3 +353,19 @@ def body_barrier(q, dq, step, parents, placements, axes, prismatic, index, joint
         radius, human_a, human_axis, human_radius, human_va, human_vb, part, settings, posture)
     return (gradient, (ahead - gradient) / step, energy, push, (push_ahead - push) / step,
             energy > 0.0, pushed, least, i, j, gate, (gate_ahead - gate) / step)
+
+
+def warm_up_body_barrier() -> None:
+    """Compile body_barrier (or load it from numba's cache) with the argument types
+    ArmController.whole_body_barrier gives it, on a one-joint arm far from a one-capsule
+    person: scripts/build.sh runs this beside the law's other kernels."""
+    parents, index = np.array([-1, 0], dtype=np.int64), np.array([-1, 0], dtype=np.int64)
+    placements = np.array([np.eye(4), np.eye(4)])
+    axes = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    prismatic = np.zeros(2, dtype=np.bool_)
+    ends = np.zeros((1, 3))
+    far = np.full((1, 3), 1e3)
+    body_barrier(np.zeros(1), np.zeros(1), 1e-6, parents, placements, axes, prismatic, index,
+                 np.array([1], dtype=np.int64), ends, ends.copy(), np.ones(1), far,
+                 np.zeros((1, 3)), np.ones(1), np.zeros((1, 3)), np.zeros((1, 3)),
+                 np.zeros(1, dtype=np.int64), (0.1, 0.1, 0.3, 0.19, 5.0, 0.1), False)

@@ -1,10 +1,10 @@
-"""Topic-level: a recorded person's whole body beside the live Panda, the clearance on (its
-default).
+"""Topic-level: a recorded person's whole body beside the live Panda, the whole-body clearance
+on.
 
 hand_sim replays a take of data/human-motion with the person's body on /human/body, placed
 by its auto_place with the Panda's reach and body clearance; the Panda's live loop (arm_sim,
-event_manager, controller, each with its defaults: the whole-body clearance 0.10 m) runs one
-of Table I's tasks. The probe keeps /joint_states, /target and /human/body and judges every
+event_manager, controller with `clearance` CLEARANCE, its tested value; off by default) runs
+one of Table I's tasks. The probe keeps /joint_states, /target and /human/body and judges every
 10 ms from SETTLE s on, as bench/bench_body_takes.py does in the pure loop:
 
 - the trunk zone: the share of samples in which some capsule of the arm (robot_body, fitted
@@ -26,7 +26,7 @@ from geometry_msgs.msg import PointStamped
 from hri_core import topics
 from hri_core.bodies import capsule_distances, human_capsules, panda_package_dirs, robot_body
 from hri_core.human_body import TRUNK
-from hri_core.node_common import load_defaults, stamp_seconds
+from hri_core.node_common import stamp_seconds
 from hri_core.recorded_motion import BODY_CLEARANCE
 from hri_core.robot_model import robot_model
 from hri_core.task_file import load_task_file
@@ -44,7 +44,7 @@ BODY_MAX_AGE = 0.05  # s: an older /human/body is no body at that time (a lost f
 MARGIN = 0.03  # m: "closer than clearance - 3 cm", and avoid's d1 - 3 cm
 TRUNK_BAR = 0.01  # share of the samples
 AVOID_BAR = 0.05  # share of the samples
-CLEARANCE = load_defaults('hri_adaptive_controller', 'controller')['clearance']
+CLEARANCE = 0.1  # m, the controller's clearance here (hri_adaptive_controller.arm_law's)
 
 
 def latest(times: np.ndarray, at: float) -> int:
@@ -61,7 +61,8 @@ def replay_beside_the_panda(nodes, probe, take: str, task: str) -> dict:
     hand = {'profile': 'recording', 'recording': str(TAKES / f'{take}.csv'),
             'auto_place': True, 'reach': PANDA_REACH, 'body_clearance': BODY_CLEARANCE['panda'],
             'dimension': 3, 'at_end': 'stop'}
-    states, efforts, _, controller = run_panda_loop(nodes, probe, task, hand, RUN)
+    states, efforts, _, controller = run_panda_loop(nodes, probe, task, hand, RUN,
+                                                    controller_only={'clearance': CLEARANCE})
     assert 'whole-body clearance and separation pairs off' not in controller.log()
     targets, bodies = list(targets), list(bodies)
     assert targets and bodies, 'no /target or /human/body from hand_sim'

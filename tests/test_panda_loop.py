@@ -72,13 +72,14 @@ def publish_hand(probe, position, started: dict, stop: threading.Event) -> threa
 
 
 def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=None,
-                   arm=None, sim_only=None):
+                   arm=None, sim_only=None, controller_only=None):
     """The loop with `task` (of `tasks_dir`; None: Table I's) faded in and the hand `hand` for
     `duration` s after the first joint state: (joint states, commands, controller states,
     controller). `hand`: a point or a function of time for the probe to publish (see
     publish_hand), or a dict of hand_sim parameters (hand_sim starts once the arm publishes).
     `arm`: the arm parameters of arm_sim and the controller (default robot:=panda);
-    `sim_only`: more parameters of arm_sim alone (engine:=mujoco).
+    `sim_only`: more parameters of arm_sim alone (engine:=mujoco); `controller_only`: of the
+    controller alone (clearance).
     The event_manager and the controller start first, so the arm is controlled from its first
     step (a Panda without torque sags)."""
     stop, started = threading.Event(), {}
@@ -91,7 +92,8 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=Non
         manager = nodes('hri_adaptive_controller', 'event_manager', params={
             'tasks_dir': str(tasks_dir or paper_tasks_dir()), 'initial_task': task})
         arm = arm or {'robot': 'panda'}
-        controller = nodes('hri_adaptive_controller', 'controller', params=arm)
+        controller = nodes('hri_adaptive_controller', 'controller',
+                           params={**arm, **(controller_only or {})})
         assert controller.wait_for_line('control on each /joint_states', START_TIMEOUT), \
             controller.log()
         assert manager.wait_for_line('task(s) loaded', START_TIMEOUT), manager.log()

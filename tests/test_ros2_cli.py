@@ -108,15 +108,20 @@ def timed_ros2(domain: int, *args) -> tuple[subprocess.CompletedProcess, float]:
 
 
 def test_topic_list_returns_once_the_graph_has_settled(hand_domain):
-    # It waited its whole --spin-time (3 s) every time; now SETTLED_AFTER (0.6 s) after the
-    # graph last changed. Judged against the same command without discovery, just before (a
-    # loaded machine slows the interpreter's start and end alike): at most 2 s more.
+    # It waited its whole --spin-time every time; now SETTLED_AFTER (0.6 s) after the graph
+    # last changed (GraphSettling, tested exactly in test_topic.py). Here a --spin-time of
+    # SPIN s: a list that waited it would take at least that much longer than the same
+    # command without discovery, just before (a loaded machine slows the interpreter's start
+    # and end alike); one that stops once the graph has settled took 2.0 s more beside the
+    # whole suite in a fresh clone (and failed the 2 s this test asked before), well within
+    # half of it.
+    spin = 10.0
     _, bare = timed_ros2(hand_domain, 'topic', 'list', '--spin-time', '0')
-    listing, elapsed = timed_ros2(hand_domain, 'topic', 'list')
+    listing, elapsed = timed_ros2(hand_domain, 'topic', 'list', '--spin-time', f'{spin:g}')
     assert (listing.returncode, listing.stderr) == (0, '')
     assert '/target' in listing.stdout.splitlines(), listing.stdout
     print(f'ros2 topic list: {elapsed:.2f} s, without discovery {bare:.2f} s')
-    assert elapsed < bare + 2.0
+    assert elapsed < bare + spin / 2
 
 
 def test_echo_prints_messages_or_the_selected_field_as_yaml(hand_domain):

@@ -47,6 +47,8 @@ EFFORT_LIMIT = float(robot_model('scara').limits.effort.max())  # N m, the SCARA
 Q_ARM = [0.3, 1.2]  # rad: the stand-in arm's pose
 Q_WRONG = [1.2, 0.3]  # rad: where a message read in the wrong order would put it
 HAND_OFFSET = np.array([0.1, 0.0])  # m from the end-effector
+HAND_PERIOD = 0.02  # s: the stand-in's hand at 50 Hz
+JOINT_PERIOD = 0.005  # s: its joint states at 200 Hz
 MIN_COMMANDS_JUDGED = 20
 FOLLOW = TaskParameters(name='follow', s=1, a1=1.291, a2=13.66, d1=0.0, d2=0.041, n=3)
 
@@ -71,7 +73,11 @@ class StandInArm:
     """The test's arm at Q_ARM: joint states at 200 Hz, the hand at 50 Hz, from a thread.
 
     hand_at(k): where hand sample k is (None: none is sent, a lost frame); by default the
-    hand stays HAND_OFFSET from the end-effector. `sent`: the index of the newest sample."""
+    hand stays HAND_OFFSET from the end-effector. Sample k is due HAND_PERIOD k s after the
+    start: a thread stalled on a loaded machine sends the sample due when it wakes and leaves
+    out those it missed, as a tracker drops frames, so a stretch of samples (a glitch) never
+    lasts longer than its own samples' time. `sent`: the index of the newest sample;
+    `published`: the indices of those published."""
 
     def __init__(self, probe, hand_at=None):
         self.probe = probe
@@ -80,6 +86,7 @@ class StandInArm:
         self.hand = forward_kinematics(np.array(Q_ARM), 0.35, 0.30) + HAND_OFFSET
         self.hand_at = hand_at or (lambda k: self.hand)
         self.sent = -1
+        self.published: list[int] = []
         self.publishing_joints = threading.Event()
         self.publishing_joints.set()
         self._stop = threading.Event()
@@ -87,17 +94,18 @@ class StandInArm:
         self._thread.start()
 
     def _run(self) -> None:
-        tick = 0
+        start = time.monotonic()
         while not self._stop.is_set():
             if self.publishing_joints.is_set():
                 self.joints.publish(joint_state(self.probe, ['joint1', 'joint2'], Q_ARM))
-            if tick % 4 == 0:
-                where = self.hand_at(tick // 4)
+            due = int((time.monotonic() - start) / HAND_PERIOD)
+            if due > self.sent:
+                where = self.hand_at(due)
                 if where is not None:
                     self.targets.publish(point(self.probe, where))
-                self.sent = tick // 4
-            tick += 1
-            time.sleep(0.005)
+                    self.published.append(due)
+                self.sent = due
+            time.sleep(JOINT_PERIOD)
 
     def close(self) -> None:
         self._stop.set()

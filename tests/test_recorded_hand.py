@@ -51,7 +51,6 @@ ALL_TAKES = sorted(path.stem for path in TAKES.glob('*.csv'))
 # Every take with --all (the pure loop, test_recorded_takes, runs all eight with both tasks in
 # the default run); the live loop's recorded person in the default run is test_body_live's,
 # with the whole body.
-DEFAULT_TAKES = {'follow': (), 'avoid': ()}
 SETTLE = 2.0  # s: the arm comes from its start pose and the task fades in (ramp 0.3 s)
 DURATION = 12.0  # s of each take judged, from its first frame (its hard parts: 2-11 s)
 CONTROLLER = load_defaults('hri_adaptive_controller', 'controller')
@@ -167,14 +166,9 @@ def judge(figures: dict) -> None:
 
 
 def take_cases():
-    cases = []
-    for task in ('follow', 'avoid'):
-        for take in ALL_TAKES:
-            marks = [pytest.mark.exclusive]
-            if take not in DEFAULT_TAKES[task]:
-                marks.append(pytest.mark.slow)
-            cases.append(pytest.param(take, task, marks=marks, id=f'{task}-{take}'))
-    return cases
+    return [pytest.param(take, task, marks=[pytest.mark.exclusive, pytest.mark.slow],
+                         id=f'{task}-{take}')
+            for task in ('follow', 'avoid') for take in ALL_TAKES]
 
 
 @pytest.mark.parametrize('take, task', take_cases())

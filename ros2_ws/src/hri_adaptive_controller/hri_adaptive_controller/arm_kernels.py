@@ -120,6 +120,16 @@ def _times(matrix, vector, out):
 
 
 @njit(cache=True, nogil=True)
+def _less_times(matrix, vector, out):
+    """out (n,) -= matrix (n, k) @ vector (k,)."""
+    for i in range(matrix.shape[0]):
+        total = 0.0
+        for b in range(matrix.shape[1]):
+            total += matrix[i, b] * vector[b]
+        out[i] -= total
+
+
+@njit(cache=True, nogil=True)
 def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, blend, u, u_rate,
                     home, posture_gain, posture_speed, null_space, barrier, barrier_rate,
                     posture, posture_rate, kp, push):
@@ -151,24 +161,21 @@ def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, b
         for i in range(n):
             qddot_r[i] = scale * qddot_r[i] + sigma_rate * (u[i] - qdot_r[i]) + sigma * u_rate[i]
             qdot_r[i] = scale * qdot_r[i] + sigma * u[i]
-    # J+^T g_B / Kp and its rate (dJ+/dt^T g_B + J+^T dg_B/dt) / Kp; zeros without a barrier.
+    # J+^T g_B / Kp and its rate (dJ+/dt^T g_B + J+^T dg_B/dt) / Kp, taken out of the
+    # reference; zeros, and nothing taken, without a barrier (the usual case).
     barrier_task = np.zeros(axes)
-    barrier_task_rate = np.zeros(axes)
-    for b in range(axes):
-        for i in range(n):
-            barrier_task[b] += pinv[i, b] * barrier[i]
-            barrier_task_rate[b] += pinv_rate[i, b] * barrier[i] + pinv[i, b] * barrier_rate[i]
-        barrier_task[b] /= kp
-        barrier_task_rate[b] /= kp
-    _times(pinv, barrier_task, work)
-    for i in range(n):
-        qdot_r[i] -= work[i]
-    _times(pinv_rate, barrier_task, work)
-    for i in range(n):
-        qddot_r[i] -= work[i]
-    _times(pinv, barrier_task_rate, work)
-    for i in range(n):
-        qddot_r[i] -= work[i]
+    if np.any(barrier != 0.0) or np.any(barrier_rate != 0.0):
+        barrier_task_rate = np.zeros(axes)
+        for b in range(axes):
+            for i in range(n):
+                barrier_task[b] += pinv[i, b] * barrier[i]
+                barrier_task_rate[b] += (pinv_rate[i, b] * barrier[i]
+                                         + pinv[i, b] * barrier_rate[i])
+            barrier_task[b] /= kp
+            barrier_task_rate[b] /= kp
+        _less_times(pinv, barrier_task, qdot_r)
+        _less_times(pinv_rate, barrier_task, qddot_r)
+        _less_times(pinv, barrier_task_rate, qddot_r)
     if null_space:
         z = np.empty(n)
         z_rate = np.empty(n)
@@ -194,9 +201,7 @@ def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, b
         _times(pinv_rate, jz, work)
         for i in range(n):
             qddot_r[i] += z_rate[i] - work[i]
-        _times(pinv, jz_rate, work)
-        for i in range(n):
-            qddot_r[i] -= work[i]
+        _less_times(pinv, jz_rate, qddot_r)
     s = np.empty(n)
     for i in range(n):
         s[i] = dq[i] - qdot_r[i]

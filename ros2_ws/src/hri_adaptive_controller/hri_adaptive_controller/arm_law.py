@@ -79,6 +79,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import (
     ReachRoundSettings,
     barrier,
@@ -119,12 +120,17 @@ class ClearanceSettings:
     clearance (m, >= 0): the distance the barrier holds; influence (m, > 0): it starts this
     far beyond for a still person, and further by reaction_time (s, >= 0) times the speed
     (m/s) at which the person's closest point comes towards the robot, up to max_influence
-    (m, >= influence); force (N, >= 0): its push at the clearance (0: off);
-    posture_influence (m, >= 0): a redundant arm's posture (its null space, which leaves the
-    tool where the task puts it) is pushed off the person from this far beyond the
-    clearance (0: not); tracked: the human capsules of the tracked hand (/target), which the
-    arm may reach in a task whose region reaches the hand (d1 below the clearance, a follow
-    task); tracked_arm: the rest of that arm, kept at its capsules' surface (not the
+    (m, >= influence); force (N, >= 0): its push at the clearance (0: off); fade_in (s,
+    >= 0): a body that comes after none (at the start, or back after a loss) is met with the
+    force faded in over this time (eq. 13's quintic ramp; 0: at once); max_speed (m/s, > 0):
+    the barrier's task-space velocity J+^T g / Kp in the reference is capped at this (smoothly;
+    the torque keeps g whole); posture_influence (m,
+    >= 0): a redundant arm's posture (its null space, which leaves the tool where the task
+    puts it) is pushed off the person from this far beyond the clearance (0: not); tracked:
+    the human capsules of the tracked hand (/target), which the arm may reach in a task whose
+    region reaches into the hand's clearance (a follow task whose d1, measured between the
+    tool's and the hand's points, is below the clearance plus the hand's and the tool's
+    capsule radii); tracked_arm: the rest of that arm, kept at its capsules' surface (not the
     clearance) in such a task."""
 
     clearance: float = 0.10
@@ -139,6 +145,15 @@ class ClearanceSettings:
     # the two balance before the clearance; its reference, 5 N / Kp = 0.5 m/s away, matches
     # the hand's largest feed-forward. 10 N drove the SCARA into its effort limits.
     force: float = 5.0
+    # 0.3 s: a person over the SCARA's links at the start (the demo's, in its plane) drove the
+    # arm to its 20 N m limit within 20 ms; faded in over 0.3 s, 2.4 N m in the first 50 ms.
+    # Longer fades and lower caps leave an arm that starts inside a person there longer
+    # (docs/design.md).
+    fade_in: float = 0.3
+    # 0.5 m/s, the push of one pair at the clearance (force / Kp): a person over the SCARA's
+    # link1 with the arm stretched asked 1.5-1.8 m/s of the tool through J+, 13-15 rad/s of
+    # a joint, at the 20 N m limit for 0.3 s (0.75 m/s: still 33 ms at the limit).
+    max_speed: float = 0.5
     posture_influence: float = 0.10
     tracked: tuple[str, ...] = ('r_forearm', 'r_hand')
     tracked_arm: tuple[str, ...] = ('r_upper_arm',)
@@ -159,6 +174,11 @@ class ClearanceSettings:
                              f'{self.posture_influence}')
         if not (math.isfinite(self.force) and self.force >= 0.0):
             raise ValueError(f'clearance force must be finite and >= 0 N, got {self.force}')
+        if not (math.isfinite(self.max_speed) and self.max_speed > 0.0):
+            raise ValueError(f'clearance max_speed must be finite and > 0 m/s, got '
+                             f'{self.max_speed}')
+        if not (math.isfinite(self.fade_in) and self.fade_in >= 0.0):
+            raise ValueError(f'clearance fade_in must be finite and >= 0 s, got {self.fade_in}')
 
 
 class BodyBarrier(NamedTuple):
@@ -628,6 +648,7 @@ class ArmController(TaskDrives):
         # None: the law keeps off no person's body (the tool-hand task alone).
         self.body = body
         self._tool_capsule = None if body is None else body.names.index(body.tool)
+        self._body_time = 0.0  # s the law has had a body without a break (its force fades in)
         self._body_joints = None if body is None else np.array(body.joint, dtype=np.int64)
         self._body_inputs = None  # the last person's arrays for the compiled barrier
         gains = default_gains(model) if gains is None else gains
@@ -734,6 +755,7 @@ class ArmController(TaskDrives):
         self._pending = None  # theta_hat's update from the last `command`, for `adapt`
         self._reach.reset()
         self._hand_velocity = (0.0,) * (2 * self._axes)
+        self._body_time = 0.0
 
     @property
     def reaching_round(self) -> bool:
@@ -948,13 +970,20 @@ class ArmController(TaskDrives):
             else:
                 g_b, g_b_rate, near = barrier(q, dq, self._lower, self._upper,
                                               gains.limit_band, gains.barrier_torque)
-            body = NO_BODY
-            if human is not None and self.body is not None and gains.body.force > 0.0:
-                body = self.whole_body_barrier(q, dq, human, self._exempt(drive, avoid, human))
+            # g_ref: the barriers' gradient as the reference takes it (the person's capped).
+            body, g_ref, g_ref_rate = NO_BODY, g_b, g_b_rate
+            fade = self._body_fade(human, dt)
+            if fade > 0.0:
+                body = self.whole_body_barrier(q, dq, human, self._exempt(drive, avoid, human),
+                                               fade)
                 if body.gradient is not None:
                     # The person's barrier joins the joint limits' (one g_B in V and eq. 22).
                     g_b = body.gradient if g_b is None else g_b + body.gradient
                     g_b_rate = body.rate if g_b_rate is None else g_b_rate + body.rate
+                    push, push_rate = self._capped_push(body.gradient, body.rate, pinv,
+                                                        pinv_rate)
+                    g_ref = push if g_ref is None else g_ref + push
+                    g_ref_rate = push_rate if g_ref_rate is None else g_ref_rate + push_rate
                     # Within the barrier's band the hand's velocity is not fed forward: a
                     # hand drawn back to the chest at 0.5 m/s would cancel its 0.5 m/s push.
                     keep, keep_rate = 1.0 - body.gate, -body.gate_rate
@@ -979,18 +1008,18 @@ class ArmController(TaskDrives):
                 qdot_r, qddot_r, s, barrier_task = self._kernels.joint_reference(
                     q, dq, jac, jac_rate, pinv, pinv_rate, ff + task_velocity[0],
                     ff_rate + task_rate, on, u, u_rate, self._home, *self._posture,
-                    self._null_space, zero if g_b is None else g_b,
-                    zero if g_b is None else g_b_rate,
+                    self._null_space, zero if g_ref is None else g_ref,
+                    zero if g_ref is None else g_ref_rate,
                     zero if body.posture is None else body.posture,
                     zero if body.posture is None else body.posture_rate, gains.kp,
                     gains.limit_speed / gains.barrier_torque if gains.barrier_torque > 0.0
                     else 0.0)
-                if g_b is None:
+                if g_ref is None:
                     barrier_task = None
             else:
                 qdot_r, qddot_r, barrier_task = self._joint_reference(
                     (q, dq), (jac, jac_rate, pinv, pinv_rate), (ff, ff_rate),
-                    (task_velocity[0], task_rate), blend, (near, g_b, g_b_rate),
+                    (task_velocity[0], task_rate), blend, (near, g_ref, g_ref_rate),
                     (body.posture, body.posture_rate))
                 s = dq - qdot_r
             if self._approach is not None:
@@ -1059,10 +1088,47 @@ class ArmController(TaskDrives):
             return qdot_r
         return qdot_r - (excess / norm2) * row
 
+    def _capped_push(self, gradient, rate, pinv, pinv_rate) -> tuple[np.ndarray, np.ndarray]:
+        """The person's barrier g (n,) N m and its rate as the reference takes them: scaled
+        so that its task-space velocity w = J+^T g / Kp (m/s) is at most gains.body.max_speed
+        in norm (speed_cap's smooth cap of |w|), and the scale's rate with it. The torque
+        keeps g whole. Why: near a stretched arm J+ is large, and a push on a link near the
+        base (the SCARA's link1 under a person's arm) asked 3-10 m/s of the tool, 40 rad/s
+        of the SCARA's elbow (docs/design.md)."""
+        gains = self._gains
+        w = (pinv.T @ gradient) / gains.kp
+        speed = math.sqrt(float(w @ w))
+        cap = gains.body.max_speed
+        if speed <= cap:
+            return gradient, rate
+        capped, slope = speed_cap(speed, cap)
+        w_rate = (pinv_rate.T @ gradient + pinv.T @ rate) / gains.kp
+        speed_rate = float(w @ w_rate) / speed
+        scale = capped / speed
+        scale_rate = (slope * speed - capped) / (speed * speed) * speed_rate
+        return scale * gradient, scale * rate + scale_rate * gradient
+
+    def _body_fade(self, human: Capsules | None, dt: float) -> float:
+        """The barrier's force fraction in [0, 1] this cycle: eq. 13's quintic ramp over
+        gains.body.fade_in s of the time the law has had a body without a break (dt s counted
+        for this cycle); 0 without a body, a robot body or a force."""
+        settings = self._gains.body
+        if human is None or len(human) == 0 or self.body is None or settings.force <= 0.0:
+            self._body_time = 0.0
+            return 0.0
+        self._body_time += dt
+        if self._body_time >= settings.fade_in:
+            return 1.0
+        return quintic_smoothstep(self._body_time / settings.fade_in)[0]
+
     def _exempt(self, drive, avoid: bool, human: Capsules):
         """(the tracked hand's capsules, the rest of its arm's) where the task's region
-        reaches the hand (a follow task with d1 below the clearance: there the learned task
-        governs how near the arm comes to the hand), else None: every robot capsule leaves
+        reaches into the hand's clearance (a follow task whose d1, a distance between the
+        tool's and the hand's points, is below the clearance plus the tool's and the hand's
+        capsule radii: the barrier would hold the tool outside the learned region's inner
+        edge; there the learned task governs how near the arm comes to the hand; Table I's
+        follow_safe, d1 0.183 m, against 0.10 + 0.05 + 0.103 m on the SCARA), else None:
+        every robot capsule leaves
         out the first and keeps the second at their surface, not the clearance. Not the
         tool's capsule alone: the links next to it are within the clearance of a hand held
         at the tool (the Panda's link7 beside its hand; the SCARA's elbow 0.3 m from its tip,
@@ -1070,19 +1136,27 @@ class ArmController(TaskDrives):
         the upper arm, whose capsule (0.10 m radius) lies 0.12-0.17 m from the recorded hands
         (docs/design.md)."""
         settings = self._gains.body
-        if drive is None or avoid or drive.shape.d1 >= settings.clearance:
+        if drive is None or avoid:
             return None
         hand = [j for j, name in enumerate(human.names) if name in settings.tracked]
+        hand_radius = float(human.radius[hand].max()) if hand else 0.0
+        reach = settings.clearance + hand_radius + float(self.body.radius[self._tool_capsule])
+        if drive.shape.d1 >= reach:
+            return None
         arm = [j for j, name in enumerate(human.names) if name in settings.tracked_arm]
         return (hand, arm) if hand or arm else None
 
-    def whole_body_barrier(self, q, dq, human: Capsules, exempt=None) -> BodyBarrier:
+    def whole_body_barrier(self, q, dq, human: Capsules, exempt=None,
+                           fade: float = 1.0) -> BodyBarrier:
         """body_barrier (a BodyBarrier) of this law's body and settings at q, dq (n,) for the
-        person `human`, exempt as _exempt gives it; compiled on the body's chain
-        (arm_kernels.body_barrier: 16 us median for the Panda against 225 us, benchmarks.md)
-        where the law is compiled and the body has a chain, else body_barrier itself, the
+        person `human`, exempt as _exempt gives it, the force times fade (in (0, 1]);
+        compiled on the body's chain (arm_kernels.body_barrier: 16 us median for the Panda
+        against 225 us, benchmarks.md) where the law is compiled and the body has a chain,
+        else body_barrier itself, the
         reference. The person's arrays are built once per Capsules object (a body message)."""
         settings = self._gains.body
+        if fade < 1.0:
+            settings = dataclasses.replace(settings, force=settings.force * fade)
         if not self._compiled or self.body.chain is None or len(human) == 0:
             return body_barrier(self.body, q, dq, human, settings, exempt, self._null_space)
         parts = None if exempt is None else (tuple(exempt[0]), tuple(exempt[1]))

@@ -83,8 +83,17 @@ def test_follow_exempts_the_hands_wrist_and_forearm_and_holds_its_upper_arm_at_i
     assert body_barrier(body, q, still, near, SETTINGS, None).gradient is not None
     assert law._exempt(law.drive(AVOID), True, person) is None  # avoid keeps off the hand
     assert law._exempt(None, False, person) is None
-    safe = TaskShape(1, 1.576, 30.78, 0.183, 0.271)  # d1 above the clearance
-    assert law._exempt(law.drive(safe), False, person) is None
+    # d1 is between the tool's and the hand's points: follow_safe's 0.183 m lies within the
+    # clearance plus the hand's (0.103 m) and the tool's capsule radii, so the task governs;
+    # a band further out than that keeps the barrier on the hand.
+    tool_radius = body.radius[body.names.index(body.tool)]
+    safe = TaskShape(1, 1.576, 30.78, 0.183, 0.271)
+    assert law._exempt(law.drive(safe), False, person) == (tracked, upper)
+    edge = SETTINGS.clearance + HUMAN_RADII['hand'] + tool_radius
+    assert law._exempt(law.drive(TaskShape(1, 1.576, 30.78, edge - 1e-3, 0.5)), False,
+                       person) == (tracked, upper)
+    assert law._exempt(law.drive(TaskShape(1, 1.576, 30.78, edge + 1e-3, 0.5)), False,
+                       person) is None
 
 
 @pytest.mark.parametrize('robot', ['scara', 'panda'])
@@ -154,6 +163,30 @@ def test_the_upper_arm_in_follow_is_kept_at_its_surface_not_the_clearance(robot)
     assert follow.gradient is None and follow.gate == 0.0
     avoid = body_barrier(body, q, still, arm, SETTINGS, law._exempt(law.drive(AVOID), True, arm))
     assert avoid.gradient is not None and 0.0 < avoid.gate < 1.0
+
+
+def test_a_person_over_the_arm_at_the_start_is_met_gently():
+    """hand_sim's scripted person (at [0.85, 0], facing the base) reaching to (0.35, 0): in
+    the SCARA's plane the forearm and hand lie over both links at home, 0.15 m deep. The
+    barrier's force fades in (fade_in) and its push on the reference is capped (max_speed):
+    without them the arm left at 1.5-1.8 m/s of the tool, 13-15 rad/s of a joint, at its
+    20 N m effort limit for 0.3 s."""
+    model = robot_model('scara')
+    body = scene('scara', 'chest')[1]
+    hand = [0.35, 0.0, 0.0]
+    person = still_body(BODY_POINTS, standing_body([0.85, 0.0], math.pi, -0.35, hand))
+    gains = ArmController(model).gains
+    result = simulate({'avoid': AVOID}, [], still_target(hand[:2]), 2.0, LoopConditions(
+        arm=model, gains=gains, initial_task='avoid', body=person, robot_body=body,
+        monitor=False))
+    assert result.body_distance[0] < -0.1  # the scene: the arm starts inside the person
+    assert not result.torque_limited.any() and not result.fault.any()
+    assert np.max(np.abs(result.tau[result.time < 0.02])) < 1.0  # N m: faded in (was 20)
+    tool_speed = [np.linalg.norm(model.task_kinematics(q, dq)[1] @ dq)
+                  for q, dq in zip(result.q[::10], result.dq[::10], strict=True)]
+    assert max(tool_speed) <= gains.body.max_speed * 1.25, max(tool_speed)
+    assert np.max(np.abs(result.dq)) < 5.0  # rad/s
+    assert result.body_distance[-1] >= gains.body.clearance  # and it left
 
 
 def test_a_person_coming_closer_widens_the_band_and_a_still_one_does_not():

@@ -850,9 +850,12 @@ class Demo:
         body = person['whole_body']
         closest = ', '.join(f"{p['pair']} ({100 * p['share']:.0f} %)"
                             for p in body['closest_pairs'])
+        clearance = load_defaults('hri_adaptive_controller', 'controller')['clearance']
+        setting = f'{clearance:g} m' if clearance > 0.0 else 'off'
         return ['', f"The whole body (the arm's capsules against the person's, every "
-                f"{BODY_STEP * 1000:.0f} ms of joint states; the controller's clearance off, "
-                f"its default): the least distance {body['least']:.3f} m "
+                f"{BODY_STEP * 1000:.0f} ms of joint states; the controller's clearance "
+                f"{setting}, its default; the tracked hand's own capsules count here, though "
+                f"a follow task may reach them): the least distance {body['least']:.3f} m "
                 f"({body['least_pair']}; below 0: overlapping), to the head and torso "
                 f"{_or_dash(body['trunk_least'], '.3f')} m ({body['trunk_pair']}); the pairs "
                 'most often '

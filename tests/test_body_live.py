@@ -3,7 +3,7 @@ on.
 
 hand_sim replays a take of data/human-motion with the person's body on /human/body, placed
 by its auto_place with the Panda's reach and body clearance; the Panda's live loop (arm_sim,
-event_manager, controller with `clearance` CLEARANCE, its tested value; off by default) runs
+event_manager, controller with `clearance` CLEARANCE, its default, given explicitly) runs
 one of Table I's tasks. The probe keeps /joint_states, /target and /human/body and judges every
 10 ms from SETTLE s on, as bench/bench_body_takes.py does in the pure loop:
 

@@ -18,6 +18,8 @@ import numpy as np
 from numba import njit
 
 from hri_adaptive_controller import task_variable
+from hri_adaptive_controller.joint_limits import SPEED_NORM, STOP_SHARE, STOP_SOFTNESS
+from hri_adaptive_controller.task_variable import SECH_LIMIT
 from hri_core.capsule_kernels import add_normal_row, chain_frames, placed_capsules, segment_table
 
 # A human capsule's part in the body barrier (arm_law.ArmController._exempt): kept at the
@@ -206,6 +208,53 @@ def joint_reference(q, dq, jac, rate, pinv, pinv_rate, velocity, acceleration, b
     for i in range(n):
         s[i] = dq[i] - qdot_r[i]
     return qdot_r, qddot_r, s, barrier_task
+
+
+@njit(cache=True, nogil=True)
+def joint_speed_limit(q, dq, qdot_r, qddot_r, lower, upper, speed, stop_rate, band):
+    """joint_limits.joint_speed_limit compiled (the reference): (qdot_r, qddot_r (n,) held
+    within the joint speed limit and the stop damper, whether they changed); new arrays."""
+    n = q.shape[0]
+    qdot_r = qdot_r.copy()
+    qddot_r = qddot_r.copy()
+    changed = False
+    largest = 0.0
+    for i in range(n):
+        largest = max(largest, abs(qdot_r[i] / speed[i]))
+    if largest > 0.0:
+        total = 0.0
+        for i in range(n):
+            total += (qdot_r[i] / speed[i] / largest) ** SPEED_NORM
+        rho = largest * total ** (1.0 / SPEED_NORM)
+        if rho > 1.0:
+            capped, slope = speed_cap(rho, 1.0)
+            rho_rate = 0.0
+            for i in range(n):
+                rho_rate += (qdot_r[i] / speed[i] / rho) ** (SPEED_NORM - 1) * (
+                    qddot_r[i] / speed[i])
+            scale = capped / rho
+            scale_rate = (slope * rho - capped) / (rho * rho) * rho_rate
+            for i in range(n):
+                qddot_r[i] = scale * qddot_r[i] + scale_rate * qdot_r[i]
+                qdot_r[i] = scale * qdot_r[i]
+            changed = True
+    softness = STOP_SOFTNESS * stop_rate * band
+    stop = STOP_SHARE * band
+    for i in range(n):
+        up = stop_rate * (upper[i] - q[i] - stop)
+        down = stop_rate * (q[i] - lower[i] - stop)
+        if qdot_r[i] > up:
+            bound = up
+        elif -qdot_r[i] > down:
+            bound = -down
+        else:
+            continue
+        excess = (qdot_r[i] - bound) / softness
+        slope = 1.0 / math.cosh(min(abs(excess), SECH_LIMIT)) ** 2
+        qddot_r[i] = slope * qddot_r[i] + (1.0 - slope) * (-stop_rate * dq[i])
+        qdot_r[i] = bound + softness * math.tanh(excess)
+        changed = True
+    return qdot_r, qddot_r, changed
 
 
 @njit(cache=True, nogil=True)

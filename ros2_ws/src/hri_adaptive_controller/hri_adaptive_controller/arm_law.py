@@ -49,6 +49,12 @@ that every |tau_i| <= effort_i (direction kept); eq. 19 pauses while it is, and 
 caller's effort rate limit holds the command off the law's torque (`adapt(applied=False)`).
 A non-finite result gives zero torque and fault=True, theta_hat unchanged.
 
+Joint speed limit (joint_limits' module docstring): last of all, qdot_r is scaled as a whole
+within the joint velocity limits (gains.speed_scale of them) and each joint's motion towards
+a limit is held at stop_rate times its distance less a share of the band (a velocity damper),
+with their exact rate in qddot_r: no term of the reference asks a joint for more than it can
+stop from before its limit.
+
 Speed and separation monitoring (`limit_approach`, the separation cap's): where the row
 n^T J_p of the arm's point nearest the person takes qdot_r towards the person faster than
 the limit, qdot_r loses the excess along that row (the least joint motion that does it);
@@ -85,9 +91,11 @@ from hri_adaptive_controller.joint_limits import (
     barrier,
     barrier_energy,
     gate_feed_forward,
+    joint_speed_limit,
     reach_round,
 )
 from hri_adaptive_controller.task_variable import (
+    CAP_BAND,
     MAX_TASK_HESSIAN,
     DampingSettings,
     TaskDrive,
@@ -220,8 +228,11 @@ class ArmGains:
     damping (threshold w0: m^2 for a 2-row J, m^3 for 3); posture_gain k_n (1/s, >= 0) and
     posture_speed (rad/s, > 0): the null-space pull towards home, each joint's speed capped
     smoothly; limit_band (rad, > 0), barrier_torque kb (N m, >= 0): the barrier; limit_speed v_B
-    (rad/s, >= 0): the null-space push off a limit; body: the whole-body clearance
-    (ClearanceSettings). Raises ValueError with the reason for a value out of range.
+    (rad/s, >= 0): the null-space push off a limit; speed_scale (0, 1]: the share of the
+    model's joint velocity limits the reference may ask for, stop_rate k (1/s, > 0): how
+    fast the reference may close on a joint limit (joint_limits' Joint speed limit); body:
+    the whole-body clearance (ClearanceSettings). Raises ValueError with the reason for a
+    value out of range.
     """
 
     ks: tuple[float, ...]
@@ -241,6 +252,8 @@ class ArmGains:
     limit_band: float = 0.15
     barrier_torque: float = 3.0
     limit_speed: float = 0.3
+    speed_scale: float = 1.0
+    stop_rate: float = 5.0
     reach_round: ReachRoundSettings = field(default_factory=ReachRoundSettings)
     effort_limit: float | None = None
     initial_estimate: float = 1.0
@@ -261,12 +274,14 @@ class ArmGains:
                 math.isfinite(self.task_gain) and self.task_gain > 0.0):
             raise ValueError(f'task_gain must be None or finite and > 0, got {self.task_gain}')
         for name in ('kp', 'max_task_speed', 'rest_gate', 'max_effort_rate', 'posture_speed',
-                     'limit_band', 'effort_scale', 'initial_estimate'):
+                     'limit_band', 'effort_scale', 'initial_estimate', 'speed_scale',
+                     'stop_rate'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
-        if self.effort_scale > 1.0:
-            raise ValueError(f'effort_scale must be <= 1, got {self.effort_scale}')
+        for name in ('effort_scale', 'speed_scale'):
+            if getattr(self, name) > 1.0:
+                raise ValueError(f'{name} must be <= 1, got {getattr(self, name)}')
         for name in ('approach_speed', 'region_margin', 'rest_gain', 'posture_gain',
                      'barrier_torque', 'limit_speed'):
             value = getattr(self, name)
@@ -674,6 +689,12 @@ class ArmController(TaskDrives):
             raise ValueError(f'{model.name} has a joint without an effort limit > 0: '
                              f'{limits.effort.tolist()}')
         self._inverse_effort = 1.0 / self._effort
+        # Where the joint speed limit's smooth cap starts: speed_scale of the velocity limits
+        # less its soft band, so that no joint's reference exceeds the limit (inf: a joint
+        # without one).
+        velocity = np.asarray(limits.velocity, dtype=float)
+        self._speed = np.where(np.isfinite(velocity) & (velocity > 0.0),
+                               gains.speed_scale * velocity / (1.0 + CAP_BAND), np.inf)
         # Where no barrier acts (the barrier's bands start here): checked first each step, in
         # floats (two numpy comparisons cost more for a few joints).
         self._inner = tuple(zip((self._lower + gains.limit_band).tolist(),
@@ -711,6 +732,8 @@ class ArmController(TaskDrives):
         kernels.joint_reference(zeros_n, zeros_n, jac, jac, pinv, pinv_rate, zeros_k, zeros_k,
                                 (0.0, 0.0, 0.0), zeros_n, zeros_n, zeros_n, *self._posture,
                                 True, zeros_n, zeros_n, zeros_n, zeros_n, 1.0, 0.0)
+        kernels.joint_speed_limit(zeros_n, zeros_n, zeros_n, zeros_n, self._lower, self._upper,
+                                  self._speed, 1.0, 1.0)
         p = self.model.theta.size
         kernels.torque(np.zeros((n, p)), np.zeros(p), zeros_n, zeros_n, zeros_n, jac, zeros_k,
                        zeros_n, zeros_n)
@@ -1024,6 +1047,14 @@ class ArmController(TaskDrives):
                 s = dq - qdot_r
             if self._approach is not None:
                 qdot_r = self._limited_approach(qdot_r)
+                s = dq - qdot_r
+            # Last: no term asks a joint for more than its speed limit or for more than it
+            # can stop from before its limit (joint_limits' Joint speed limit).
+            qdot_r, qddot_r, held = (self._kernels.joint_speed_limit if self._compiled
+                                     else joint_speed_limit)(
+                q, dq, qdot_r, qddot_r, self._lower, self._upper, self._speed,
+                gains.stop_rate, gains.limit_band)
+            if held:
                 s = dq - qdot_r
             regressor = self.model.regressor_unchecked(q, dq, qdot_r, qddot_r)  # eq. 18
             task_force = (gains.kp * scale) * weighted

@@ -56,6 +56,27 @@ is weighted (1 - sigma) with its Q in V; the joint motion needs no force of its 
 s-term converges s, and qdot = qdot_r then moves q to q_f). While sigma ramps, V
 gains sigma-rate terms like eq. 22's (da/dt) Q, bounded and over a finite time.
 Avoid tasks (open outward) never reach round: they move away from the hand.
+
+Joint speed limit
+-----------------
+The barrier's push is small (kb, v_B) and acts only within the band: a reference that asks a
+joint for more (the task's J+ near the stretched arm, the person's barrier J+ J+^T g_B / Kp
+with many pairs close) ran the Panda's joint 2 into its stop at up to 15-22 rad/s. So the
+reference, last of all its terms, is held twice, with its exact rate (joint_speed_limit):
+
+- as a whole (its direction kept) within the joint velocity limits V_i: with rho the smooth
+  maximum (sum_i |qdot_r,i / V'_i|^p)^(1/p), p = SPEED_NORM, V'_i = speed_scale V_i / (1 +
+  CAP_BAND), qdot_r is scaled by cap(rho) / rho (task_variable.speed_cap at 1), so that no
+  joint is asked for more than speed_scale V_i;
+- per joint towards each limit at b = k (d - STOP_SHARE band), d the distance to that limit
+  (k = stop_rate), softly: b + beta tanh((v - b) / beta) above b, beta = STOP_SOFTNESS k band
+  (C2 at b): a velocity damper. The reference closes on the stop at most exponentially at
+  rate k, asking a deceleration of at most k V_i, which the drives can give, and it rests
+  (STOP_SHARE - STOP_SOFTNESS) band off the limit where something insists on going further.
+
+Both only lower |qdot_r| (the damper also turns it round within STOP_SHARE band); far from
+the limits and below the speed limit qdot_r is unchanged. Where they act, eq. 22 gains the
+terms of the reference's change, as with the feed-forward gate.
 """
 
 import math
@@ -65,7 +86,7 @@ from typing import NamedTuple
 import numpy as np
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule
-from hri_adaptive_controller.task_variable import SECH_LIMIT
+from hri_adaptive_controller.task_variable import SECH_LIMIT, speed_cap
 
 GOAL_MARGIN = 0.5
 """The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
@@ -85,6 +106,17 @@ IK_TOLERANCE = 1e-3
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
+
+SPEED_NORM = 8
+"""The power p of the joint speed limit's smooth maximum (sum_i |v_i / V_i|^p)^(1/p): at most
+7^(1/8) = 1.28 times the largest |v_i / V_i| for seven joints."""
+
+STOP_SHARE = 0.25
+"""The stop damper's bound reaches zero this share of the barrier's band inside a limit."""
+
+STOP_SOFTNESS = 0.1
+"""The stop damper's soft band (rad/s) as a share of stop_rate band: the bound is exceeded by
+less than that (the reference's own rest lies STOP_SOFTNESS band further out)."""
 
 
 @dataclass(frozen=True)
@@ -161,6 +193,50 @@ def gate_feed_forward(q, dq, v, rate, lower, upper, band: float):
     factor_rate = (-(dup / band * dq) * towards_up - up * dtu / FEED_SPEED * rate
                    + (ddown / band * dq) * towards_down + down * dtd / FEED_SPEED * rate)
     return v * factor, rate * factor + v * factor_rate
+
+
+def joint_speed_limit(q, dq, qdot_r, qddot_r, lower, upper, speed, stop_rate: float,
+                      band: float):
+    """The reference joint motion qdot_r, qddot_r (n,) held within what the arm can stop from
+    (module docstring, Joint speed limit), with its exact rate; and whether it changed.
+
+    q, dq (n,) rad, rad/s; lower, upper (n,) rad; speed (n,) rad/s: V_i, where the smooth cap
+    of the whole vector starts (inf: none for that joint); stop_rate k (1/s) and band (rad)
+    of the stop damper. The numpy reference of arm_kernels.joint_speed_limit."""
+    ratio = qdot_r / speed
+    ratio_rate = qddot_r / speed
+    largest = float(np.max(np.abs(ratio)))
+    changed = False
+    if largest > 0.0:
+        # rho = (sum |r_i|^p)^(1/p), taken as largest (sum |r_i / largest|^p)^(1/p).
+        scaled = ratio / largest
+        rho = largest * float(np.sum(scaled ** SPEED_NORM)) ** (1.0 / SPEED_NORM)
+        if rho > 1.0:
+            capped, slope = speed_cap(rho, 1.0)
+            rho_rate = float(np.sum((ratio / rho) ** (SPEED_NORM - 1) * ratio_rate))
+            scale = capped / rho
+            scale_rate = (slope * rho - capped) / (rho * rho) * rho_rate
+            qddot_r = scale * qddot_r + scale_rate * qdot_r
+            qdot_r = scale * qdot_r
+            changed = True
+    # The stop damper: towards upper, v <= b = k (upper - q - STOP_SHARE band), softly:
+    # b + beta tanh((v - b) / beta) above b (C2 at b); towards lower, mirrored.
+    softness = STOP_SOFTNESS * stop_rate * band
+    stop = STOP_SHARE * band
+    up = stop_rate * (upper - q - stop)
+    down = stop_rate * (q - lower - stop)
+    over_up = qdot_r > up
+    over_down = -qdot_r > down
+    if over_up.any() or over_down.any():
+        bound = np.where(over_up, up, -down)  # the bound crossed, signed as v
+        bound_rate = -stop_rate * dq  # d(up)/dt, and d(-down)/dt
+        excess = (qdot_r - bound) / softness
+        slope = 1.0 / np.cosh(np.minimum(np.abs(excess), SECH_LIMIT)) ** 2
+        held = over_up | over_down
+        qddot_r = np.where(held, slope * qddot_r + (1.0 - slope) * bound_rate, qddot_r)
+        qdot_r = np.where(held, bound + softness * np.tanh(excess), qdot_r)
+        changed = True
+    return qdot_r, qddot_r, changed
 
 
 def workspace_radii(l1: float, l2: float, limits) -> tuple[float, float]:

@@ -180,12 +180,14 @@ def test_a_person_over_the_arm_at_the_start_is_met_gently():
         arm=model, gains=gains, initial_task='avoid', body=person, robot_body=body,
         monitor=False))
     assert result.body_distance[0] < -0.1  # the scene: the arm starts inside the person
-    assert not result.torque_limited.any() and not result.fault.any()
+    assert not result.fault.any()
+    # At the effort limit at most 20 ms (6 ms braking near the stretched arm; 0.3 s before).
+    assert np.count_nonzero(result.torque_limited) <= 20
     assert np.max(np.abs(result.tau[result.time < 0.02])) < 1.0  # N m: faded in (was 20)
     tool_speed = [np.linalg.norm(model.task_kinematics(q, dq)[1] @ dq)
                   for q, dq in zip(result.q[::10], result.dq[::10], strict=True)]
     assert max(tool_speed) <= gains.body.max_speed * 1.25, max(tool_speed)
-    assert np.max(np.abs(result.dq)) < 5.0  # rad/s
+    assert np.max(np.abs(result.dq)) < 3.5  # rad/s (velocity limits 3; 13-15 before)
     assert result.body_distance[-1] >= gains.body.clearance  # and it left
 
 

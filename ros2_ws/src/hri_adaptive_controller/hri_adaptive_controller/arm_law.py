@@ -131,8 +131,8 @@ class ClearanceSettings:
     (m, >= influence); force (N, >= 0): its push at the clearance (0: off); fade_in (s,
     >= 0): a body that comes after none (at the start, or back after a loss) is met with the
     force faded in over this time (eq. 13's quintic ramp; 0: at once); max_speed (m/s, > 0):
-    the barrier's task-space velocity J+^T g / Kp in the reference is capped at this (smoothly;
-    the torque keeps g whole); posture_influence (m,
+    the barrier's task-space velocity J+^T g / Kp in the reference is capped at this plus the
+    person's fastest speed (smoothly; the torque keeps g whole); posture_influence (m,
     >= 0): a redundant arm's posture (its null space, which leaves the tool where the task
     puts it) is pushed off the person from this far beyond the clearance (0: not); tracked:
     the human capsules of the tracked hand (/target), which the arm may reach in a task whose
@@ -1004,7 +1004,7 @@ class ArmController(TaskDrives):
                     g_b = body.gradient if g_b is None else g_b + body.gradient
                     g_b_rate = body.rate if g_b_rate is None else g_b_rate + body.rate
                     push, push_rate = self._capped_push(body.gradient, body.rate, pinv,
-                                                        pinv_rate)
+                                                        pinv_rate, human)
                     g_ref = push if g_ref is None else g_ref + push
                     g_ref_rate = push_rate if g_ref_rate is None else g_ref_rate + push_rate
                     # Within the barrier's band the hand's velocity is not fed forward: a
@@ -1119,17 +1119,20 @@ class ArmController(TaskDrives):
             return qdot_r
         return qdot_r - (excess / norm2) * row
 
-    def _capped_push(self, gradient, rate, pinv, pinv_rate) -> tuple[np.ndarray, np.ndarray]:
+    def _capped_push(self, gradient, rate, pinv, pinv_rate,
+                     human: Capsules) -> tuple[np.ndarray, np.ndarray]:
         """The person's barrier g (n,) N m and its rate as the reference takes them: scaled
         so that its task-space velocity w = J+^T g / Kp (m/s) is at most gains.body.max_speed
-        in norm (speed_cap's smooth cap of |w|), and the scale's rate with it. The torque
-        keeps g whole. Why: near a stretched arm J+ is large, and a push on a link near the
-        base (the SCARA's link1 under a person's arm) asked 3-10 m/s of the tool, 40 rad/s
-        of the SCARA's elbow (docs/design.md)."""
+        plus the fastest speed of the person's capsule ends (m/s; 0 for a still person) in
+        norm (speed_cap's smooth cap of |w|), and the scale's rate with it. The torque keeps
+        g whole. Why: near a stretched arm J+ is large, and a push on a link near the base
+        (the SCARA's link1 under a person's arm) asked 1.5-1.8 m/s of the tool, 13-15 rad/s
+        of a joint; a person who moves may still be left at their own speed and more
+        (docs/design.md)."""
         gains = self._gains
         w = (pinv.T @ gradient) / gains.kp
         speed = math.sqrt(float(w @ w))
-        cap = gains.body.max_speed
+        cap = gains.body.max_speed + human.fastest_speed
         if speed <= cap:
             return gradient, rate
         capped, slope = speed_cap(speed, cap)

@@ -112,6 +112,15 @@ class Capsules:
         return np.maximum((axis * axis) @ _ONES, _TINY), (axis * self.a) @ _ONES
 
     @cached_property
+    def fastest_speed(self) -> float:
+        """The fastest speed (m/s) of any capsule end (0.0 when still)."""
+        speed = 0.0
+        for ends in (self.velocity_a, self.velocity_b):
+            if ends is not None and len(ends):
+                speed = max(speed, float(np.sqrt((ends * ends).sum(axis=1)).max()))
+        return speed
+
+    @cached_property
     def flat(self) -> 'Capsules':
         """The capsules projected onto the plane z = 0."""
         moving = self.velocity_a is not None

@@ -301,3 +301,12 @@ def test_the_persons_capsules_leave_out_what_is_missing():
 def test_bad_body_points_are_one_line(names, points, reason):
     with pytest.raises(ValueError, match=reason):
         human_capsules(names, points)
+
+
+def test_fastest_speed_is_the_fastest_capsule_end():
+    points = [[0.5, 0.0, 0.0], [0.8, 0.0, 0.0]]
+    still = human_capsules(['r_elbow', 'r_wrist'], points)
+    assert still.fastest_speed == 0.0
+    moving = human_capsules(['r_elbow', 'r_wrist'], points,
+                            velocities=[[0.0, 0.3, 0.0], [0.0, 0.0, -1.2]])
+    assert moving.fastest_speed == pytest.approx(1.2)

@@ -62,9 +62,9 @@ scara_sim and the controller robot:=panda (arm_law), with a 3-D hand (hand_sim d
 back and forth between (0.40, 0.10, 0.45) and (0.40, -0.10, 0.30) m, period 10 s); the
 event_manager and the controller start first, then the sim, then the hand (as
 tests/test_panda_loop.py starts them). The figures are the same, the sim's named arm_sim.
-`--clearance 0.1` turns the controller's whole-body clearance on: hand_sim's scripted person
-(its right wrist the hand) comes on /human/body at 100 Hz and every cycle measures the arm's
-capsules against the person's.
+The controller keeps its default whole-body clearance (0.1 m; `--clearance 0` turns it off):
+hand_sim's scripted person (its right wrist the hand) comes on /human/body at 100 Hz and
+every cycle measures the arm's capsules against the person's.
 
 Every process started is ended (SIGINT, then SIGKILL by PID) in a `finally`; the
 `sim_summary` sums the sims of every round (each one's whole run, start included).
@@ -165,9 +165,10 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument('--robot', choices=tuple(SIMS), default='scara',
                         help='the arm of the loop: scara (scara_sim, the planar law) or panda '
                         '(arm_sim and the controller robot:=panda, a 3-D hand)')
-    parser.add_argument('--clearance', type=float, default=0.0,
-                        help="the controller's clearance (m; 0: off): with it on, every link "
-                        "keeps off the scripted person hand_sim publishes on /human/body")
+    parser.add_argument('--clearance', type=float, default=None,
+                        help="the controller's clearance (m; 0: off; default: the "
+                        "controller's, 0.1): every link keeps off the scripted person "
+                        "hand_sim publishes on /human/body")
     parser.add_argument('--json', action='store_true', help='print JSON only')
     args = parser.parse_args(argv)
     if args.rounds < 1:
@@ -177,15 +178,20 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     return args
 
 
+def _clearance(clearance: float | None) -> dict:
+    """The controller's clearance parameter as given ({} for None: its default)."""
+    return {} if clearance is None else {'clearance': clearance}
+
+
 def start_panda_loop(domain_id: int, realtime: dict, log_dir: Path,
-                     timeout: float, clearance: float = 0.0) -> dict:
+                     timeout: float, clearance: float | None = None) -> dict:
     """The Panda's loop: event_manager (follow) and controller robot:=panda, then, once both
     are up, arm_sim robot:=panda, then hand_sim in 3-D (PANDA_HAND); `realtime` (the
-    scheduling parameters) for the controller and the sim; the controller's `clearance` (m).
-    {name: process}; on any error nothing is left running."""
+    scheduling parameters) for the controller and the sim; the controller's `clearance` (m;
+    None: its default). {name: process}; on any error nothing is left running."""
     parameters = live_loop_parameters({'hand_sim': PANDA_HAND,
-                                       'controller': {'robot': 'panda', 'clearance': clearance,
-                                                      **realtime}})
+                                       'controller': {'robot': 'panda', **realtime,
+                                                      **_clearance(clearance)}})
     started = {}
     try:
         for name in ('event_manager', 'controller'):
@@ -495,7 +501,7 @@ def loop_window(args: argparse.Namespace, seconds: float, env: dict | None,
                                            args.startup_timeout, args.clearance)
             else:
                 overrides = {'hand_sim': HAND, 'scara_sim': realtime,
-                             'controller': {**realtime, 'clearance': args.clearance}}
+                             'controller': {**realtime, **_clearance(args.clearance)}}
                 started = start_live_loop(args.domain_id, overrides, log_dir=log_dir)
         if not wait_for(lambda: status() == 'ok', args.startup_timeout):
             last = status() or 'no ControllerState at all'

@@ -91,6 +91,26 @@ def test_a_zero_command_lets_the_arm_sag(nodes, probe):
     assert list(states[-1].effort) == [0.0] * 7
 
 
+def test_the_brakes_hold_the_arm_when_its_commands_stop(nodes, probe):
+    """Zero torque for 0.3 s (the arm sags), then no command: after command_timeout the
+    drive goes back to its brakes, as before its first command, and the arm stands still
+    (at zero torque it would fall on: a starved controller let the Panda into joint 2's
+    stop); the sim says so once."""
+    sim, states = start_panda(nodes, probe, perturbation=0.0, command_timeout=0.1)
+    publisher = probe.publisher('/effort_controller/commands', Float64MultiArray, 10)
+    end = time.monotonic() + 0.3
+    while time.monotonic() < end:
+        publisher.publish(Float64MultiArray(data=[0.0] * 7))
+        time.sleep(COMMAND_PERIOD)
+    assert wait_for(lambda: 'braking (the joints held)' in sim.log(), 5.0), sim.log()
+    time.sleep(0.2)
+    held = joint_positions(states)
+    time.sleep(0.5)
+    assert np.max(np.abs(joint_positions(states) - held)) < 1e-9
+    assert list(states[-1].velocity) == [0.0] * 7
+    assert sim.log().count('braking (the joints held)') == 1
+
+
 def test_a_gravity_compensating_command_holds_the_arm_still(nodes, probe):
     """Commands tau = g(q) - HOLD_RATE M(q) dq from the URDF model (the sim's arm
     unperturbed), sent from before the sim starts: after 1 s the arm moves by less than

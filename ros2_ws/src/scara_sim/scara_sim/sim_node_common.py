@@ -12,7 +12,8 @@ the newest on /ee_position. The stepping thread takes the joint commands receive
 last tick itself, at each tick, from the subscriptions of a second node `<name>_commands`
 that no executor spins; the executor runs the other callbacks (the wrench, parameters) beside
 it. A step that fails (a non-finite state) ends the process with exit code 1 and one error
-line. No joint command for `command_timeout` s: zero torque (logged once, and once when
+line. No joint command for `command_timeout` s: the drive's mode before its first command,
+zero torque or (arm_sim) the brakes (logged once, and once when
 commands resume). A malformed command or wrench (wrong length, NaN/inf, wrong frame) is
 rejected with a throttled warning; the last good one stays in force.
 
@@ -93,7 +94,8 @@ STEPPING_PARAMETERS = {
     'cpu_wakeup_latency': CPU_WAKEUP_LATENCY,
 }
 TIMING_PARAMETERS = {
-    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque',
+    'command_timeout': ParameterSpec(float, 'no joint command for this long (s): zero torque '
+                                     '(arm_sim: its brakes)',
                                      0.005, 60.0),
     'wrench_timeout': ParameterSpec(float, 'no /human/wrench for this long (s): zero force',
                                     0.005, 60.0),
@@ -291,11 +293,17 @@ class SteppedSimNode(Node):
         if mode == 'brake':  # no command yet: held as the subclass's initial_mode says
             return mode, None, force
         if t - command_time > self._command_timeout:
+            # The drive goes back to what it did before its first command: arm_sim's brakes
+            # hold the joints (a Panda at zero torque falls: a controller starved for 0.3 s
+            # on a loaded machine let it into joint 2's stop), scara_sim's horizontal arm and
+            # an arm in teach mode get zero torque.
             if not self._timed_out:
+                action = ('braking (the joints held)' if self.initial_mode == 'brake'
+                          else 'applying zero torque')
                 self.get_logger().info(
-                    f'no joint command for {self._command_timeout:g} s: applying zero torque')
+                    f'no joint command for {self._command_timeout:g} s: {action}')
                 self._timed_out = True
-            return 'idle', None, force
+            return self.initial_mode, None, force
         return mode, command, force
 
     def _step_in_real_time(self) -> None:

@@ -90,7 +90,11 @@ def test_every_node_exits_cleanly_on_a_signal(nodes, probe, ros_domain, tmp_path
                                                   '/ee_position', '/human/wrench',
                                                   '/robot_description')}),
         'hand_sim': nodes('scara_sim', 'hand_sim', params={'profile': 'circle'}),
-        'demonstrator': nodes('scara_sim', 'demonstrator', params={'hold_time': 600.0}),
+        # x_r away from hand_sim's circle (0.08 m round [0.45, 0.05], the default x_r): the
+        # arm following the hand passed within stop_distance of the centre at the
+        # demonstrator's check, and it refused and exited before its signal.
+        'demonstrator': nodes('scara_sim', 'demonstrator',
+                              params={'hold_time': 600.0, 'reference': [0.30, 0.30]}),
         'recorder': nodes('hri_demo_learning', 'recorder', params={'output': str(bag)}),
         'learner': nodes('hri_demo_learning', 'learner', params={
             'bags': [str(FOLLOW_BAG)], 'task_name': 'follow', 'output_dir': str(tmp_path)}),

@@ -27,7 +27,7 @@ from hri_bringup.processes import paper_tasks_dir, wait_for
 from hri_core import topics
 from hri_core.robot_model import robot_model
 from hri_core.task_file import load_task_file
-from tests.fault_tools import REALTIME_PRIORITY, effort_change_per_step, from_the_first_command
+from tests.fault_tools import effort_change_per_step, from_the_first_command
 
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # a 1 kHz loop, timed
 
@@ -81,10 +81,7 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=Non
     `sim_only`: more parameters of arm_sim alone (engine:=mujoco); `controller_only`: of the
     controller alone (clearance).
     The event_manager and the controller start first, so the arm is controlled from its first
-    step (a Panda without torque sags). The controller and arm_sim run at real-time priority
-    REALTIME_PRIORITY, as the 1 kHz loop of a robot's computer does (and test_faults' loop):
-    at normal priority beside a busy process the controller was starved for 0.1-0.3 s, arm_sim
-    kept applying its last command, and the Panda fell into joint 2's stop (1 run in 3)."""
+    step (a Panda without torque sags)."""
     stop, started = threading.Event(), {}
     if not isinstance(hand, dict):
         publish_hand(probe, hand, started, stop)
@@ -94,7 +91,7 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=Non
         reports = probe.collect(topics.CONTROLLER_STATE.name, ControllerState, RELIABLE)
         manager = nodes('hri_adaptive_controller', 'event_manager', params={
             'tasks_dir': str(tasks_dir or paper_tasks_dir()), 'initial_task': task})
-        arm = {'realtime_priority': REALTIME_PRIORITY, **(arm or {'robot': 'panda'})}
+        arm = arm or {'robot': 'panda'}
         controller = nodes('hri_adaptive_controller', 'controller',
                            params={**arm, **(controller_only or {})})
         assert controller.wait_for_line('control on each /joint_states', START_TIMEOUT), \

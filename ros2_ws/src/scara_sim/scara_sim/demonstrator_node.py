@@ -253,10 +253,15 @@ class Demonstrator(Node):
                 f'took hold again: the end-effector drifted to {distance:.4f} m from x_r, '
                 f'{np.linalg.norm(self._position - demo.goal) * 1e3:.1f} mm from the goal')
         if before != 'holding' and demo.phase in ('holding', 'done'):
-            how = ('settle timeout: not arrived' if demo.settle_timed_out else 'arrived')
-            log = self.get_logger().warning if demo.settle_timed_out else self.get_logger().info
-            log(f'let go ({how}) at {distance:.4f} m from x_r; peak speed while pushing '
-                f'{self._peak_speed:.3f} m/s; holding still for {self._settings.hold_time:g} s')
+            text = (f'at {distance:.4f} m from x_r; peak speed while pushing '
+                    f'{self._peak_speed:.3f} m/s; holding still for '
+                    f'{self._settings.hold_time:g} s')
+            # One call site per severity: rclpy refuses a call site whose severity changes
+            # (a ValueError that ended the node when a re-grasp let go a second time).
+            if demo.settle_timed_out:
+                self.get_logger().warning(f'let go (settle timeout: not arrived) {text}')
+            else:
+                self.get_logger().info(f'let go (arrived) {text}')
         if demo.phase == 'done':
             self.get_logger().info(f'demonstration done: end-effector {distance:.4f} m from '
                                    'x_r')

@@ -101,6 +101,7 @@ from hri_adaptive_controller.task_variable import (
     TaskDrive,
     TaskDrives,
     damped_pseudo_inverse,
+    norm_cap,
     radial_drive,
     rest_term_n,
     retreat_term_n,
@@ -924,14 +925,11 @@ class ArmController(TaskDrives):
         """The hand's velocity fed forward, capped at FEED_FORWARD_RATIO v_max (the smooth cap
         of task_variable, C2: the arm is not asked to keep up with a hand faster than it may
         move; a toss at 3 m/s saturated the drives for 0.4 s), and its rate (k,) each."""
-        speed = math.sqrt(float(velocity @ velocity))
-        if speed <= self._feed_speed:
+        scale, gain = norm_cap(velocity, self._feed_speed)
+        if scale == 1.0:
             return velocity, acceleration
-        capped, slope = speed_cap(speed, self._feed_speed)
-        ratio = capped / speed
-        direction = velocity / speed
-        along = float(direction @ acceleration) * (slope - ratio)
-        return ratio * velocity, ratio * acceleration + along * direction
+        scale_rate = gain * float(velocity @ acceleration)
+        return scale * velocity, scale * acceleration + scale_rate * velocity
 
     def step(self, q, dq, hand: HandState, task: ActiveTask | None, dt: float,
              rest=None, human: Capsules | None = None) -> ArmOutput:
@@ -1130,22 +1128,18 @@ class ArmController(TaskDrives):
         """The person's barrier g (n,) N m and its rate as the reference takes them: scaled
         so that its task-space velocity w = J+^T g / Kp (m/s) is at most gains.body.max_speed
         plus the fastest speed of the person's capsule ends (m/s; 0 for a still person) in
-        norm (speed_cap's smooth cap of |w|), and the scale's rate with it. The torque keeps
-        g whole. Why: near a stretched arm J+ is large, and a push on a link near the base
-        (the SCARA's link1 under a person's arm) asked 1.5-1.8 m/s of the tool, 13-15 rad/s
-        of a joint; a person who moves may still be left at their own speed and more
-        (docs/design.md)."""
+        norm (norm_cap: speed_cap's smooth cap of |w|), and the scale's rate with it. The
+        torque keeps g whole. Why: near a stretched arm J+ is large, and a push on a link
+        near the base (the SCARA's link1 under a person's arm) asked 1.5-1.8 m/s of the
+        tool, 13-15 rad/s of a joint; a person who moves may still be left at their own speed
+        and more (docs/design.md)."""
         gains = self._gains
         w = (pinv.T @ gradient) / gains.kp
-        speed = math.sqrt(float(w @ w))
-        cap = gains.body.max_speed + human.fastest_speed
-        if speed <= cap:
+        scale, gain = norm_cap(w, gains.body.max_speed + human.fastest_speed)
+        if scale == 1.0:
             return gradient, rate
-        capped, slope = speed_cap(speed, cap)
         w_rate = (pinv_rate.T @ gradient + pinv.T @ rate) / gains.kp
-        speed_rate = float(w @ w_rate) / speed
-        scale = capped / speed
-        scale_rate = (slope * speed - capped) / (speed * speed) * speed_rate
+        scale_rate = gain * float(w @ w_rate)
         return scale * gradient, scale * rate + scale_rate * gradient
 
     def _body_fade(self, human: Capsules | None, dt: float) -> float:

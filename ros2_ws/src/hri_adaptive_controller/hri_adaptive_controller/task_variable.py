@@ -283,6 +283,19 @@ def speed_cap(speed: float, v_max: float) -> tuple[float, float]:
     return (capped if speed > 0.0 else -capped), slope
 
 
+def norm_cap(vector, limit: float) -> tuple[float, float]:
+    """speed_cap's smooth cap of the norm of `vector` (k,) at `limit` (its units, > 0), as a
+    factor on the vector: (scale, gain), scale = cap(|v|) / |v| (1 at or below the limit)
+    and d scale/dt = gain (v . dv/dt) for the vector's rate (gain 0 at or below the limit)."""
+    norm2 = float(vector @ vector)
+    if norm2 <= limit * limit:
+        return 1.0, 0.0
+    norm = math.sqrt(norm2)
+    capped, slope = speed_cap(norm, limit)
+    scale = capped / norm
+    return scale, (slope - scale) / norm2
+
+
 def _approach_floor(r: float, drive: TaskDrive) -> tuple[float, float]:
     """The approach term's f(r) (m/s, signed like dP/dr) and df/dr (1/s)."""
     v_a, margin = drive.approach_speed, drive.margin

@@ -27,6 +27,7 @@ from hri_adaptive_controller.task_variable import (
     _approach_floor,
     _approach_floor_values,
     damped_pseudo_inverse,
+    norm_cap,
     radial_drive,
     radial_potential_slope,
     rest_term_n,
@@ -202,6 +203,19 @@ def test_speed_cap_is_smooth_at_its_knee():
     assert slope_below == 1.0 and slope_above == pytest.approx(1.0, abs=1e-12)
     assert speed_cap(-1e300, V_MAX)[0] == pytest.approx(-(1.0 + CAP_BAND) * V_MAX)
     assert speed_cap(1e300, V_MAX)[1] == 0.0
+
+
+def test_norm_cap_scales_the_vector_to_speed_caps_norm_with_its_rate():
+    rng = np.random.default_rng(7)
+    assert norm_cap(np.array([0.1, -0.1, 0.05]), V_MAX) == (1.0, 0.0)
+    for _ in range(20):
+        v, dv = rng.normal(size=3), rng.normal(size=3)
+        scale, gain = norm_cap(v, V_MAX)
+        assert scale * np.linalg.norm(v) == pytest.approx(
+            speed_cap(float(np.linalg.norm(v)), V_MAX)[0], rel=1e-12)
+        h = 1e-6
+        numeric = (norm_cap(v + h * dv, V_MAX)[0] - norm_cap(v - h * dv, V_MAX)[0]) / (2 * h)
+        assert gain * float(v @ dv) == pytest.approx(numeric, rel=1e-5, abs=1e-9)
 
 
 def test_table_i_avoid_row_is_finite_and_smooth_despite_p0_of_1e124():

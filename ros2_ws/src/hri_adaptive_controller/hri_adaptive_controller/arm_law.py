@@ -74,7 +74,9 @@ short) or the region lies beyond the reach (for a planar arm also: the straight 
 crosses the hole round its base), joint_limits.reach_round's blend brings in the joint
 motion u towards an inverse-kinematics pose with sigma (a C2 ramp, slewed goal filter and
 capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
-so is the posture pull of the null space (the barrier's push is not).
+so is the posture pull of the null space (the barrier's push is not). The blend stands down
+while the person's barrier holds the arm (its gate above REACH_ROUND_BODY_GATE): its pose
+does not know the person, and held against the barrier it kept sigma at 1 for good.
 No ROS import.
 """
 
@@ -112,6 +114,8 @@ from hri_core.bodies import Capsules, RobotBody, capsule_distances
 from hri_core.potential import TaskShape
 from hri_core.robot_model import RobotModel
 
+REACH_ROUND_BODY_GATE = 0.1
+"""The person's barrier gate (BodyBarrier.gate) above which the reach-round stands down."""
 FEED_FORWARD_RATIO = 2.0
 """The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
 HAND_RATE = 40.0
@@ -1015,7 +1019,11 @@ class ArmController(TaskDrives):
                     # hand drawn back to the chest at 0.5 m/s would cancel its 0.5 m/s push.
                     keep, keep_rate = 1.0 - body.gate, -body.gate_rate
                     ff, ff_rate = keep * ff, keep * ff_rate + keep_rate * ff
-            region = None if drive is None or avoid else (drive.shape.d1, drive.shape.d2)
+            # The reach-round's pose ignores the person: while the person's barrier holds the
+            # arm, the blend would pull into the barrier for good (sigma 1, the task's force
+            # 0), so it stands down and the task's descent slides the arm round the person.
+            region = (None if drive is None or avoid or body.gate > REACH_ROUND_BODY_GATE
+                      else (drive.shape.d1, drive.shape.d2))
             blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
             scale = 1.0
             if blend is not None:

@@ -138,7 +138,8 @@ class SimulationResult:
     lyapunov_rate (N,) W, eq. 22's prediction; task_potential Q (N,) m^2/s (these three are
     NaN when the run was not monitored, and distance is NaN on a fault); weight a and
     weight_rate da/dt (N,); phase (N,) str; active_task (N,) object (name or None);
-    theta_hat (N, p); torque_limited, fault (N,) bool; damping lambda^2 (N,);
+    theta_hat (N, p); torque_limited, fault (N,) bool; damping lambda^2 (N,); blend (N,):
+    the reach-round's weight sigma in [0, 1] (arm_law's module docstring);
     theta_true (p,); task_gains: k (m^2/s) per task name; body_distance (N,) m: the smallest
     distance between a robot capsule and a human capsule (None without a body).
     """
@@ -162,6 +163,7 @@ class SimulationResult:
     torque_limited: np.ndarray
     fault: np.ndarray
     damping: np.ndarray
+    blend: np.ndarray
     theta_true: np.ndarray
     task_gains: dict
     body_distance: np.ndarray | None = None
@@ -344,7 +346,7 @@ class _Run:
         self.rows.update({name: np.zeros((steps, self.axes)) for name in ('position', 'target')})
         self.scalars = {name: np.zeros(steps) for name in
                         ('distance', 'lyapunov', 'lyapunov_rate', 'task_potential', 'weight',
-                         'weight_rate', 'damping')}
+                         'weight_rate', 'damping', 'blend')}
         self.theta_hat = np.zeros((steps, self.theta_true.size))
         self.body_distance = None if c.body is None else np.full(steps, np.inf)
         self.torque_limited = np.zeros(steps, dtype=bool)
@@ -485,6 +487,7 @@ class _Run:
         if not out.fault:
             rows['position'][i] = out.position
             scalars['damping'][i] = out.damping
+            scalars['blend'][i] = out.blend
         else:
             scalars['lyapunov'][i] = scalars['lyapunov_rate'][i] = np.nan
         if not self.conditions.monitor:

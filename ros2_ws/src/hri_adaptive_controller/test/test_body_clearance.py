@@ -165,6 +165,28 @@ def test_the_upper_arm_in_follow_is_kept_at_its_surface_not_the_clearance(robot)
     assert avoid.gradient is not None and 0.0 < avoid.gate < 1.0
 
 
+@pytest.mark.parametrize('robot, place, hand', [
+    ('panda', [0.72, 0.0], [1.2, 0.0, 0.3]),
+    ('scara', [0.75, 0.0], [1.0, 0.1, 0.0]),
+])
+def test_a_hand_out_of_reach_behind_the_person_does_not_pull_the_arm_through_them(
+        robot, place, hand):
+    """Follow a hand beyond the reach with the person's trunk in between: the reach-round's
+    pose (which does not know the person) would pull the arm into the barrier for good (sigma
+    1, the task's force off); on the Panda it pulled the arm 0.13 m into the torso. It stands
+    down while the person's barrier holds the arm."""
+    model, body, _, _ = scene(robot, 'chest')
+    points = standing_body(place, math.pi, -0.2 if robot == 'panda' else 0.0, hand)
+    trunk = points[[BODY_POINTS.index(name) for name in TRUNK]]
+    result = simulate({'follow': FOLLOW}, [], still_target(np.array(hand)[:model.task_axes]),
+                      4.0, LoopConditions(arm=model, initial_task='follow', monitor=False,
+                                          body=still_body(TRUNK, trunk), robot_body=body))
+    assert np.mean(result.blend[result.time >= 3.0]) < 0.05, robot
+    assert np.min(result.body_distance) >= SETTINGS.clearance - 0.03, (
+        robot, float(np.min(result.body_distance)))
+    assert not result.fault.any()
+
+
 def test_a_person_over_the_arm_at_the_start_is_met_gently():
     """hand_sim's scripted person (at [0.85, 0], facing the base) reaching to (0.35, 0): in
     the SCARA's plane the forearm and hand lie over both links at home, 0.15 m deep. The

@@ -1,22 +1,24 @@
-"""Topic-level: a recorded person's whole body beside the live Panda, the whole-body clearance
-on.
+"""Topic-level: a recorded person's whole body beside a live arm (the Panda, the SCARA), the
+whole-body clearance on.
 
 hand_sim replays a take of data/human-motion with the person's body on /human/body, placed
-by its auto_place with the Panda's reach and body clearance; the Panda's live loop (arm_sim,
+by its auto_place with the arm's reach and body clearance; the arm's live loop (arm_sim,
 event_manager, controller with `clearance` CLEARANCE, its default, given explicitly) runs
 one of Table I's tasks. The probe keeps /joint_states, /target and /human/body and judges every
 10 ms from SETTLE s on, as bench/bench_body_takes.py does in the pure loop:
 
 - the trunk zone: the share of samples in which some capsule of the arm (robot_body, fitted
-  from the URDF's collision meshes as the controller fits them) is closer than clearance -
+  from the URDF's collision meshes as the controller fits them; the SCARA's in its plane) is
+  closer than clearance -
   3 cm to the person's head, torso or hip capsules (the bar: 1 %);
 - avoid: the share of the samples in which the tool is closer to the hand than d1 - 3 cm (5 %,
   as test_recorded_hand's);
 - every command within the effort limits, at most 1 N m from the one before; no joint within
   5 degrees of a limit.
 
-The default run: avoid on ObjectInspection_0, a person inspecting an object held at the chest
-beside the robot; with --all, avoid and follow_safe on a handover.
+The default run: the Panda's avoid on ObjectInspection_0, a person inspecting an object held
+at the chest beside the robot, and the SCARA's on TossTheCan_0; with --all, the
+Panda's avoid and follow_safe on a handover.
 """
 
 import numpy as np
@@ -36,7 +38,9 @@ from tests.test_panda_loop import RELIABLE, check_commands_and_limits, run_panda
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]
 
 TAKES = REPO_ROOT / 'data' / 'human-motion'
-PANDA_REACH = [0.30, 0.75]  # m: where auto_place puts the hand path (scripts/demo.py's)
+# m: where auto_place puts the hand path (scripts/demo.py's for the Panda, hand_sim's default
+# for the SCARA), and the hand's dimensions on /target.
+REACH = {'panda': ([0.30, 0.75], 3), 'scara': ([0.222, 0.65], 2)}
 RUN = 14.0  # s after the first joint state
 SETTLE = 3.0  # s: the arm comes from its home pose and the task fades in
 SAMPLE = 0.01  # s between the samples judged
@@ -52,16 +56,18 @@ def latest(times: np.ndarray, at: float) -> int:
     return int(np.searchsorted(times, at, side='right')) - 1
 
 
-def replay_beside_the_panda(nodes, probe, take: str, task: str) -> dict:
-    """The Panda's live loop under `task` with `take` replayed; the judged figures."""
-    model = robot_model('panda')
+def replay_beside_the_arm(nodes, probe, robot: str, take: str, task: str) -> dict:
+    """The live loop of `robot` under `task` with `take` replayed; the judged figures."""
+    model = robot_model(robot)
     body = robot_body(model, panda_package_dirs())
+    reach, dimension = REACH[robot]
     targets = probe.collect(topics.TARGET.name, PointStamped, topics.TARGET.qos)
     bodies = probe.collect(topics.HUMAN_BODY.name, topics.HUMAN_BODY.type, RELIABLE)
     hand = {'profile': 'recording', 'recording': str(TAKES / f'{take}.csv'),
-            'auto_place': True, 'reach': PANDA_REACH, 'body_clearance': BODY_CLEARANCE['panda'],
-            'dimension': 3, 'at_end': 'stop'}
+            'auto_place': True, 'reach': reach, 'body_clearance': BODY_CLEARANCE[robot],
+            'dimension': dimension, 'at_end': 'stop'}
     states, efforts, _, controller = run_panda_loop(nodes, probe, task, hand, RUN,
+                                                    arm={'robot': robot},
                                                     controller_only={'clearance': CLEARANCE})
     assert 'whole-body clearance and separation pairs off' not in controller.log()
     targets, bodies = list(targets), list(bodies)
@@ -69,7 +75,7 @@ def replay_beside_the_panda(nodes, probe, take: str, task: str) -> dict:
     joint_times = np.array([stamp_seconds(m.header.stamp) for m in states])
     q = np.array([m.position for m in states])
     hand_times = np.array([stamp_seconds(m.header.stamp) for m in targets])
-    hands = np.array([(m.point.x, m.point.y, m.point.z) for m in targets])
+    hands = np.array([(m.point.x, m.point.y, m.point.z) for m in targets])[:, :model.task_axes]
     body_times = np.array([stamp_seconds(m.header.stamp) for m in bodies])
     trunk, tool_hand = [], []
     for at in np.arange(joint_times[0] + SETTLE, joint_times[-1], SAMPLE):
@@ -80,18 +86,20 @@ def replay_beside_the_panda(nodes, probe, take: str, task: str) -> dict:
                                                          strict=True) if name in TRUNK]
             if names:
                 person = human_capsules(names, np.array(points))
-                trunk.append(capsule_distances(body.capsules(q[j]), person).distance.min())
+                trunk.append(capsule_distances(body.capsules(q[j]), person,
+                                               body.planar).distance.min())
         if h >= 0 and at - hand_times[h] <= BODY_MAX_AGE:
-            tool_hand.append(float(np.linalg.norm(model.tool_position(q[j]) - hands[h])))
+            tool_hand.append(float(np.linalg.norm(
+                model.tool_position(q[j])[:model.task_axes] - hands[h])))
     trunk, tool_hand = np.array(trunk), np.array(tool_hand)
     step, margin = check_commands_and_limits(model, q, efforts)
-    figures = {'take': take, 'task': task, 'samples': trunk.size,
+    figures = {'robot': robot, 'take': take, 'task': task, 'samples': trunk.size,
                'trunk_close': float(np.mean(trunk < CLEARANCE - MARGIN)),
                'trunk_least': float(trunk.min()),
                'tool_hand_median': float(np.median(tool_hand)),
                'tool_hand_least': float(tool_hand.min()),
                'largest_step': step, 'nearest_limit': margin}
-    print(f"{take} {task} beside the Panda: trunk within clearance - 3 cm "
+    print(f"{take} {task} beside the {robot}: trunk within clearance - 3 cm "
           f"{100 * figures['trunk_close']:.1f} % of {trunk.size} samples (least "
           f"{figures['trunk_least']:+.3f} m); tool-hand median {figures['tool_hand_median']:.3f}"
           f" m, least {figures['tool_hand_least']:.3f} m; largest command step {step:.3f} N m")
@@ -101,18 +109,20 @@ def replay_beside_the_panda(nodes, probe, take: str, task: str) -> dict:
     return figures | {'tool_hand': tool_hand}
 
 
-# Without the clearance the pure loop puts the arm inside the trunk zone in 34 % (avoid,
-# ObjectInspection_0) and 2-5 % (HumanRobotHandover_0) of the samples (bench_body_takes).
-CASES = [pytest.param('ObjectInspection_0', 'avoid', id='avoid-ObjectInspection_0'),
-         pytest.param('HumanRobotHandover_0', 'avoid', id='avoid-HumanRobotHandover_0',
-                      marks=pytest.mark.slow),
-         pytest.param('HumanRobotHandover_0', 'follow_safe', id='follow_safe-HumanRobotHandover_0',
-                      marks=pytest.mark.slow)]
+# Without the clearance the pure loop puts the Panda inside the trunk zone in 34 % (avoid,
+# ObjectInspection_0) and 2-5 % (HumanRobotHandover_0) of the samples, the SCARA (in its
+# plane) in 18-23 % (avoid, TossTheCan_0, its first 10 and 14 s) (bench_body_takes).
+CASES = [pytest.param('panda', 'ObjectInspection_0', 'avoid', id='panda-avoid-ObjectInspection_0'),
+         pytest.param('scara', 'TossTheCan_0', 'avoid', id='scara-avoid-TossTheCan_0'),
+         pytest.param('panda', 'HumanRobotHandover_0', 'avoid',
+                      id='panda-avoid-HumanRobotHandover_0', marks=pytest.mark.slow),
+         pytest.param('panda', 'HumanRobotHandover_0', 'follow_safe',
+                      id='panda-follow_safe-HumanRobotHandover_0', marks=pytest.mark.slow)]
 
 
-@pytest.mark.parametrize(('take', 'task'), CASES)
-def test_the_panda_keeps_clear_of_a_recorded_persons_trunk(nodes, probe, take, task):
-    figures = replay_beside_the_panda(nodes, probe, take, task)
+@pytest.mark.parametrize(('robot', 'take', 'task'), CASES)
+def test_the_arm_keeps_clear_of_a_recorded_persons_trunk(nodes, probe, robot, take, task):
+    figures = replay_beside_the_arm(nodes, probe, robot, take, task)
     assert figures['trunk_close'] <= TRUNK_BAR, figures
     d1 = load_task_file(PAPER_TASKS / f'{task}.yaml').d1
     assert np.mean(figures['tool_hand'] < d1 - MARGIN) <= AVOID_BAR, figures

@@ -3,10 +3,12 @@
 
 Each take of data/human-motion/ is placed by recorded_motion.choose_placement with the arm's
 reach and its `body_clearance` (BODY_CLEARANCE: the person's hip, torso and head that far from
-the base), cropped to its first `--crop` s, and replayed in the pure closed loop
-(closed_loop.simulate, 1 kHz, the hand at 100 Hz through the glitch filter) with each of
-Table I's tasks, once with the barrier off (force 0) and once on (arm_law.ClearanceSettings'
-defaults), the person's body on it as it was recorded. Per run:
+the base), the trunk at the take's first frame at least the clearance from the arm at its home
+pose (bodies.clear_of_arm: a person does not stand inside the arm), cropped to its first
+`--crop` s, and replayed in the pure closed loop (closed_loop.simulate, 1 kHz, the hand at 100
+Hz through the glitch filter) with each of Table I's tasks, once with the barrier off (force 0)
+and once on (arm_law.ClearanceSettings' defaults), the person's body on it as it was recorded.
+Per run:
 
 - trunk: the share of samples (every 10 ms) in which some robot capsule is closer than
   clearance - 3 cm to the head, torso or hip capsules, and the least such distance (m);
@@ -40,6 +42,7 @@ from hri_adaptive_controller.run_metrics import TakeCriteria, considered_samples
 from hri_core.bodies import (
     Capsules,
     capsule_distances,
+    clear_of_arm,
     human_capsules,
     panda_package_dirs,
     robot_body,
@@ -84,8 +87,11 @@ def run(robot: str, body, path: Path, names, crop: float) -> list[dict]:
     clearance = ClearanceSettings().clearance
     tool_radius = float(body.radius[body.names.index(body.tool)])
     recorded = read_recorded_body(path)
+    start = clear_of_arm(body.capsules(model.home), human_capsules(*recorded.first_trunk()),
+                         clearance, body.planar)
     placement = choose_placement(read_vicon_csv(path).positions, REACH[robot],
-                                 body=recorded.trunk(), clearance=BODY_CLEARANCE[robot])
+                                 body=recorded.trunk(), clearance=BODY_CLEARANCE[robot],
+                                 accept=start)
     motion = read_vicon_csv(path, placement=placement)
     person = read_recorded_body(path, placement=placement)
     keep = motion.times <= crop

@@ -616,7 +616,7 @@ class Demo:
         reach = self.hand_reach()
         hand = {'profile': 'recording', 'recording': str(RECORDED_TAKE), 'auto_place': True,
                 'at_end': 'loop', 'reach': [reach.inner, reach.outer],
-                'body_clearance': self.body_clearance()}
+                'body_clearance': self.body_clearance(), 'arm': self.robot}
         print(f'  a recorded person ({RECORDED_TAKE.stem}, Vicon, 100 Hz) as the hand for '
               f'{seconds:.0f} s, from follow; the event_detector switches the tasks')
         bag = self.closed_loop('recorded_person', 'follow', hand, seconds, detector=True)

@@ -65,7 +65,7 @@ def replay_beside_the_arm(nodes, probe, robot: str, take: str, task: str) -> dic
     bodies = probe.collect(topics.HUMAN_BODY.name, topics.HUMAN_BODY.type, RELIABLE)
     hand = {'profile': 'recording', 'recording': str(TAKES / f'{take}.csv'),
             'auto_place': True, 'reach': reach, 'body_clearance': BODY_CLEARANCE[robot],
-            'dimension': dimension, 'at_end': 'stop'}
+            'dimension': dimension, 'at_end': 'stop', 'arm': robot}
     states, efforts, _, controller = run_panda_loop(nodes, probe, task, hand, RUN,
                                                     arm={'robot': robot},
                                                     controller_only={'clearance': CLEARANCE})

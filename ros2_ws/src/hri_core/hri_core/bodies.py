@@ -294,6 +294,25 @@ def segment_parameters(robot: 'Capsules', human: 'Capsules') -> tuple[np.ndarray
     return s, t
 
 
+def clear_of_arm(arm: Capsules, person: Capsules, clearance: float, planar: bool = False):
+    """A placement rule (recorded_motion.choose_placement's `accept`): True where the
+    person's capsules `person` (room frame, e.g. the trunk at a take's first frame), placed
+    by the Placement, keep at least `clearance` m from every capsule of `arm` (base frame,
+    the arm at its start pose; planar: in the plane z = 0, as the SCARA measures). A person
+    cannot stand where the arm is: placed there, the arm starts inside their clearance."""
+    if not (math.isfinite(clearance) and clearance >= 0.0):
+        raise ValueError(f'clearance must be a finite number >= 0 m, got {clearance}')
+
+    def accept(placement) -> bool:
+        if len(person) == 0 or len(arm) == 0:
+            return True
+        placed = Capsules(person.names, placement.apply(person.a), placement.apply(person.b),
+                          person.radius)
+        return bool(capsule_distances(arm, placed, planar).distance.min() >= clearance)
+
+    return accept
+
+
 def capsule_distances(robot: Capsules, human: Capsules, planar: bool = False,
                       compiled: bool = True) -> Distances:
     """Every robot capsule against every human capsule (module docstring): shapes (R, H) and

@@ -224,8 +224,13 @@ def body_clearances(centres, body) -> np.ndarray:
     return cKDTree(xy).query(centres)[0]
 
 
+YAW_TURNS = (0.0, math.pi / 6.0, -math.pi / 6.0, math.pi / 3.0, -math.pi / 3.0)
+"""rad: the turns of a path's mean bearing off +x that choose_placement tries with a rule."""
+
+
 def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
-                     max_points: int = 600, body=None, clearance: float = 0.0) -> Placement:
+                     max_points: int = 600, body=None, clearance: float = 0.0,
+                     accept=None) -> Placement:
     """A room-to-base transform that puts most of a take's horizontal path inside `reach`
     while the person's trunk keeps `clearance` from the base.
 
@@ -238,8 +243,12 @@ def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
     path inside the annulus (with its margin) and the sector; ties go to the path nearest
     the annulus's mid-radius and the +x axis (the least swinging round the base).
     Marker-swap frames of the path are dropped first; at most `max_points` frames are
-    scored. The translation's z is 0 (heights stay as recorded). Raises ValueError if no
-    frame is seen, for a negative clearance, or if no place on the grid keeps it.
+    scored. The translation's z is 0 (heights stay as recorded). accept: a further rule on
+    the placement (a function of a Placement to bool, e.g. hri_core.bodies.clear_of_arm:
+    the person not inside the arm at the start); the places, each also with the path's
+    bearing turned by YAW_TURNS, are tried best first until one passes. Raises ValueError
+    if no frame is seen, for a negative clearance, or if no place on the grid keeps the
+    clearance and passes `accept`.
     """
     positions = np.asarray(positions, dtype=float).reshape(-1, 3)
     if not (math.isfinite(clearance) and clearance >= 0.0):
@@ -259,7 +268,11 @@ def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
                              f'{clearance} m away')
     inner, outer = reach.inner + reach.margin, reach.outer - reach.margin
     middle = 0.5 * (inner + outer)
-    best = (-math.inf, None, 0.0)
+    # With a placement rule the path's mean bearing may also land up to 60 degrees off +x:
+    # the arm's start pose lies along +x (the SCARA's link1), and turning the person off it
+    # keeps more of the path in reach than moving the base away.
+    turns = (0.0,) if accept is None else YAW_TURNS
+    scores, bearings, places = [], [], []
     for chunk in np.array_split(centres, max(1, len(centres) // 2000)):
         if len(chunk) == 0:
             continue
@@ -267,15 +280,29 @@ def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
         radius = np.hypot(offset[..., 0], offset[..., 1])
         bearing = np.arctan2(offset[..., 1], offset[..., 0])
         mean_bearing = np.arctan2(np.sin(bearing).sum(1), np.cos(bearing).sum(1))
-        turned = np.angle(np.exp(1j * (bearing - mean_bearing[:, None])))
-        inside = (radius >= inner) & (radius <= outer) & (np.abs(turned) <= reach.half_angle)
-        spread = (np.mean(np.abs(radius - middle), axis=1) / (outer - inner)
-                  + np.mean(np.abs(turned), axis=1) / math.pi)
-        score = inside.mean(axis=1) - 1e-3 * spread
-        index = int(np.argmax(score))
-        if score[index] > best[0]:
-            best = (float(score[index]), chunk[index], float(mean_bearing[index]))
-    _, centre, bearing = best
+        ring = (radius >= inner) & (radius <= outer)
+        deviation = np.mean(np.abs(radius - middle), axis=1) / (outer - inner)
+        for turn in turns:
+            turned = np.angle(np.exp(1j * (bearing - mean_bearing[:, None] - turn)))
+            inside = ring & (np.abs(turned) <= reach.half_angle)
+            spread = deviation + np.mean(np.abs(turned), axis=1) / math.pi
+            scores.append(inside.mean(axis=1) - 1e-3 * spread)
+            bearings.append(mean_bearing + turn)
+            places.append(chunk)
+    scores, bearings = np.concatenate(scores), np.concatenate(bearings)
+    centres = np.concatenate(places)
+    # Best first; a stable sort keeps the grid's order among equal scores.
+    for index in np.argsort(-scores, kind='stable'):
+        placement = _base_at(centres[index], float(bearings[index]))
+        if accept is None or accept(placement):
+            return placement
+    raise ValueError('no base place within reach of the path passes the placement rule '
+                     '(the person clear of the arm at the start)')
+
+
+def _base_at(centre, bearing: float) -> Placement:
+    """The placement that puts the base at the room point `centre` (2,) m with the room
+    bearing `bearing` (rad) turned onto +x."""
     yaw = -bearing
     c, s = math.cos(yaw), math.sin(yaw)
     shift = -np.array([c * centre[0] - s * centre[1], s * centre[0] + c * centre[1]])

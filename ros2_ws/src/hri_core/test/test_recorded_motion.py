@@ -271,3 +271,61 @@ def test_read_vicon_segments_reads_several_in_one_pass(tmp_path):
     assert list(optional) == ['head']
     with pytest.raises(ValueError, match="no segment 'hip'"):
         read_vicon_segments(write(tmp_path, vicon_text(rows)), ('hip', 'head'))
+
+
+@pytest.fixture(scope='module')
+def arms():
+    from hri_core.bodies import panda_package_dirs, robot_body
+    from hri_core.robot_model import robot_model
+
+    models = {name: robot_model(name) for name in ARM_REACH}
+    return {name: (robot_body(model, panda_package_dirs()).capsules(model.home),
+                   name == 'scara') for name, model in models.items()}
+
+
+def start_distance(placement, trunk_names, trunk_points, arm) -> float:
+    """The least distance (m) of the placed trunk capsules from the arm's at home."""
+    from hri_core.bodies import capsule_distances, human_capsules
+
+    capsules, planar = arm
+    person = human_capsules(trunk_names, placement.apply(trunk_points))
+    return float(capsule_distances(capsules, person, planar).distance.min())
+
+
+@pytest.mark.parametrize('arm', sorted(ARM_REACH))
+@pytest.mark.parametrize('take', TAKES, ids=lambda path: path.stem)
+def test_auto_place_keeps_the_person_off_the_arm_at_its_start(take, arm, arms):
+    from hri_core.bodies import clear_of_arm, human_capsules
+    from hri_core.human_body import BODY_POINTS, read_recorded_body
+
+    body = read_recorded_body(take)
+    hand = body.points[:, BODY_POINTS.index('r_wrist')]
+    names, points = body.first_trunk()
+    assert names, take.stem
+    rule = clear_of_arm(arms[arm][0], human_capsules(names, points), 0.10, arms[arm][1])
+    placement = choose_placement(hand, ARM_REACH[arm], body=body.trunk(),
+                                 clearance=BODY_CLEARANCE[arm], accept=rule)
+    assert start_distance(placement, names, points, arms[arm]) >= 0.10
+    trunk = placement.apply(body.trunk())
+    assert np.nanmin(np.hypot(trunk[:, 0], trunk[:, 1])) >= BODY_CLEARANCE[arm]
+    assert reach_fraction(placement.apply(hand), ARM_REACH[arm]) >= MIN_IN_REACH
+
+
+def test_without_the_arm_rule_most_takes_start_the_person_over_the_scara(arms):
+    # What the rule is for: the SCARA's home pose points along the path's mean bearing.
+    from hri_core.human_body import BODY_POINTS, read_recorded_body
+
+    inside = 0
+    for take in TAKES:
+        body = read_recorded_body(take)
+        placement = choose_placement(body.points[:, BODY_POINTS.index('r_wrist')],
+                                     SCARA_REACH, body=body.trunk(),
+                                     clearance=BODY_CLEARANCE['scara'])
+        inside += start_distance(placement, *body.first_trunk(), arms['scara']) < 0.10
+    assert inside >= len(TAKES) // 2
+
+
+def test_a_placement_rule_no_place_passes_is_refused_in_one_line():
+    path = np.column_stack([np.linspace(0.3, 0.5, 50), np.zeros(50), np.zeros(50)])
+    with pytest.raises(ValueError, match='no base place within reach of the path passes'):
+        choose_placement(path, SCARA_REACH, accept=lambda placement: False)

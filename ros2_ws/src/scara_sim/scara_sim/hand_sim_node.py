@@ -14,7 +14,8 @@ switch `dimension`, set it and the points the profile uses in one call).
 `profile: recording` replays a Vicon Nexus CSV export (`recording`, hri_core.recorded_motion)
 at its recorded pace: the segment `segment`, moved into the base frame by p_base =
 Rz(`yaw`) p_room + `translation` (or, with `auto_place`, by the placement that keeps the
-person's hip, collar and head `body_clearance` m from the base through the whole take and,
+person's hip, collar and head `body_clearance` m from the base through the whole take and
+its trunk at the first frame `arm_clearance` m from the arm `arm` at its home pose, and,
 among those, puts most of the take's horizontal path within the `reach` annulus), its times
 multiplied by `time_scale`;
 at the end it loops, stops or holds the last frame (`at_end`). Each tick publishes the newest
@@ -42,6 +43,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
 from hri_core import topics
+from hri_core.bodies import clear_of_arm, human_capsules, panda_package_dirs, robot_body
 from hri_core.cdr import point_stamped_template
 from hri_core.human_body import (
     BODY_POINTS,
@@ -64,6 +66,7 @@ from hri_core.recorded_motion import (
     choose_placement,
     read_vicon_csv,
 )
+from hri_core.robot_model import robot_model
 from scara_sim.profiles import (
     HAND_DIMENSIONS,
     HAND_PROFILES,
@@ -123,6 +126,11 @@ PARAMETERS = {
                                     'hip, collar and head at least this far from the base, '
                                     'horizontally, through the whole take (m; the Panda: '
                                     '0.45)', 0.0, 2.0),
+    'arm': ParameterSpec(str, 'recording profile: auto_place keeps the person\'s trunk at '
+                         'the take\'s first frame at least arm_clearance from this arm at its '
+                         'home pose (a robot name: scara, panda, ...; empty: no such rule)'),
+    'arm_clearance': ParameterSpec(float, 'recording profile: the distance (m) of `arm`\'s '
+                                   'rule', 0.0, 2.0),
     'body_place': ParameterSpec(list, 'scripted profiles: where the person stands, [x, y] of '
                                 'the point between the hips (m) on /human/body', size=2),
     'body_height': ParameterSpec(float, 'scripted profiles: z of the point between the hips '
@@ -132,12 +140,24 @@ PARAMETERS = {
                               2.0 * math.pi, optional=True),
 }
 RECORDING_PARAMETERS = ('recording', 'segment', 'translation', 'yaw', 'auto_place', 'reach',
-                        'time_scale', 'at_end', 'body_clearance')
+                        'time_scale', 'at_end', 'body_clearance', 'arm', 'arm_clearance')
 BODY_PARAMETERS = ('body_place', 'body_height', 'body_yaw')
 PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 'start_delay',
                       'waypoints', 'dimension', 'segment_speeds', 'pauses', 'unseen_time',
                       'repeat',
                       *RECORDING_PARAMETERS, *BODY_PARAMETERS)
+
+
+def _clear_of_arm(arm: str, body: RecordedBody, clearance: float):
+    """auto_place's rule that the person's trunk at the take's first frame keeps `clearance`
+    m from the arm named `arm` at its home pose (arm_sim starts there), or None for ''."""
+    if not arm:
+        return None
+    model = robot_model(arm)
+    capsules = robot_body(model, panda_package_dirs())
+    return clear_of_arm(capsules.capsules(model.home), human_capsules(*body.first_trunk()),
+                        clearance, capsules.planar)
+
 
 
 @dataclass(frozen=True)
@@ -227,7 +247,9 @@ class HandSim(Node):
         if value('auto_place'):
             inner, outer = value('reach')
             placement = choose_placement(motion.positions, ReachAnnulus(inner, outer),
-                                         body=body.trunk(), clearance=value('body_clearance'))
+                                         body=body.trunk(), clearance=value('body_clearance'),
+                                         accept=_clear_of_arm(value('arm'), body,
+                                                              value('arm_clearance')))
         else:
             placement = Placement(tuple(float(v) for v in value('translation')),
                                   float(value('yaw')))

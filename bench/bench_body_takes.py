@@ -3,7 +3,7 @@
 
 Each take of data/human-motion/ is placed by recorded_motion.choose_placement with the arm's
 reach and its `body_clearance` (BODY_CLEARANCE: the person's hip, torso and head that far from
-the base), the trunk at the take's first frame at least the clearance from the arm at its home
+the base), the person at the take's first frame at least the clearance from the arm at its home
 pose (bodies.clear_of_arm: a person does not stand inside the arm), cropped to its first
 `--crop` s, and replayed in the pure closed loop (closed_loop.simulate, 1 kHz, the hand at 100
 Hz through the glitch filter) with each of Table I's tasks, once with the barrier off (force 0)
@@ -87,7 +87,7 @@ def run(robot: str, body, path: Path, names, crop: float) -> list[dict]:
     clearance = ClearanceSettings().clearance
     tool_radius = float(body.radius[body.names.index(body.tool)])
     recorded = read_recorded_body(path)
-    start = clear_of_arm(body.capsules(model.home), human_capsules(*recorded.first_trunk()),
+    start = clear_of_arm(body.capsules(model.home), human_capsules(*recorded.first_frame()),
                          clearance, body.planar)
     placement = choose_placement(read_vicon_csv(path).positions, REACH[robot],
                                  body=recorded.trunk(), clearance=BODY_CLEARANCE[robot],

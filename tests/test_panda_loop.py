@@ -114,12 +114,14 @@ def run_panda_loop(nodes, probe, task: str, hand, duration: float, tasks_dir=Non
         controller
 
 
-def check_commands_and_limits(model, q, efforts) -> tuple[float, float]:
+def check_commands_and_limits(model, q, efforts,
+                              limit_margin: float = LIMIT_MARGIN) -> tuple[float, float]:
     """Every command within the per-joint effort limits and <= MAX_STEP from the one before;
-    no joint within LIMIT_MARGIN of a limit. Returns (largest step N m, nearest limit rad)."""
+    no joint within limit_margin (rad) of a limit. Returns (largest step N m, nearest limit
+    rad)."""
     margin = np.minimum(q - model.limits.lower, model.limits.upper - q)
     sample, joint = np.unravel_index(int(np.argmin(margin)), margin.shape)
-    assert margin.min() > LIMIT_MARGIN, (
+    assert margin.min() > limit_margin, (
         f'joint {joint + 1} {np.degrees(margin.min()):.1f} deg from its limit at joint state '
         f'{sample} of {len(q)}: q {np.round(q[sample], 3).tolist()}')
     assert efforts.shape[1] == model.dof

@@ -89,6 +89,7 @@ import numpy as np
 
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import (
+    PUSH_SCALE,
     ReachRoundSettings,
     barrier,
     barrier_energy,
@@ -1008,11 +1009,20 @@ class ArmController(TaskDrives):
                 body = self.whole_body_barrier(q, dq, human, self._exempt(drive, avoid, human),
                                                fade)
                 if body.gradient is not None:
+                    gradient, rate = body.gradient, body.rate
+                    if near > 0.0:
+                        # Within a joint's band the person's push does not drive it into its
+                        # stop (torque -g; the joint barrier's kb is 3 N m, several pairs on
+                        # the SCARA's link2 more): that share fades out as the feed-forward's.
+                        torque, torque_rate = gate_feed_forward(
+                            q, dq, -gradient, -rate, self._lower, self._upper,
+                            gains.limit_band, PUSH_SCALE)
+                        gradient, rate = -torque, -torque_rate
                     # The person's barrier joins the joint limits' (one g_B in V and eq. 22).
-                    g_b = body.gradient if g_b is None else g_b + body.gradient
-                    g_b_rate = body.rate if g_b_rate is None else g_b_rate + body.rate
-                    push, push_rate = self._capped_push(body.gradient, body.rate, pinv,
-                                                        pinv_rate, human)
+                    g_b = gradient if g_b is None else g_b + gradient
+                    g_b_rate = rate if g_b_rate is None else g_b_rate + rate
+                    push, push_rate = self._capped_push(gradient, rate, pinv, pinv_rate,
+                                                        human)
                     g_ref = push if g_ref is None else g_ref + push
                     g_ref_rate = push_rate if g_ref_rate is None else g_ref_rate + push_rate
                     # Within the barrier's band the hand's velocity is not fed forward: a

@@ -105,6 +105,7 @@ IK_TOLERANCE = 1e-3
 """m: inverse_kinematics_n stops a seed's iterations this near the goal."""
 
 FEED_SPEED = 0.05
+PUSH_SCALE = 0.1  # N m: the person's barrier torque's sign switch in the joint bands
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
 
 SPEED_NORM = 8
@@ -182,16 +183,18 @@ def barrier_energy(q, lower, upper, band: float, barrier_torque: float) -> float
     return total
 
 
-def gate_feed_forward(q, dq, v, rate, lower, upper, band: float):
+def gate_feed_forward(q, dq, v, rate, lower, upper, band: float, scale: float = FEED_SPEED):
     """The joint feed-forward v (n,) rad/s and its rate (n,) rad/s^2 with each component
-    towards a near limit faded out (module docstring)."""
+    towards a near limit faded out (module docstring); scale: the size of v (its unit) over
+    which its sign's smooth switch runs. Also the person's barrier torque -g (N m, scale
+    PUSH_SCALE): it pushes no joint into its stop within the joint's band."""
     up, dup = _smoothstep_arrays((q - (upper - band)) / band)
     down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
-    towards_up, dtu = _smoothstep_arrays(v / FEED_SPEED)
-    towards_down, dtd = _smoothstep_arrays(-v / FEED_SPEED)
+    towards_up, dtu = _smoothstep_arrays(v / scale)
+    towards_down, dtd = _smoothstep_arrays(-v / scale)
     factor = 1.0 - up * towards_up - down * towards_down
-    factor_rate = (-(dup / band * dq) * towards_up - up * dtu / FEED_SPEED * rate
-                   + (ddown / band * dq) * towards_down + down * dtd / FEED_SPEED * rate)
+    factor_rate = (-(dup / band * dq) * towards_up - up * dtu / scale * rate
+                   + (ddown / band * dq) * towards_down + down * dtd / scale * rate)
     return v * factor, rate * factor + v * factor_rate
 
 

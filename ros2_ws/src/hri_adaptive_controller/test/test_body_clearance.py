@@ -4,6 +4,7 @@ plane) and the Panda, in the pure closed loop with a person standing beside the 
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -232,3 +233,43 @@ def test_a_person_coming_closer_widens_the_band_and_a_still_one_does_not():
         assert (barrier.gradient is not None) == pushed, (speed, barrier.distance)
     glitch = body_point_velocities(['head'], [centre], {'head': centre + away}, 0.01)
     assert np.linalg.norm(glitch) == pytest.approx(3.0)  # MAX_BODY_SPEED, not 100 m/s
+
+
+def test_a_person_pressing_the_scaras_elbow_does_not_drive_it_into_its_stop():
+    """A recorded person inspecting an object beside the SCARA (avoid, auto_place with the
+    arm rule, as bench_body_takes): the person's capsules fold link2 towards joint 2's stop.
+    The joint barrier's 3 N m is less than several pairs' push on link2; within the joint's
+    band that push now fades out, so the stop damper holds the joint off the stop (a quarter
+    of the band: 1.4 deg). Before: at the stop (0.0 deg)."""
+    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
+    from hri_core.bodies import clear_of_arm
+    from hri_core.human_body import read_recorded_body
+    from hri_core.recorded_motion import (
+        BODY_CLEARANCE,
+        ReachAnnulus,
+        choose_placement,
+        read_vicon_csv,
+    )
+
+    take = Path(__file__).resolve().parents[4] / 'data' / 'human-motion' / \
+        'ObjectInspection_0.csv'
+    model, body, _, _ = scene('scara', 'chest')
+    recorded = read_recorded_body(take)
+    rule = clear_of_arm(body.capsules(model.home), human_capsules(*recorded.first_frame()),
+                        SETTINGS.clearance, body.planar)
+    placement = choose_placement(read_vicon_csv(take).positions, ReachAnnulus(0.222, 0.65),
+                                 body=recorded.trunk(), clearance=BODY_CLEARANCE['scara'],
+                                 accept=rule)
+    hand = read_vicon_csv(take, placement=placement)
+    person = read_recorded_body(take, placement=placement)
+    keep = hand.times <= 16.0
+    result = simulate({'avoid': AVOID}, [(0.0, 'avoid')],
+                      recorded_target(hand.times[keep], hand.positions[keep, :2]), 16.0,
+                      LoopConditions(arm=model, monitor=False, target_period=0.01,
+                                     body=recorded_body(hand.times[keep], BODY_POINTS,
+                                                        person.points[keep]),
+                                     robot_body=body))
+    margin = np.minimum(result.q - model.limits.lower, model.limits.upper - result.q)
+    band = ArmController(model).gains.limit_band
+    assert margin.min() >= 0.25 * band, math.degrees(margin.min())
+    assert not result.fault.any()

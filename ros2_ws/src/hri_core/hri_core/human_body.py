@@ -56,16 +56,11 @@ class RecordedBody:
         return tuple(name for name, ok in zip(BODY_POINTS, seen, strict=True) if ok), \
             points[seen]
 
-    def first_trunk(self) -> tuple[tuple[str, ...], np.ndarray]:
-        """The TRUNK names (K,) and points (K, 3) m seen in the first frame that sees any of
-        them (K = 0 if no frame does)."""
-        indices = [BODY_POINTS.index(name) for name in TRUNK]
-        seen = np.all(np.isfinite(self.points[:, indices, :]), axis=2)
-        frames = np.flatnonzero(seen.any(axis=1))
-        if len(frames) == 0:
-            return (), np.zeros((0, 3))
-        kept = [k for k, ok in zip(indices, seen[frames[0]], strict=True) if ok]
-        return tuple(BODY_POINTS[k] for k in kept), self.points[frames[0], kept, :]
+    def first_frame(self) -> tuple[tuple[str, ...], np.ndarray]:
+        """frame() of the first frame that sees any point: names (K,), points (K, 3) m (K = 0
+        if no frame does)."""
+        seen = np.flatnonzero(np.all(np.isfinite(self.points), axis=2).any(axis=1))
+        return self.frame(int(seen[0])) if len(seen) else ((), np.zeros((0, 3)))
 
     def trunk(self) -> np.ndarray:
         """Every frame's body, torso and head stacked: (3 N, 3) m, NaN rows where lost."""

@@ -11,6 +11,7 @@ from hri_core.human_body import (
     TRUNK,
     VICON_SEGMENTS,
     BodyModel,
+    RecordedBody,
     elbow_position,
     read_recorded_body,
     standing_body,
@@ -47,6 +48,16 @@ def test_a_lost_segment_is_left_out_of_its_frame_never_nan():
     assert np.all(np.isfinite(points))
     names, points = body.frame(0)
     assert names == BODY_POINTS and points.shape == (9, 3)
+
+
+def test_the_first_frame_is_the_first_that_sees_a_point():
+    points = np.full((3, len(BODY_POINTS), 3), np.nan)
+    points[1, BODY_POINTS.index('head')] = (0.1, 0.2, 1.6)
+    points[2] = 0.0
+    names, seen = RecordedBody(np.arange(3) * 0.01, points, 100.0).first_frame()
+    assert names == ('head',) and np.allclose(seen, [[0.1, 0.2, 1.6]])
+    names, seen = RecordedBody(np.zeros(1), points[:1], 100.0).first_frame()
+    assert names == () and seen.shape == (0, 3)
 
 
 def test_the_elbow_keeps_both_arm_lengths_within_reach():

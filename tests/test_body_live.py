@@ -9,8 +9,7 @@ one of Table I's tasks. The probe keeps /joint_states, /target and /human/body a
 
 - the trunk zone: the share of samples in which some capsule of the arm (robot_body, fitted
   from the URDF's collision meshes as the controller fits them; the SCARA's in its plane) is
-  closer than clearance -
-  3 cm to the person's head, torso or hip capsules (the bar: 1 %);
+  closer than clearance - 3 cm to the person's head, torso or hip capsules (the bar: 1 %);
 - avoid: the share of the samples in which the tool is closer to the hand than d1 - 3 cm (5 %,
   as test_recorded_hand's);
 - every command within the effort limits, at most 1 N m from the one before; no joint within

@@ -105,8 +105,9 @@ IK_TOLERANCE = 1e-3
 """m: inverse_kinematics_n stops a seed's iterations this near the goal."""
 
 FEED_SPEED = 0.05
-PUSH_SCALE = 0.1  # N m: the person's barrier torque's sign switch in the joint bands
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
+PUSH_SCALE = 0.1
+"""N m: the same gate's scale for the person's barrier torque in the joint bands."""
 
 SPEED_NORM = 8
 """The power p of the joint speed limit's smooth maximum (sum_i |v_i / V_i|^p)^(1/p): at most

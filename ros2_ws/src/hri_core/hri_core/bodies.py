@@ -295,11 +295,12 @@ def segment_parameters(robot: 'Capsules', human: 'Capsules') -> tuple[np.ndarray
 
 
 def clear_of_arm(arm: Capsules, person: Capsules, clearance: float, planar: bool = False):
-    """A placement rule (recorded_motion.choose_placement's `accept`): True where the
-    person's capsules `person` (room frame, e.g. the trunk at a take's first frame), placed
-    by the Placement, keep at least `clearance` m from every capsule of `arm` (base frame,
-    the arm at its start pose; planar: in the plane z = 0, as the SCARA measures). A person
-    cannot stand where the arm is: placed there, the arm starts inside their clearance."""
+    """A placement rule (recorded_motion.choose_placement's `accept`): True where the person's
+    capsules `person` (room frame, e.g. the whole person at a take's first frame),
+    placed by the Placement, keep at least `clearance` m from every capsule of `arm`
+    (base frame, the arm at its start pose; planar: in the plane z = 0, as the SCARA
+    measures). A person cannot stand where the arm is: placed there, the arm starts
+    inside their clearance."""
     if not (math.isfinite(clearance) and clearance >= 0.0):
         raise ValueError(f'clearance must be a finite number >= 0 m, got {clearance}')
 

@@ -159,7 +159,6 @@ def _clear_of_arm(arm: str, body: RecordedBody, clearance: float):
                         clearance, capsules.planar)
 
 
-
 @dataclass(frozen=True)
 class StandingPlace:
     """Where the scripted profiles' person stands: place (2,) m, height m, yaw rad."""

@@ -87,8 +87,7 @@ def run(robot: str, body, path: Path, names, crop: float) -> list[dict]:
     clearance = ClearanceSettings().clearance
     tool_radius = float(body.radius[body.names.index(body.tool)])
     recorded = read_recorded_body(path)
-    start = clear_of_arm(body.capsules(model.home), human_capsules(*recorded.first_frame()),
-                         clearance, body.planar)
+    start = clear_of_arm(body, human_capsules(*recorded.first_frame()), clearance)
     placement = choose_placement(read_vicon_csv(path).positions, REACH[robot],
                                  body=recorded.trunk(), clearance=BODY_CLEARANCE[robot],
                                  accept=start)

@@ -255,8 +255,7 @@ def test_a_person_pressing_the_scaras_elbow_does_not_drive_it_into_its_stop():
         'ObjectInspection_0.csv'
     model, body, _, _ = scene('scara', 'chest')
     recorded = read_recorded_body(take)
-    rule = clear_of_arm(body.capsules(model.home), human_capsules(*recorded.first_frame()),
-                        SETTINGS.clearance, body.planar)
+    rule = clear_of_arm(body, human_capsules(*recorded.first_frame()), SETTINGS.clearance)
     placement = choose_placement(read_vicon_csv(take).positions, ReachAnnulus(0.222, 0.65),
                                  body=recorded.trunk(), clearance=BODY_CLEARANCE['scara'],
                                  accept=rule)

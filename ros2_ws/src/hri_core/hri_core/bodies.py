@@ -294,22 +294,23 @@ def segment_parameters(robot: 'Capsules', human: 'Capsules') -> tuple[np.ndarray
     return s, t
 
 
-def clear_of_arm(arm: Capsules, person: Capsules, clearance: float, planar: bool = False):
+def clear_of_arm(body: 'RobotBody', person: Capsules, clearance: float, q=None):
     """A placement rule (recorded_motion.choose_placement's `accept`): True where the person's
-    capsules `person` (room frame, e.g. the whole person at a take's first frame),
-    placed by the Placement, keep at least `clearance` m from every capsule of `arm`
-    (base frame, the arm at its start pose; planar: in the plane z = 0, as the SCARA
-    measures). A person cannot stand where the arm is: placed there, the arm starts
-    inside their clearance."""
+    capsules `person` (room frame, e.g. the whole person at a take's first frame), placed by
+    the Placement, keep at least `clearance` m from every capsule of the robot `body` at q
+    (n,) rad (None: its model's home, where arm_sim starts), measured as the body measures
+    (a planar arm in its plane). A person cannot stand where the arm is: placed there, the
+    arm starts inside their clearance."""
     if not (math.isfinite(clearance) and clearance >= 0.0):
         raise ValueError(f'clearance must be a finite number >= 0 m, got {clearance}')
+    arm = body.capsules(body.model.home if q is None else q)
 
     def accept(placement) -> bool:
         if len(person) == 0 or len(arm) == 0:
             return True
         placed = Capsules(person.names, placement.apply(person.a), placement.apply(person.b),
                           person.radius)
-        return bool(capsule_distances(arm, placed, planar).distance.min() >= clearance)
+        return bool(capsule_distances(arm, placed, body.planar).distance.min() >= clearance)
 
     return accept
 

@@ -278,9 +278,7 @@ def arms():
     from hri_core.bodies import panda_package_dirs, robot_body
     from hri_core.robot_model import robot_model
 
-    models = {name: robot_model(name) for name in ARM_REACH}
-    return {name: (robot_body(model, panda_package_dirs()).capsules(model.home),
-                   name == 'scara') for name, model in models.items()}
+    return {name: robot_body(robot_model(name), panda_package_dirs()) for name in ARM_REACH}
 
 
 # The rule costs reach: the least share is 0.61 (CollaborativeHammering_1, SCARA; 0.70 without).
@@ -291,9 +289,9 @@ def start_distance(placement, names, points, arm) -> float:
     """The least distance (m) of the placed person's capsules from the arm's at home."""
     from hri_core.bodies import capsule_distances, human_capsules
 
-    capsules, planar = arm
     person = human_capsules(names, placement.apply(points))
-    return float(capsule_distances(capsules, person, planar).distance.min())
+    return float(capsule_distances(arm.capsules(arm.model.home), person,
+                                   arm.planar).distance.min())
 
 
 @pytest.mark.parametrize('arm', sorted(ARM_REACH))
@@ -306,7 +304,7 @@ def test_auto_place_keeps_the_person_off_the_arm_at_its_start(take, arm, arms):
     hand = body.points[:, BODY_POINTS.index('r_wrist')]
     names, points = body.first_frame()
     assert names, take.stem
-    rule = clear_of_arm(arms[arm][0], human_capsules(names, points), 0.10, arms[arm][1])
+    rule = clear_of_arm(arms[arm], human_capsules(names, points), 0.10)
     placement = choose_placement(hand, ARM_REACH[arm], body=body.trunk(),
                                  clearance=BODY_CLEARANCE[arm], accept=rule)
     assert start_distance(placement, names, points, arms[arm]) >= 0.10

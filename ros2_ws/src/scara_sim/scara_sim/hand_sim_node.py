@@ -153,10 +153,8 @@ def _clear_of_arm(arm: str, body: RecordedBody, clearance: float):
     m from the arm named `arm` at its home pose (arm_sim starts there), or None for ''."""
     if not arm:
         return None
-    model = robot_model(arm)
-    capsules = robot_body(model, panda_package_dirs())
-    return clear_of_arm(capsules.capsules(model.home), human_capsules(*body.first_frame()),
-                        clearance, capsules.planar)
+    return clear_of_arm(robot_body(robot_model(arm), panda_package_dirs()),
+                        human_capsules(*body.first_frame()), clearance)
 
 
 @dataclass(frozen=True)

@@ -93,6 +93,7 @@ class RawListener:
     def __init__(self, probe, topic: str, msg_type, qos: QoSProfile = RELIABLE):
         self.msg_type = msg_type
         self.arrivals: list[tuple[float, bytes, float]] = []
+        self.sequence: list[int] = []  # each message's publication sequence number
         # Deep enough for the messages of a thread held back for a second: none is lost.
         profile = copy.copy(qos)
         profile.depth = max(qos.depth, 1000)
@@ -114,6 +115,7 @@ class RawListener:
             received = info['received_timestamp']
             arrived = received * 1e-9 - offset if received else time.monotonic()
             self.arrivals.append((arrived, data, info['source_timestamp'] * 1e-9))
+            self.sequence.append(info.get('publication_sequence_number') or 0)
 
     def __len__(self) -> int:
         return len(self.arrivals)
@@ -137,6 +139,32 @@ class RawListener:
         `start`-th on."""
         return [(arrived, deserialize_message(data, self.msg_type))
                 for arrived, data, _ in self.arrivals[start:] if arrived > since]
+
+
+class SentCommands:
+    """A RawListener's Float64MultiArray commands of one publisher: `data` (k, n) in the order
+    sent, and which consecutive pairs the publisher sent one after the other (by the DDS
+    publication sequence numbers): a probe held back on a loaded machine may miss some, and
+    two received commands with one missed between them are not one control cycle apart."""
+
+    def __init__(self, listener: RawListener):
+        count = len(listener.arrivals)
+        self.data = np.array([list(m.data) for m in listener.messages()[:count]])
+        sequence = np.array(listener.sequence[:count])
+        self.consecutive = np.diff(sequence) == 1 if sequence.size else np.zeros(0, bool)
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def rows(self) -> list[tuple]:
+        return [tuple(row) for row in self.data]
+
+    def largest_step(self) -> float:
+        """The largest change (N m) of any joint between two commands sent one after the
+        other (0 for fewer than two)."""
+        if not self.consecutive.any():
+            return 0.0
+        return float(np.abs(np.diff(self.data, axis=0))[self.consecutive].max())
 
 
 def log_time(line: str) -> float:

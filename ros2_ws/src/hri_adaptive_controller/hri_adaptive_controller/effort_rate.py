@@ -18,7 +18,11 @@ measured, with every command within 1 N m of the one before). Where the joint st
 the torque the drive applies (a simulator's JointState.effort: an echo of a command sent,
 which CommandEcho recognises; a measured torque never is one), each command also stays within
 applied_band of it: a burst computed while the drive held one torque lies within that band of
-it, whichever command of the burst the drive takes. Applied after the clamp to
+it, whichever command of the burst the drive takes. The step bound is never given up for the
+band: where the drive lags further than the band reaches (the last command more than a step
+outside the band of the torque it applies), the command walks back towards the band at the
+rate limit (a command stepping 1.5 N m was seen beside a busy process when the band won).
+Applied after the clamp to
 effort_limit: tau_prev and tau_law both lie in the box |tau_i| <= effort_limit, so tau does too.
 It bounds what reaches the drives whatever the reason the law's torque jumps (a control cycle
 the loaded machine ran late, an input that arrived late); the law itself is continuous
@@ -56,8 +60,8 @@ class EffortRateLimiter:
 
         applied (n,) N m: the torque the drive reports it applies now (None: not known),
         clamped by the caller to the effort limits (so the command stays within them); each
-        joint's command then also stays within applied_band (N m) of it, which wins where the
-        two limits disagree: what the drive steps by is what counts.
+        joint's command then also stays within applied_band (N m) of it where that is within
+        a step of the last command, else it moves a whole step towards that band.
         """
         step = self.max_rate * max(dt, 0.0)
         limited = False
@@ -70,8 +74,12 @@ class EffortRateLimiter:
                 change, limited = -step, True
             value = before + change
             if applied is not None:
-                low, high = applied[i] - applied_band, applied[i] + applied_band
-                if value > high:
+                low = max(applied[i] - applied_band, before - step)
+                high = min(applied[i] + applied_band, before + step)
+                if low > high:  # the band is more than a step away: a step towards it
+                    value = before - step if applied[i] < before else before + step
+                    limited = True
+                elif value > high:
                     value, limited = high, True
                 elif value < low:
                     value, limited = low, True

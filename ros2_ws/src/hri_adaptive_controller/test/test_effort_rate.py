@@ -82,13 +82,22 @@ def test_near_the_applied_torque_a_late_burst_steps_the_drive_by_at_most_the_ban
     assert _drive_steps(applied_band=None, seed=seed) > 4.0  # the bursts, unguarded
 
 
-def test_the_applied_band_wins_over_the_rate_and_keeps_within_the_clamp_box():
+def test_the_applied_band_narrows_the_step_but_never_widens_it():
     limiter = EffortRateLimiter(1000.0)
     limiter.reset((10.0, -10.0))
-    # The drive reports 0 (say, restarted): the command comes within the band of that, not
-    # one step from the last command.
+    # The drive reports 0 (a lag longer than the band reaches): the command walks towards the
+    # band at the rate limit, never more than a step from the last command.
     tau, limited = limiter.limit((10.0, -10.0), 1e-3, applied=(0.0, 0.0), applied_band=2.0)
-    assert tau == pytest.approx((2.0, -2.0)) and limited
+    assert tau == pytest.approx((9.0, -9.0)) and limited
+    for _ in range(10):
+        before = np.array(limiter.previous)
+        tau, _ = limiter.limit((10.0, -10.0), 1e-3, applied=(0.0, 0.0), applied_band=2.0)
+        assert np.abs(np.array(tau) - before).max() <= 1.0 + 1e-12
+    assert tau == pytest.approx((2.0, -2.0))  # then held within the band
+    # Within a step of the band, the band: the law asks 5 more, the drive applies 9.5.
+    limiter.reset((10.0, 10.0))
+    tau, limited = limiter.limit((15.0, 10.0), 1e-3, applied=(9.5, 10.0), applied_band=1.0)
+    assert tau == pytest.approx((10.5, 10.0)) and limited
     limiter.reset((20.0, 20.0))
     tau, _ = limiter.limit((20.0, 20.0), 1e-3, applied=(20.0, 19.0), applied_band=2.0)
     assert tau == pytest.approx((20.0, 20.0))  # within the box the caller clamped to

@@ -30,8 +30,10 @@ from std_msgs.msg import Float64MultiArray, String
 SENSOR_STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # A consumer that acts on the newest sample only (the 1 kHz controller): no backlog.
 LATEST_SAMPLE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-# Joint commands and the human's wrench: every one delivered, in order.
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# Joint commands and the human's wrench: every one delivered, in order, to a reader held back
+# for up to 0.1 s (1 kHz): the writer keeps 100 (with 10, a probe starved beside a busy
+# process lost commands and saw them step by 2.0 and 10.3 N m).
+COMMAND_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 # Monitoring output (ControllerState): reliable, a short history.
 MONITOR_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # Events: a burst of them must not be cut short by a small history.

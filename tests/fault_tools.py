@@ -150,8 +150,8 @@ class SentCommands:
     def __init__(self, listener: RawListener):
         count = len(listener.arrivals)
         self.data = np.array([list(m.data) for m in listener.messages()[:count]])
-        sequence = np.array(listener.sequence[:count])
-        self.consecutive = np.diff(sequence) == 1 if sequence.size else np.zeros(0, bool)
+        self.sequence = np.array(listener.sequence[:count], dtype=np.int64)
+        self.consecutive = np.diff(self.sequence) == 1
 
     def __len__(self) -> int:
         return len(self.data)
@@ -216,14 +216,15 @@ def from_the_first_command(joint_states: list) -> list:
 
 
 def effort_change_per_step(joint_states: list, step: float = 1e-3,
-                           commands: list | None = None) -> float:
+                           commands: 'SentCommands | None' = None) -> float:
     """Largest change (N m) of the applied torque per control cycle, on the sim's clock.
 
     Each change of the torque the sim applied (JointState.effort) is divided by the 1 ms steps
     (`step` s) of the sim's clock since the previous change: a command the controller sends
     late (a busy machine) changes the torque by the sum of the cycles it missed. With
-    `commands` (the controller's effort commands in the order it sent them, each a pair of
-    floats), a change is divided by the control cycles between the two commands if that is
+    `commands` (the controller's effort commands as a SentCommands, in the order it sent
+    them, with their publication sequence numbers, so a command the probe missed still counts
+    as a cycle), a change is divided by the control cycles between the two commands if that is
     more: on a loaded machine the sim took in the commands up to 20 ms late and in a burst,
     applying a 100 ms old command and then one 20 cycles newer (14 N m in 2 steps, measured,
     while every command differed from the one before by at most 1 N m); those cycles ran, the
@@ -238,16 +239,17 @@ def effort_change_per_step(joint_states: list, step: float = 1e-3,
     jumps = np.max(np.abs(np.diff(efforts[points], axis=0)), axis=1)
     steps = np.maximum(np.round(np.diff(stamps[points]) / step), 1.0)
     if commands is not None and len(points) > 1:
-        cycles = _commands_between([tuple(efforts[i]) for i in points],
-                                   [tuple(c) for c in commands])
+        cycles = _commands_between([tuple(efforts[i]) for i in points], commands.rows(),
+                                   commands.sequence)
         steps = np.maximum(steps, cycles)
     return float(np.max(jumps / steps)) if len(jumps) else 0.0
 
 
-def _commands_between(applied: list, commands: list) -> np.ndarray:
+def _commands_between(applied: list, commands: list, sequence) -> np.ndarray:
     """For each pair of consecutive applied torques, how many commands the controller sent
-    from the first to the second (1 where either is not found in order: the sim's own zero
-    torque, or a command sent before the listener heard any)."""
+    from the first to the second (by the commands' publication `sequence` numbers; 1 where
+    either is not found in order: the sim's own zero torque, or a command sent before the
+    listener heard any)."""
     indices: dict[tuple, list[int]] = {}
     for i, command in enumerate(commands):
         indices.setdefault(command, []).append(i)
@@ -260,8 +262,9 @@ def _commands_between(applied: list, commands: list) -> np.ndarray:
         where.append(index)
         if index is not None:
             start = index
-    return np.array([b - a if a is not None and b is not None and b > a else 1
-                     for a, b in zip(where[:-1], where[1:], strict=True)], dtype=float)
+    return np.array([max(sequence[b] - sequence[a], 1) if a is not None and b is not None
+                     and b > a else 1 for a, b in zip(where[:-1], where[1:], strict=True)],
+                    dtype=float)
 
 
 class ForkedNodes:

@@ -154,7 +154,8 @@ def test_a_body_moving_in_gives_its_speed_along_the_normal(nodes, probe, tmp_pat
                                          side='right')) - 1, 0)
         _, _, _, normal = expected(publisher.sent[newest][2])
         assert m.human_speed == pytest.approx(-float(VELOCITY @ normal), abs=0.02)
-    assert min(m.human_speed for m in body_messages) > 0.02  # coming towards the arm
+    # Coming towards the arm at first (later the normal turns as the hand passes link2).
+    assert body_messages[0].human_speed > 0.02
 
 
 def test_missing_segments_and_a_stale_body(nodes, probe, tmp_path):

@@ -34,6 +34,7 @@ from tests.fault_tools import (
     ForkedNodes,
     RawListener,
     SchedulingCanaries,
+    SentCommands,
     applied_command_holds,
     assert_all_finite,
     controller_gaps,
@@ -442,7 +443,6 @@ def test_event_manager_killed_fades_the_task_out_then_in_when_task_states_return
     assert wait_for(lambda: stamp_seconds(joints.last().header.stamp) > restarted_at, 10.0)
     fade_out = [m for m in joints.messages() if stamp_seconds(m.header.stamp) < restarted_at]
     assert len(fade_out) > 1000
-    steps = effort_change_per_step(fade_out, commands=[tuple(m.data)
-                                                       for m in commands.messages()])
+    steps = effort_change_per_step(fade_out, commands=SentCommands(commands))
     print(f'largest effort change per control cycle through the fade-out: {steps:.3f} N m')
     assert steps <= MAX_EFFORT_STEP, steps

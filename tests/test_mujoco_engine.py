@@ -185,7 +185,7 @@ def test_the_panda_under_mujoco_follows_a_still_3d_hand(nodes, probe):
                                                     ENTER_TIME, controller)
     step, margin = check_commands_and_limits(model, q, efforts)
     per_cycle = effort_change_per_step(from_the_first_command(sample),
-                                       commands=efforts.rows())
+                                       commands=efforts)
     print(f'panda under MuJoCo, follow: in the region {entered:.2f} s after the first state '
           f'(farthest then {held.max():.4f} m of {region} m); largest command step '
           f'{step:.3f} N m, applied {per_cycle:.3f} N m per cycle; nearest limit '

@@ -38,7 +38,7 @@ from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.recorded_motion import Placement, ReachAnnulus, read_vicon_csv
 from tests.common import PAPER_TASKS, REPO_ROOT, call_service
-from tests.fault_tools import RawListener, effort_change_per_step
+from tests.fault_tools import RawListener, SentCommands, effort_change_per_step
 from tests.test_bad_input import HAND_OFFSET, StandInArm
 
 pytestmark = pytest.mark.integration
@@ -135,8 +135,7 @@ def replay_take(live_loop, probe, take: str, task: str) -> dict:
     # Pairs of states one sim step apart: a state the probe missed is no step of the drive.
     consecutive = np.diff(t) <= 1.5 * SIM_STEP
     raw_step = float(np.max(np.abs(np.diff(effort, axis=0))[consecutive]))
-    per_cycle = effort_change_per_step(window, commands=[tuple(m.data)
-                                                         for m in commands.messages()])
+    per_cycle = effort_change_per_step(window, commands=SentCommands(commands))
     glitches = max((s.target_glitches for s in states), default=0)
     figures = {'take': take, 'task': task, 'median': metrics.follow_median_distance,
                'close': metrics.close_fraction, 'considered': metrics.considered / len(t),

@@ -33,7 +33,7 @@ from hri_bringup.processes import LIVE_LOOP, paper_tasks_dir, wait_for
 from hri_core import topics
 from hri_core.node_common import load_defaults
 from hri_core.potential import TaskShape, default_task_gain
-from tests.fault_tools import RawListener, effort_change_per_step
+from tests.fault_tools import RawListener, SentCommands, effort_change_per_step
 
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # the 1 kHz loop
 
@@ -102,8 +102,7 @@ class Streams:
         effort_change_per_step). start, end: the states' stamps (s) to keep."""
         states = [m for _, m in self.joints.timed(since) if start <= stamp(m) <= end]
         assert len(states) >= 100, len(states)
-        return effort_change_per_step(states, commands=[tuple(m.data)
-                                                        for m in self.commands.messages()])
+        return effort_change_per_step(states, commands=SentCommands(self.commands))
 
     def assert_commands_safe(self) -> None:
         """Every ControllerState finite, its torque within the limit."""

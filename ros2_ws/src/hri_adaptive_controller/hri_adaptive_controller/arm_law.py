@@ -62,9 +62,9 @@ qddot_r leaves the change out, as it does the pull limit's.
 
 Avoid tasks (open outward; task_variable's module docstring): the reference drops the hand's
 velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds the
-return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term_n; x_rest the
+return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term; x_rest the
 caller's, by default where the tool is) and the retreat from an approaching hand v_away = g(r) p(e
-. xdot_d) e (retreat_term_n), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e = (1
+. xdot_d) e (retreat_term), each with its exact rate. eq. 22 then gains Kp v_e^T w with v_e = (1
 - sigma) a delta_eps + J+^T g_B / Kp and w = f xdot_f + a (v_rest + v_away) - xdot_d
 (ArmOutput.reference_offset; `lyapunov_rate` is the prediction, the monitor's).
 
@@ -106,8 +106,8 @@ from hri_adaptive_controller.task_variable import (
     damped_pseudo_inverse,
     norm_cap,
     radial_drive,
-    rest_term_n,
-    retreat_term_n,
+    rest_term,
+    retreat_term,
     speed_cap,
     task_potential,
 )
@@ -1300,7 +1300,7 @@ class ArmController(TaskDrives):
 
     def _task_velocity(self, drive, weight, motion, hand, rest):
         """The task's share of v_r, -a delta_eps + a (v_rest + v_away), and its rate (eq.
-        12', 14, 18; task_variable.rest_term_n and retreat_term_n for avoid tasks).
+        12', 14, 18; task_variable.rest_term and retreat_term for avoid tasks).
 
         weight (a, da/dt); motion (x, dx = x - x_d, xdot) (k,) each; hand (xdot_d, xddot_d) as
         the reference reads them; rest (k,) m. Returns ((v, a (v_rest + v_away), a delta_eps),
@@ -1318,8 +1318,8 @@ class ArmController(TaskDrives):
             floats = [v.tolist() for v in (dx, x - rest, u, xdot, hand_velocity,
                                             hand_acceleration)]
             term, term_rate = np.zeros(self._axes), np.zeros(self._axes)
-            for part in (rest_term_n(*floats[:4], drive),
-                         retreat_term_n(floats[0], floats[2], *floats[4:], drive)):
+            for part in (rest_term(*floats[:4], drive),
+                         retreat_term(floats[0], floats[2], *floats[4:], drive)):
                 if part is not None:
                     term, term_rate = term + part[0], term_rate + part[1]
             away = a * term

@@ -95,6 +95,13 @@ def quintic_smoothstep(u: float) -> tuple[float, float, float]:
     return value, slope, curvature
 
 
+def quintic_smoothstep_array(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """quintic_smoothstep's s(u) and ds/du per element of the array u (numpy)."""
+    u = np.clip(u, 0.0, 1.0)
+    v = 1.0 - u
+    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
+
+
 class WeightState(NamedTuple):
     """The event weight at one instant (eq. 13); a NamedTuple (the controller makes one each
     cycle).

@@ -85,7 +85,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from hri_adaptive_controller.event_weight import EventWeightSchedule
+from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep_array
 from hri_adaptive_controller.task_variable import SECH_LIMIT, speed_cap
 
 GOAL_MARGIN = 0.5
@@ -151,13 +151,6 @@ class ReachRoundSettings:
                 raise ValueError(f'reach-round {name} must be finite and >= 0 m, got {value}')
 
 
-def _smoothstep_arrays(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The quintic smoothstep (C2) and its derivative, per element of u."""
-    u = np.clip(u, 0.0, 1.0)
-    v = 1.0 - u
-    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
-
-
 def barrier(q, dq, lower, upper, band: float, barrier_torque: float):
     """The barrier's gradient g = dB/dq (n,) N m, its time derivative (n,) N m/s (the
     diagonal Hessian times qdot) and its proximity near = max_i w(u_i) in [0, 1] (0 outside
@@ -166,8 +159,8 @@ def barrier(q, dq, lower, upper, band: float, barrier_torque: float):
     if (q >= lower + band).all() and (q <= upper - band).all():
         zero = np.zeros(q.shape)
         return zero, zero, 0.0  # outside every band (the usual case)
-    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
-    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
+    up, dup = quintic_smoothstep_array((q - (upper - band)) / band)
+    down, ddown = quintic_smoothstep_array(((lower + band) - q) / band)
     g = barrier_torque * (up - down)
     gd = barrier_torque * (dup + ddown) / band * dq
     return g, gd, float(max(up.max(), down.max()))
@@ -189,10 +182,10 @@ def gate_feed_forward(q, dq, v, rate, lower, upper, band: float, scale: float = 
     towards a near limit faded out (module docstring); scale: the size of v (its unit) over
     which its sign's smooth switch runs. Also the person's barrier torque -g (N m, scale
     PUSH_SCALE): it pushes no joint into its stop within the joint's band."""
-    up, dup = _smoothstep_arrays((q - (upper - band)) / band)
-    down, ddown = _smoothstep_arrays(((lower + band) - q) / band)
-    towards_up, dtu = _smoothstep_arrays(v / scale)
-    towards_down, dtd = _smoothstep_arrays(-v / scale)
+    up, dup = quintic_smoothstep_array((q - (upper - band)) / band)
+    down, ddown = quintic_smoothstep_array(((lower + band) - q) / band)
+    towards_up, dtu = quintic_smoothstep_array(v / scale)
+    towards_down, dtd = quintic_smoothstep_array(-v / scale)
     factor = 1.0 - up * towards_up - down * towards_down
     factor_rate = (-(dup / band * dq) * towards_up - up * dtu / scale * rate
                    + (ddown / band * dq) * towards_down + down * dtd / scale * rate)
@@ -600,7 +593,7 @@ class ReachRoundN(_JointBlend):
         """Advance by dt (s) and return (sigma, dsigma/dt, u (n,), du/dt (n,)) or None while
         sigma rests at 0. q, dq (n,); x, hand (3,) m: the tool and the target; region (d1, d2)
         m of a follow task, or None (no task, or an avoid task: sigma fades to 0); near: the
-        barrier's proximity (arm_law.barrier_n)."""
+        barrier's proximity (joint_limits.barrier)."""
         settings = self.settings
         joint_goal = None
         if self._resting and (region is None or not settings.enabled or (

@@ -78,6 +78,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hri_adaptive_controller.event_weight import quintic_smoothstep, quintic_smoothstep_array
 from hri_core.potential import (
     TaskShape,
     default_task_gain,
@@ -258,16 +259,6 @@ def gains_drive(gains, shape: TaskShape, k: float, reach: float) -> TaskDrive:
                       gains.rest_gain, gains.rest_gate)
 
 
-def _smoothstep(u: float) -> tuple[float, float]:
-    """Quintic smoothstep s(u) and ds/du (C2; 0 below u = 0, 1 above u = 1)."""
-    if u <= 0.0:
-        return 0.0, 0.0
-    if u >= 1.0:
-        return 1.0, 0.0
-    v = 1.0 - u
-    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u), 30.0 * u * u * v * v
-
-
 def speed_cap(speed: float, v_max: float) -> tuple[float, float]:
     """The smooth cap (value, d/d speed) of a signed speed (m/s): identity for |speed| <=
     v_max, v_max + b tanh((|speed| - v_max) / b) above, b = CAP_BAND v_max (C2 at v_max)."""
@@ -303,19 +294,13 @@ def _approach_floor(r: float, drive: TaskDrive) -> tuple[float, float]:
         return 0.0, 0.0
     d1, d2 = drive.shape.d1, drive.shape.d2
     if drive.outer_floor and r > d2 - margin:
-        s, ds = _smoothstep((r - (d2 - margin)) / margin)
+        s, ds, _ = quintic_smoothstep((r - (d2 - margin)) / margin)
         return v_a * s, v_a * ds / margin
     if d1 > 0.0 and r < d1 + margin:
-        s, ds = _smoothstep((d1 + margin - r) / margin)
-        c, dc = _smoothstep(r / RADIAL_FADE)
+        s, ds, _ = quintic_smoothstep((d1 + margin - r) / margin)
+        c, dc, _ = quintic_smoothstep(r / RADIAL_FADE)
         return -v_a * s * c, -v_a * (c * -ds / margin + s * dc / RADIAL_FADE)
     return 0.0, 0.0
-
-
-def _smoothstep_values(u: np.ndarray) -> np.ndarray:
-    """_smoothstep's value at each u (numpy)."""
-    u = np.clip(u, 0.0, 1.0)
-    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
 
 
 def _approach_floor_values(radii: np.ndarray, drive: TaskDrive) -> np.ndarray:
@@ -326,12 +311,12 @@ def _approach_floor_values(radii: np.ndarray, drive: TaskDrive) -> np.ndarray:
         return floor
     d1, d2 = drive.shape.d1, drive.shape.d2
     outer = (radii > d2 - margin) if drive.outer_floor else np.zeros(radii.shape, dtype=bool)
-    floor[outer] = v_a * _smoothstep_values((radii[outer] - (d2 - margin)) / margin)
+    floor[outer] = v_a * quintic_smoothstep_array((radii[outer] - (d2 - margin)) / margin)[0]
     if d1 > 0.0:
         inner = ~outer & (radii < d1 + margin)
         r = radii[inner]
-        floor[inner] = -v_a * _smoothstep_values((d1 + margin - r) / margin) \
-            * _smoothstep_values(r / RADIAL_FADE)
+        floor[inner] = (-v_a * quintic_smoothstep_array((d1 + margin - r) / margin)[0]
+                        * quintic_smoothstep_array(r / RADIAL_FADE)[0])
     return floor
 
 
@@ -348,7 +333,7 @@ def radial_drive(r: float, drive: TaskDrive) -> tuple[float, float]:
     floor, floor_rate = _approach_floor(r, drive)
     if floor != 0.0 or floor_rate != 0.0:
         u = abs(pull) / drive.approach_speed
-        s, ds = _smoothstep(u)
+        s, ds, _ = quintic_smoothstep(u)
         du = (pull_rate if pull >= 0.0 else -pull_rate) / drive.approach_speed
         raw = pull + floor * (1.0 - s)
         raw_rate = pull_rate + floor_rate * (1.0 - s) - floor * ds * (du if ds else 0.0)
@@ -372,7 +357,7 @@ def radial_potential_slope(distance, shape: TaskShape) -> np.ndarray:
 
 def _rest_gate(r: float, drive: TaskDrive) -> tuple[float, float]:
     """The rest term's gate w(r) and w'(r) (1/m) at r = |x - x_d| (m)."""
-    w, dw = _smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
+    w, dw, _ = quintic_smoothstep((r - drive.rest_gate_start()) / drive.rest_gate)
     return w, dw / drive.rest_gate
 
 
@@ -381,7 +366,7 @@ def _rest_speed(rho: float, drive: TaskDrive) -> tuple[float, float]:
     return speed_cap(drive.rest_gain * rho, min(drive.max_task_speed, drive.pull_limit))
 
 
-def rest_term_n(dx, y, u, xdot, drive: TaskDrive):
+def rest_term(dx, y, u, xdot, drive: TaskDrive):
     """An avoid task's return to rest (module docstring) for task vectors of any length m,
     in floats: v_rest = w(r) c(y) and dv_rest/dt = c (grad w . u) + w Dc xdot, each a list of m
     floats (m/s, m/s^2), or None where both are zero (follow tasks; the arm inside the
@@ -419,11 +404,11 @@ def _retreat_speed(r: float, c: float, drive: TaskDrive):
     # At most 2 v_max, as the follow tasks' feed-forward (adaptive_law.FEED_FORWARD_RATIO).
     p, slope = speed_cap(p, 2.0 * drive.max_task_speed)
     dp *= slope
-    g, dg = _smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
+    g, dg, _ = quintic_smoothstep((shape.d1 + RETREAT_REACH - r) / RETREAT_REACH)
     return g, -dg / RETREAT_REACH, p, dp
 
 
-def retreat_term_n(dx, u, velocity, acceleration, drive: TaskDrive):
+def retreat_term(dx, u, velocity, acceleration, drive: TaskDrive):
     """An avoid task's retreat from an approaching hand, v_away = g(r) p(e . xdot_d) e, and
     its time derivative, for task vectors of any length m, in floats: each a list of m floats
     (m/s, m/s^2), or None where both are zero. dx = x - x_d (m), e = dx / r; u = xdot -
@@ -462,7 +447,8 @@ def _radial_slopes(radii, drive: TaskDrive) -> np.ndarray:
         raw = pull
     else:
         floor = _approach_floor_values(radii, drive)
-        raw = pull + floor * (1.0 - _smoothstep_values(np.abs(pull) / drive.approach_speed))
+        raw = pull + floor * (1.0 - quintic_smoothstep_array(np.abs(pull)
+                                                            / drive.approach_speed)[0])
     v_max = drive.max_task_speed
     band = CAP_BAND * v_max
     magnitude = np.abs(raw)

@@ -15,7 +15,7 @@ from hri_adaptive_controller.arm_law import (
 from hri_adaptive_controller.controller_node import rest_position_from
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import ReachRoundN
-from hri_adaptive_controller.task_variable import rest_term_n, retreat_term_n
+from hri_adaptive_controller.task_variable import rest_term, retreat_term
 from hri_core.potential import TaskShape
 from hri_core.robot_model import ScaraModel, robot_model
 
@@ -170,14 +170,14 @@ def test_the_rest_and_retreat_terms_in_3d_are_the_planar_ones_in_the_plane(panda
         vectors = [rng.uniform(-0.3, 0.3, 2) for _ in range(6)]
         planar = [v.tolist() for v in vectors]
         lift = [np.array([*v, 0.0]).tolist() for v in vectors]
-        for terms in ((rest_term_n(*planar[:4], drive), rest_term_n(*lift[:4], drive)),
-                      (retreat_term_n(planar[0], planar[2], *planar[4:], drive),
-                       retreat_term_n(lift[0], lift[2], *lift[4:], drive))):
+        for terms in ((rest_term(*planar[:4], drive), rest_term(*lift[:4], drive)),
+                      (retreat_term(planar[0], planar[2], *planar[4:], drive),
+                       retreat_term(lift[0], lift[2], *lift[4:], drive))):
             flat, spatial = terms
             assert (flat is None) == (spatial is None)
             if flat is not None:
                 np.testing.assert_allclose(spatial, [[*flat[0], 0.0], [*flat[1], 0.0]],
                                            atol=1e-12)
-        active += rest_term_n(*lift[:4], drive) is not None and retreat_term_n(
+        active += rest_term(*lift[:4], drive) is not None and retreat_term(
             lift[0], lift[2], *lift[4:], drive) is not None
     assert active >= 10  # both terms were compared where they act

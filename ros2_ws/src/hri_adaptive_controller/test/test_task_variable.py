@@ -30,7 +30,7 @@ from hri_adaptive_controller.task_variable import (
     norm_cap,
     radial_drive,
     radial_potential_slope,
-    rest_term_n,
+    rest_term,
     speed_cap,
     task_drive,
     task_potential,
@@ -392,17 +392,17 @@ def test_rest_term_returns_to_rest_outside_the_edge_only():
     assert start == pytest.approx(0.183 + MARGIN)
     still = [0.0, 0.0]
     # Inside the gate's start: no return at all.
-    assert rest_term_n([start - 0.01, 0.0], [0.1, 0.0], still, still, task) is None
+    assert rest_term([start - 0.01, 0.0], [0.1, 0.0], still, still, task) is None
     # c(y) = -k_rest y below the cap, weighted by the gate: 1/2 halfway, 1 beyond it.
     for r, gate in ((start + 0.5 * task.rest_gate, 0.5), (start + task.rest_gate + 0.01, 1.0),
                     (0.5, 1.0)):
-        velocity, rate = rest_term_n([r, 0.0], [0.1, 0.0], still, still, task)
+        velocity, rate = rest_term([r, 0.0], [0.1, 0.0], still, still, task)
         assert velocity == pytest.approx([gate * -REST_GAIN * 0.1, 0.0])
         assert rate == pytest.approx([0.0, 0.0])  # a still arm and hand: no change
     # The same on three task axes.
-    velocity, _ = rest_term_n([0.0, 0.0, 0.5], [0.0, 0.1, 0.0], [0.0] * 3, [0.0] * 3, task)
+    velocity, _ = rest_term([0.0, 0.0, 0.5], [0.0, 0.1, 0.0], [0.0] * 3, [0.0] * 3, task)
     assert velocity == pytest.approx([0.0, -REST_GAIN * 0.1, 0.0])
-    assert rest_term_n([0.5, 0.0], [0.1, 0.0], still, still, drive('follow')) is None
+    assert rest_term([0.5, 0.0], [0.1, 0.0], still, still, drive('follow')) is None
 
 
 def test_bad_task_arguments_are_rejected():

@@ -320,20 +320,26 @@ def _smoothstep_weight(distance, reach, width, force):
 @njit(cache=True, nogil=True)
 def _body_gradient(q, parents, placements, axes, prismatic, index, joint, local_a, local_b,
                    radius, human_a, human_axis, human_radius, human_va, human_vb, part,
-                   settings, posture):
+                   settings, posture, collect):
     """arm_law._body_gradient compiled, on the robot's chain (hri_core.bodies.Chain: parents,
     placements, axes, prismatic, index; the capsules' joint (K,), ends local_a, local_b (K, 3)
     m and radius (K,) m) and the person's capsules (human_a, human_axis (H, 3) m, radius (H,)
     m, end velocities human_va, human_vb (H, 3) m/s; part (H,): KEPT, LEFT_OUT or AT_SURFACE).
     settings: (clearance, influence, reaction_time, max_influence, force, posture_influence).
     Returns (g (n,) N m, U J, the posture push (n,) N m, whether some pair pushes the posture,
-    the least distance m, its robot and human capsules, the gate)."""
+    the least distance m, its robot and human capsules, the gate, and where `collect`, the
+    approach damper's pairs (those within clearance + influence, in (robot, human) order):
+    their rows n^T J_p (m, n), distances (m,) m and approach speeds (m,) m/s (empty arrays
+    without `collect`)."""
     clearance, influence, reaction_time, max_influence, force, posture_influence = settings
     rotations, origins = chain_frames(q, parents, placements, axes, prismatic, index)
     a, axis = placed_capsules(rotations, origins, joint, local_a, local_b)
     s, t, between, centre = segment_table(a, axis, human_a, human_axis)
     n = q.shape[0]
     gradient, push = np.zeros(n), np.zeros(n)
+    pairs = a.shape[0] * human_a.shape[0] if collect else 0
+    rows, gaps, approach = np.zeros((pairs, n)), np.empty(pairs), np.empty(pairs)
+    count = 0
     normal, point = np.empty(3), np.empty(3)
     reach = clearance + (max(max_influence, posture_influence) if posture else max_influence)
     least, nearest_i, nearest_j = np.inf, 0, 0
@@ -384,7 +390,14 @@ def _body_gradient(q, parents, placements, axes, prismatic, index, joint, local_
                 pushed = True
                 add_normal_row(rotations, origins, parents, axes, prismatic, index, joint[i],
                                point, normal, posture_weight, push)
-    return gradient, energy, push, pushed, least, nearest_i, nearest_j, 1.0 - free
+            if collect and distance < clearance + influence:
+                add_normal_row(rotations, origins, parents, axes, prismatic, index, joint[i],
+                               point, normal, 1.0, rows[count])
+                gaps[count] = distance
+                approach[count] = weight / force * max(closing, 0.0) if force > 0.0 else 0.0
+                count += 1
+    return (gradient, energy, push, pushed, least, nearest_i, nearest_j, 1.0 - free,
+            rows[:count], gaps[:count], approach[:count])
 
 
 @njit(cache=True, nogil=True)
@@ -393,20 +406,130 @@ def body_barrier(q, dq, step, parents, placements, axes, prismatic, index, joint
                  settings, posture):
     """arm_law.body_barrier compiled (arguments as _body_gradient's; step: BODY_RATE_STEP s):
     (g, its rate, U, the posture push, its rate, whether g and the push are there, the least
-    distance and its pair's capsules, the gate and its rate), the rates the forward difference
-    along q + step dq."""
-    gradient, energy, push, pushed, least, i, j, gate = _body_gradient(
+    distance and its pair's capsules, the gate and its rate, the approach damper's rows,
+    distances and approach speeds), the rates the forward difference along q + step dq."""
+    gradient, energy, push, pushed, least, i, j, gate, rows, gaps, approach = _body_gradient(
         q, parents, placements, axes, prismatic, index, joint, local_a, local_b, radius,
-        human_a, human_axis, human_radius, human_va, human_vb, part, settings, posture)
+        human_a, human_axis, human_radius, human_va, human_vb, part, settings, posture, True)
     n = q.shape[0]
     if energy <= 0.0 and not pushed:
         return (gradient, np.zeros(n), 0.0, push, np.zeros(n), False, False, least, i, j, 0.0,
-                0.0)
-    ahead, _, push_ahead, _, _, _, _, gate_ahead = _body_gradient(
+                0.0, rows, gaps, approach)
+    ahead, _, push_ahead, _, _, _, _, gate_ahead, _, _, _ = _body_gradient(
         q + step * dq, parents, placements, axes, prismatic, index, joint, local_a, local_b,
-        radius, human_a, human_axis, human_radius, human_va, human_vb, part, settings, posture)
+        radius, human_a, human_axis, human_radius, human_va, human_vb, part, settings, posture,
+        False)
     return (gradient, (ahead - gradient) / step, energy, push, (push_ahead - push) / step,
-            energy > 0.0, pushed, least, i, j, gate, (gate_ahead - gate) / step)
+            energy > 0.0, pushed, least, i, j, gate, (gate_ahead - gate) / step, rows, gaps,
+            approach)
+
+
+@njit(cache=True, nogil=True)
+def _passive_solve(gram, c, passive):
+    """z (p,) solving gram[P, P] z = c[P] for the passive set P (its indices, p of them) by
+    Cholesky (gram carries arm_law.DAMPER_RIDGE on its diagonal: positive definite)."""
+    count = passive.shape[0]
+    a = np.empty((count, count))
+    z = np.empty(count)
+    for i in range(count):
+        z[i] = c[passive[i]]
+        for j in range(count):
+            a[i, j] = gram[passive[i], passive[j]]
+    for j in range(count):
+        total = a[j, j]
+        for k in range(j):
+            total -= a[j, k] * a[j, k]
+        a[j, j] = math.sqrt(max(total, 1e-300))
+        for i in range(j + 1, count):
+            total = a[i, j]
+            for k in range(j):
+                total -= a[i, k] * a[j, k]
+            a[i, j] = total / a[j, j]
+    for i in range(count):
+        total = z[i]
+        for k in range(i):
+            total -= a[i, k] * z[k]
+        z[i] = total / a[i, i]
+    for i in range(count - 1, -1, -1):
+        total = z[i]
+        for k in range(i + 1, count):
+            total -= a[k, i] * z[k]
+        z[i] = total / a[i, i]
+    return z
+
+
+@njit(cache=True, nogil=True)
+def body_damper(qdot_r, rows, gaps, approach, rate, stop, floor, softness, ridge):
+    """arm_law.body_damper compiled (the reference, the same active-set steps): (qdot_r (n,)
+    with each pair's approach speed held, whether it changed); a new array where it did."""
+    m, n = rows.shape
+    c = np.empty(m)
+    over = False
+    for k in range(m):
+        bound = max(rate * (gaps[k] - stop), floor) - approach[k]
+        speed, norm = 0.0, 0.0
+        for i in range(n):
+            speed += rows[k, i] * qdot_r[i]
+            norm += rows[k, i] * rows[k, i]
+        excess = speed - bound
+        if norm <= 1e-18:
+            c[k] = -1.0  # a point the joints do not move along n: no bound
+        elif excess > 0.0:
+            over = True
+            c[k] = excess - softness * math.tanh(excess / softness)
+        else:
+            c[k] = excess
+    if not over:
+        return qdot_r, False
+    gram = np.empty((m, m))
+    for k in range(m):
+        for j in range(k + 1):
+            total = 0.0
+            for i in range(n):
+                total += rows[k, i] * rows[j, i]
+            gram[k, j] = total
+            gram[j, k] = total
+        gram[k, k] += ridge
+    multipliers = np.zeros(m)
+    passive = np.zeros(m, dtype=np.bool_)
+    for _ in range(3 * m + 3):
+        best, largest = -1, 1e-12
+        for k in range(m):
+            if passive[k]:
+                continue
+            w = c[k]
+            for j in range(m):
+                w -= gram[k, j] * multipliers[j]
+            if w > largest:
+                best, largest = k, w
+        if best < 0:
+            break
+        passive[best] = True
+        for _ in range(3 * m + 3):
+            index = np.nonzero(passive)[0]
+            z = _passive_solve(gram, c, index)
+            if np.all(z > 0.0):
+                multipliers[:] = 0.0
+                for p in range(index.shape[0]):
+                    multipliers[index[p]] = z[p]
+                break
+            alpha = 1.0
+            for p in range(index.shape[0]):
+                if z[p] <= 0.0:
+                    k = index[p]
+                    alpha = min(alpha, multipliers[k] / (multipliers[k] - z[p]))
+            for p in range(index.shape[0]):
+                k = index[p]
+                multipliers[k] += alpha * (z[p] - multipliers[k])
+                if multipliers[k] <= 1e-15:
+                    multipliers[k] = 0.0
+                    passive[k] = False
+    x = qdot_r.copy()
+    for k in range(m):
+        if multipliers[k] != 0.0:
+            for i in range(n):
+                x[i] -= multipliers[k] * rows[k, i]
+    return x, True
 
 
 def warm_up_body_barrier() -> None:
@@ -423,3 +546,5 @@ def warm_up_body_barrier() -> None:
                  np.array([1], dtype=np.int64), ends, ends.copy(), np.ones(1), far,
                  np.zeros((1, 3)), np.ones(1), np.zeros((1, 3)), np.zeros((1, 3)),
                  np.zeros(1, dtype=np.int64), (0.1, 0.1, 0.3, 0.19, 5.0, 0.1), False)
+    body_damper(np.zeros(1), np.zeros((1, 1)), np.zeros(1), np.zeros(1), 5.0, 0.09, -0.5,
+                0.02, 1e-6)

@@ -60,6 +60,18 @@ n^T J_p of the arm's point nearest the person takes qdot_r towards the person fa
 the limit, qdot_r loses the excess along that row (the least joint motion that does it);
 qddot_r leaves the change out, as it does the pull limit's.
 
+Approach damper (the whole-body clearance's hard floor, `body_damper`): for every robot-human
+pair within clearance + influence (not the exempted hand), the reference's speed of the
+robot's closest point towards the person, n^T J_p qdot_r, is held at or below k (d - d_stop)
+(k = body.stop_rate, d_stop = clearance - body.stop_depth; a retreat of at most max_speed
+where d < d_stop) less the person's approach speed times the pair's barrier weight share,
+softly (DAMPER_SOFTNESS), all pairs at once by the least joint motion (a small active-set
+projection), after limit_approach and before the joint speed limit. The barrier's soft push
+(5 N) alone gave way where the person stepped towards the arm faster than its 0.5 m/s push
+retreats (the SCARA's handovers: the torso 0.58 m/s towards link2). It only lowers the
+reference's approach speed, as limit_approach does: qddot_r leaves the change out, and V's
+argument gains the terms of the reference's change, as with the joint speed limit.
+
 Avoid tasks (open outward; task_variable's module docstring): the reference drops the hand's
 velocity (f = 1 - a), reads it through a filter (filter_hand_velocity, HAND_RATE), and adds the
 return to the rest position v_rest = w(r) c(x - x_rest) (task_variable.rest_term; x_rest the
@@ -145,7 +157,11 @@ class ClearanceSettings:
     region reaches into the hand's clearance (a follow task whose d1, measured between the
     tool's and the hand's points, is below the clearance plus the hand's and the tool's
     capsule radii); tracked_arm: the rest of that arm, kept at its capsules' surface (not the
-    clearance) in such a task."""
+    clearance) in such a task; stop_rate k (1/s, >= 0; 0: off) and stop_depth (m, >= 0): the
+    approach damper (body_damper): within clearance + influence of a pair the reference's
+    speed of the robot's point towards the person is held at or below k (d - (clearance -
+    stop_depth)) (where that is negative, a retreat of at most max_speed, faded in as the
+    force) less the person's approach speed times the pair's barrier weight share."""
 
     clearance: float = 0.10
     # 0.10 m for a still person: 0.03 let the tool nearer the hand (follow's median on the
@@ -171,6 +187,8 @@ class ClearanceSettings:
     posture_influence: float = 0.10
     tracked: tuple[str, ...] = ('r_forearm', 'r_hand')
     tracked_arm: tuple[str, ...] = ('r_upper_arm',)
+    stop_rate: float = 5.0
+    stop_depth: float = 0.01
 
     def __post_init__(self):
         if not (math.isfinite(self.clearance) and self.clearance >= 0.0):
@@ -193,6 +211,10 @@ class ClearanceSettings:
                              f'{self.max_speed}')
         if not (math.isfinite(self.fade_in) and self.fade_in >= 0.0):
             raise ValueError(f'clearance fade_in must be finite and >= 0 s, got {self.fade_in}')
+        for name in ('stop_rate', 'stop_depth'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'clearance {name} must be finite and >= 0, got {value}')
 
 
 class BodyBarrier(NamedTuple):
@@ -201,7 +223,10 @@ class BodyBarrier(NamedTuple):
     human capsules' names; posture (n,) N m and its rate: the push on a redundant arm's
     posture (None: none), which the law takes through its null space only; gate in [0, 1)
     and its rate (1/s): 1 - prod(1 - w_k) over the pairs' barrier weights w_k / force, how
-    far some pair is into its band (the hand's velocity is fed forward times 1 - gate)."""
+    far some pair is into its band (the hand's velocity is fed forward times 1 - gate);
+    rows (m, n) m/rad, gaps (m,) m, approach (m,) m/s: the approach damper's pairs (within
+    clearance + influence; body_damper), their rows n^T J_p, distances and the person's
+    approach speeds times the pairs' weight shares (None: no pair)."""
 
     gradient: np.ndarray | None
     rate: np.ndarray | None
@@ -212,6 +237,9 @@ class BodyBarrier(NamedTuple):
     posture_rate: np.ndarray | None = None
     gate: float = 0.0
     gate_rate: float = 0.0
+    rows: np.ndarray | None = None
+    gaps: np.ndarray | None = None
+    approach: np.ndarray | None = None
 
 
 NO_BODY = BodyBarrier(None, None, 0.0, math.inf, ('', ''))
@@ -572,7 +600,10 @@ def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSetti
     the robot's closest point towards the person's, J_p that point's Jacobian
     (RobotBody.normal_rows gives n^T J_p of every close pair at once), so g = sum weight
     J_p^T n. The posture push is the same sum over the wider band posture_influence, with
-    no energy: the law puts it through its null space only."""
+    no energy: the law puts it through its null space only. Last, the approach damper's pairs
+    (within clearance + influence, in (robot, human) order; None: none): (their rows n^T J_p
+    (m, n), distances (m,) m, the person's approach speeds max(c, 0) times weight / force
+    (m,) m/s)."""
     distances = capsule_distances(body.capsules(q, checked=False), human, planar=body.planar)
     table = distances.distance
     if exempt is not None:
@@ -587,11 +618,12 @@ def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSetti
                          else settings.max_influence)
     robot_index, human_index = np.nonzero(table < reach)
     if robot_index.size == 0:
-        return None, 0.0, None, least, nearest, 0.0
+        return None, 0.0, None, least, nearest, 0.0, None
     points, normals = distances.robot_points_and_normals(robot_index, human_index)
     closing = distances.closing_speeds(robot_index, human_index, normals).tolist()
     # The few close pairs' weights and energy in floats (numpy's per-call cost dominates).
     weights, pushes, energy, force, free = [], [], 0.0, settings.force, 1.0
+    gaps, approach, damped = [], [], []
     for k, distance in enumerate(table[robot_index, human_index].tolist()):
         width = min(settings.influence + settings.reaction_time * max(closing[k], 0.0),
                     settings.max_influence)
@@ -602,10 +634,15 @@ def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSetti
         if posture and settings.posture_influence > 0.0:
             pushes.append(_smoothstep_energy(distance, clearance + settings.posture_influence,
                                              settings.posture_influence, force)[0])
+        if distance < clearance + settings.influence:
+            damped.append(k)
+            gaps.append(distance)
+            approach.append(weight / force * max(closing[k], 0.0) if force > 0.0 else 0.0)
     rows = body.normal_rows(q, robot_index, points, normals)
     gradient = np.array(weights) @ rows if energy > 0.0 else None
     push = np.array(pushes) @ rows if pushes and max(pushes) > 0.0 else None
-    return gradient, energy, push, least, nearest, 1.0 - free
+    damper = (rows[damped], np.array(gaps), np.array(approach)) if damped else None
+    return gradient, energy, push, least, nearest, 1.0 - free, damper
 
 
 def body_barrier(body: RobotBody, q, dq, human: Capsules, settings: ClearanceSettings,
@@ -616,20 +653,87 @@ def body_barrier(body: RobotBody, q, dq, human: Capsules, settings: ClearanceSet
     arm)."""
     if len(human) == 0:
         return NO_BODY
-    gradient, energy, push, distance, (i, j), gate = _body_gradient(body, q, human, settings,
-                                                                    exempt, posture)
+    gradient, energy, push, distance, (i, j), gate, damper = _body_gradient(
+        body, q, human, settings, exempt, posture)
     pair = (body.names[i], human.names[j])
+    rows, gaps, approach = (None, None, None) if damper is None else damper
     if gradient is None and push is None:
-        return BodyBarrier(None, None, 0.0, distance, pair)
+        return BodyBarrier(None, None, 0.0, distance, pair, rows=rows, gaps=gaps,
+                           approach=approach)
     h = BODY_RATE_STEP
-    ahead, _, push_ahead, _, _, gate_ahead = _body_gradient(body, q + h * dq, human,
-                                                            settings, exempt, posture)
+    ahead, _, push_ahead, _, _, gate_ahead, _ = _body_gradient(body, q + h * dq, human,
+                                                               settings, exempt, posture)
     zero = np.zeros(q.size)
     rate = None if gradient is None else ((zero if ahead is None else ahead) - gradient) / h
     push_rate = None if push is None else (
         (zero if push_ahead is None else push_ahead) - push) / h
     return BodyBarrier(gradient, rate, energy, distance, pair, push, push_rate, gate,
-                       (gate_ahead - gate) / h)
+                       (gate_ahead - gate) / h, rows, gaps, approach)
+
+
+DAMPER_SOFTNESS = 0.02
+"""m/s: the approach damper's soft band: a pair's bound b is exceeded by less than this
+(b + DAMPER_SOFTNESS tanh((v - b) / DAMPER_SOFTNESS) above b, C2 at b), so a pair held
+rests DAMPER_SOFTNESS / stop_rate inside its stop (4 mm at 5 1/s)."""
+DAMPER_RIDGE = 1e-6
+"""m^2/rad^2: added to the diagonal of the approach damper's Gram matrix R R^T (entries
+0.01-1): more pairs than joints (the SCARA's two) or two of one link's pairs with one normal
+leave it singular; with 1e-10 the compiled and numpy multipliers parted by 1e-6 of the
+torque. The targets are then met to the ridge times the multipliers (below 1e-4 m/s)."""
+
+
+def body_damper(qdot_r, rows, gaps, approach, rate: float, stop: float, floor: float,
+                softness: float = DAMPER_SOFTNESS, ridge: float = DAMPER_RIDGE):
+    """qdot_r (n,) with each close pair's approach held (the velocity damper of the whole-body
+    clearance, like joint_limits' stop damper and limit_approach): pair k's row r_k = n^T J_p
+    (rows (m, n) m/rad) may take the reference towards the person at most at
+    b_k = max(rate (gaps_k - stop), floor) - approach_k m/s (gaps (m,) m, approach (m,) m/s,
+    rate 1/s, stop m, floor m/s <= 0), softly: at t_k = b_k + softness tanh((v_k - b_k) /
+    softness) where v_k = r_k qdot_r is above b_k (so qdot_r does not step where a pair
+    starts to hold it), t_k = b_k elsewhere. qdot_r then moves by the least joint motion
+    that brings every r_k x within t_k: x = qdot_r - R^T lambda, lambda >= 0 the
+    multipliers of min |x - qdot_r|^2 subject to R x <= t (Lawson and Hanson's active set on
+    the dual, min 1/2 lambda^T (R R^T + ridge I) lambda - lambda^T (R qdot_r - t), exact in
+    a few steps for the few pairs a cycle has; the projection is continuous in qdot_r, the
+    rows and the bounds, so the torque does not step). Returns (qdot_r, whether it changed);
+    the numpy reference of arm_kernels.body_damper."""
+    speeds = rows @ qdot_r
+    norms = np.einsum('ij,ij->i', rows, rows)
+    bounds = np.maximum(rate * (gaps - stop), floor) - approach
+    excess = speeds - bounds
+    over = (excess > 0.0) & (norms > 1e-18)
+    if not over.any():
+        return qdot_r, False
+    # c = R qdot_r - t: the excess over each target (-1 for a row of norm 0: no bound)
+    c = np.where(over, excess - softness * np.tanh(np.where(over, excess, 0.0) / softness),
+                 excess)
+    c = np.where(norms > 1e-18, c, -1.0)
+    m = len(c)
+    gram = rows @ rows.T + ridge * np.eye(m)
+    multipliers = np.zeros(m)
+    passive = np.zeros(m, dtype=bool)
+    for _ in range(3 * m + 3):
+        w = c - gram @ multipliers
+        w[passive] = -np.inf
+        best = int(np.argmax(w))
+        if not w[best] > 1e-12:
+            break
+        passive[best] = True
+        for _ in range(3 * m + 3):
+            index = np.nonzero(passive)[0]
+            z = np.linalg.solve(gram[np.ix_(index, index)], c[index])
+            if np.all(z > 0.0):
+                multipliers[:] = 0.0
+                multipliers[index] = z
+                break
+            low = z <= 0.0
+            alpha = min(1.0, float(np.min(multipliers[index][low]
+                                          / (multipliers[index][low] - z[low]))))
+            multipliers[index] += alpha * (z - multipliers[index])
+            gone = index[multipliers[index] <= 1e-15]
+            multipliers[gone] = 0.0
+            passive[gone] = False
+    return qdot_r - multipliers @ rows, True
 
 
 def _exempt_key(exempt) -> tuple | None:
@@ -1070,6 +1174,16 @@ class ArmController(TaskDrives):
             if self._approach is not None:
                 qdot_r = self._limited_approach(qdot_r)
                 s = dq - qdot_r
+            if body.rows is not None and gains.body.stop_rate > 0.0:
+                # The person's approach damper (body_damper): no close pair's point is asked
+                # towards the person faster than it can stop from before the clearance.
+                settings = gains.body
+                qdot_r, damped = (self._kernels.body_damper if self._compiled else body_damper)(
+                    qdot_r, body.rows, body.gaps, body.approach, settings.stop_rate,
+                    settings.clearance - settings.stop_depth, -fade * settings.max_speed,
+                    DAMPER_SOFTNESS, DAMPER_RIDGE)
+                if damped:
+                    s = dq - qdot_r
             # Last: no term asks a joint for more than its speed limit or for more than it
             # can stop from before its limit (joint_limits' Joint speed limit).
             qdot_r, qddot_r, held = (self._kernels.joint_speed_limit if self._compiled
@@ -1229,18 +1343,21 @@ class ArmController(TaskDrives):
                                           _person_arrays(human, exempt, self.body.planar))
         body = self.body
         (gradient, rate, energy, push, push_rate, pulled, pushed, distance, i, j, gate,
-         gate_rate) = self._kernels.body_barrier(
+         gate_rate, rows, gaps, approach) = self._kernels.body_barrier(
             q, dq, BODY_RATE_STEP, *body.chain, self._body_joints, body.local_a, body.local_b,
             body.radius, *inputs[2],
             (settings.clearance, settings.influence, settings.reaction_time,
              settings.max_influence, settings.force, settings.posture_influence),
             self._null_space)
         pair = (body.names[i], human.names[j])
+        if gaps.size == 0:
+            rows = gaps = approach = None
         if not (pulled or pushed):
-            return BodyBarrier(None, None, 0.0, distance, pair)
+            return BodyBarrier(None, None, 0.0, distance, pair, rows=rows, gaps=gaps,
+                               approach=approach)
         return BodyBarrier(gradient if pulled else None, rate if pulled else None, energy,
                            distance, pair, push if pushed else None,
-                           push_rate if pushed else None, gate, gate_rate)
+                           push_rate if pushed else None, gate, gate_rate, rows, gaps, approach)
 
     def gravity_hold(self, q) -> np.ndarray:
         """The torque (n,) N m that holds the arm at q (n,) rad against gravity with theta_hat:

@@ -267,7 +267,8 @@ def body_law(arm, compiled: bool = True) -> ArmController:
 
 def test_the_compiled_body_barrier_is_the_reference(arm):
     """The law's compiled whole-body barrier (arm_kernels.body_barrier on the body's chain)
-    gives body_barrier's g, rate, U, posture push, gate and nearest pair on random states:
+    gives body_barrier's g, rate, U, posture push, gate, nearest pair and the approach
+    damper's pairs (rows, distances, approach speeds) on random states:
     people standing round the tool in any direction, still or moving, with and without the
     follow exemption. The rates are forward differences over 1 us, so 1e-7 of their scale."""
     law = body_law(arm)
@@ -283,7 +284,8 @@ def test_the_compiled_body_barrier_is_the_reference(arm):
                                  arm.dof > arm.task_axes)
         compiled = law.whole_body_barrier(q, dq, human, exempt)
         assert compiled.pair == reference.pair
-        for name in ('energy', 'distance', 'gate', 'gradient', 'posture'):
+        for name in ('energy', 'distance', 'gate', 'gradient', 'posture', 'rows', 'gaps',
+                     'approach'):
             expected = getattr(reference, name)
             assert (getattr(compiled, name) is None) == (expected is None), name
             if expected is not None:
@@ -318,3 +320,43 @@ def test_commands_with_a_person_equal_numpys(arm):
         assert (out.barrier_task_velocity is None) == (expected.barrier_task_velocity is None)
         pushed += expected.barrier_task_velocity is not None and out.near == 0.0
     assert pushed >= 20  # the person's barrier on, outside the joint limits' bands
+
+
+def test_the_compiled_body_damper_is_the_reference():
+    """arm_kernels.body_damper gives arm_law.body_damper's qdot_r on random pairs (1 to 8
+    rows on 2 to 7 joints, some of them over their bound, some parallel), and the result is
+    the projection: every row within its target, the change R^T lambda with lambda >= 0 and
+    zero on the rows it leaves short of their target."""
+    from hri_adaptive_controller.arm_law import DAMPER_RIDGE, DAMPER_SOFTNESS, body_damper
+
+    rng = np.random.default_rng(23)
+    held = 0
+    for trial in range(300):
+        n, m = int(rng.integers(2, 8)), int(rng.integers(1, 9))
+        rows = rng.normal(scale=0.4, size=(m, n))
+        if m > 1 and trial % 4 == 0:
+            rows[1] = 0.7 * rows[0]  # two pairs of one link, one normal
+        gaps = rng.uniform(0.05, 0.2, m)
+        # independent rows meet any bounds; others meet bounds >= 0 (at x = 0)
+        approach = rng.uniform(0.0, 0.1, m) if m <= n and trial % 4 else np.zeros(m)
+        qdot_r = rng.normal(size=n)
+        args = (rows, gaps, approach, 5.0, 0.09, 0.0, DAMPER_SOFTNESS, DAMPER_RIDGE)
+        want, changed = body_damper(qdot_r, *args)
+        got, compiled_changed = arm_kernels.body_damper(qdot_r, *args)
+        assert changed == compiled_changed
+        close(got, want, 'qdot_r')
+        if not changed:
+            continue
+        held += 1
+        speeds = rows @ qdot_r
+        bounds = np.maximum(5.0 * (gaps - 0.09), 0.0) - approach
+        targets = np.where(speeds > bounds, bounds + DAMPER_SOFTNESS * np.tanh(
+            np.maximum(speeds - bounds, 0.0) / DAMPER_SOFTNESS), bounds)
+        # to DAMPER_RIDGE times the multipliers (below 1e-4 m/s)
+        assert np.all(rows @ want <= targets + 1e-4), (rows @ want - targets)
+        if np.linalg.matrix_rank(rows) == m:  # lambda unique: KKT's signs and slackness
+            multipliers = np.linalg.lstsq(rows.T, qdot_r - want, rcond=None)[0]
+            slack = targets - rows @ want
+            assert np.all(multipliers >= -1e-6), multipliers
+            assert np.all(np.abs(multipliers[slack > 1e-4]) <= 1e-4), (multipliers, slack)
+    assert held >= 100

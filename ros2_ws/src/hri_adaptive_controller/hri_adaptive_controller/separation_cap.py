@@ -32,7 +32,11 @@ The knee follows its target at a bounded rate (DROP_RATE down, RISE_RATE up), so
 torque changes gradually: a knee falling from 0.25 m/s to 0 under follow's full pull changed
 it by at most 0.31 N m per 1 ms step (through qdot_r and the task term), against 7.7 N m for
 the same fall in one step (test_separation_cap), and the continuity bar of 1 N m per cycle.
-qddot_r leaves the knee's rate out. A /hri/separation older than STALE_AFTER (or none yet)
+qddot_r leaves the knee's rate out. A separation heard more than SEPARATION_PERIOD ago
+is taken further ahead by its extra age, at the closing speed or the fastest the cap lets
+the arm come, whichever is more: a detector held back for 0.1-0.4 s on a loaded machine
+left the knee on its last separation while the arm came on (0.056 m/s above the limit, a
+fresh clone beside a busy process). A /hri/separation older than STALE_AFTER (or none yet)
 counts as a separation that allows no approach: the target is 0 (fail safe: the arm still
 follows the hand's own motion, moves away from it and fades as before, but no task pulls it
 towards the hand). No ROS import.
@@ -52,6 +56,8 @@ LOOKAHEAD = 0.1
 """s: how far ahead the separation is taken at the closing speed (module docstring)."""
 STALE_AFTER = 0.5
 """s without a /hri/separation (published at 50 Hz) after which the target knee is 0."""
+SEPARATION_PERIOD = 0.02
+"""s between two /hri/separation (50 Hz): an older one is taken ahead by its extra age."""
 
 
 def pull_speed_knee(separation: float, human_speed_used: float,
@@ -82,19 +88,32 @@ class SeparationCap:
 
     settings: ProtectiveSeparation
     max_task_speed: float
-    target: float = 0.0
     heard: float = -math.inf  # monotonic time of the last observe
     value: float = 0.0
     updated: float | None = None
+    # The last /hri/separation: separation (m), human_speed_used (m/s), closing speed (m/s).
+    observed: tuple[float, float, float] = (math.nan, 0.0, 0.0)
 
     def observe(self, now: float, separation: float, human_speed_used: float,
                 closing_speed: float) -> None:
         """A /hri/separation received at `now` (s): separation (m), human_speed_used (m/s)
         and the measured closing speed (m/s, hand and tool towards each other)."""
-        ahead = separation - LOOKAHEAD * max(closing_speed, 0.0)  # NaN stays NaN: knee 0
-        self.target = pull_speed_knee(ahead, human_speed_used, self.settings,
-                                      self.max_task_speed)
+        self.observed = (separation, human_speed_used, closing_speed)
         self.heard = now
+
+    def target(self, now: float) -> float:
+        """The knee (m/s) the last separation allows at `now` (s): taken LOOKAHEAD s ahead
+        at the closing speed, and by its age beyond SEPARATION_PERIOD at that speed or the
+        cap's own (1 + CAP_BAND) times the knee, whichever is more (module docstring); 0
+        when stale."""
+        if self.stale(now):
+            return 0.0
+        separation, human_speed_used, closing_speed = self.observed
+        closing = max(closing_speed, 0.0)  # NaN stays NaN: knee 0
+        late = max(now - self.heard - SEPARATION_PERIOD, 0.0)
+        ahead = (separation - LOOKAHEAD * closing
+                 - late * max(closing, (1.0 + CAP_BAND) * self.value))
+        return pull_speed_knee(ahead, human_speed_used, self.settings, self.max_task_speed)
 
     def stale(self, now: float) -> bool:
         """Whether no /hri/separation came within STALE_AFTER s of `now`."""
@@ -103,7 +122,7 @@ class SeparationCap:
     def knee(self, now: float) -> float:
         """The knee (m/s, in [0, max_task_speed]) at `now` (s), moved towards the target by
         at most DROP_RATE or RISE_RATE times the time since the last call."""
-        target = 0.0 if self.stale(now) else self.target
+        target = self.target(now)
         dt = 0.0 if self.updated is None else max(now - self.updated, 0.0)
         self.updated = now
         if target < self.value:

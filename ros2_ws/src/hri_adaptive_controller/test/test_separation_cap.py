@@ -12,6 +12,7 @@ from hri_adaptive_controller.separation_cap import (
     DROP_RATE,
     LOOKAHEAD,
     RISE_RATE,
+    SEPARATION_PERIOD,
     STALE_AFTER,
     SeparationCap,
     pull_speed_knee,
@@ -91,13 +92,35 @@ def test_cap_looks_ahead_at_the_closing_speed():
     cap = SeparationCap(SETTINGS, V_MAX)
     still = SETTINGS.distance(0.0, 0.0)
     cap.observe(0.0, still + 0.01, 0.0, 0.0)
-    assert cap.target == pytest.approx(pull_speed_knee(still + 0.01, 0.0, SETTINGS, V_MAX))
+    assert cap.target(0.0) == pytest.approx(pull_speed_knee(still + 0.01, 0.0, SETTINGS,
+                                                            V_MAX))
     cap.observe(0.0, still + 0.01, 0.0, 0.1 / LOOKAHEAD)  # 0.1 m/s x LOOKAHEAD closer
-    assert cap.target == 0.0
+    assert cap.target(0.0) == 0.0
     cap.observe(0.0, still + 0.01, 0.0, -1.0)  # moving apart: no credit
-    assert cap.target == pytest.approx(pull_speed_knee(still + 0.01, 0.0, SETTINGS, V_MAX))
+    assert cap.target(0.0) == pytest.approx(pull_speed_knee(still + 0.01, 0.0, SETTINGS,
+                                                            V_MAX))
     cap.observe(0.0, math.nan, 0.0, 0.0)
-    assert cap.target == 0.0
+    assert cap.target(0.0) == 0.0
+
+
+def test_an_old_separation_is_taken_ahead_by_its_age():
+    """A detector held back: the separation heard 0.2 s ago, the arm closing at 0.1 m/s,
+    counts as 0.1 m/s x 0.18 s nearer than it was (the first period is the topic's own)."""
+    cap = SeparationCap(SETTINGS, V_MAX)
+    separation = SETTINGS.distance(0.0, 0.0) + 0.03
+    cap.observe(0.0, separation, 0.0, 0.1)
+    fresh = pull_speed_knee(separation - LOOKAHEAD * 0.1, 0.0, SETTINGS, V_MAX)
+    assert cap.target(SEPARATION_PERIOD) == pytest.approx(fresh)  # on time: as heard
+    late = pull_speed_knee(separation - LOOKAHEAD * 0.1 - (0.2 - SEPARATION_PERIOD) * 0.1,
+                           0.0, SETTINGS, V_MAX)
+    assert cap.target(0.2) == pytest.approx(late)
+    assert 0.0 < late < fresh < V_MAX
+    # The cap's own speed counts where the measured closing is slower (a still arm then).
+    cap.value = 0.05
+    cap.observe(0.0, separation, 0.0, 0.0)
+    expected = pull_speed_knee(separation - (0.2 - SEPARATION_PERIOD) * 0.05 * (1.0 + CAP_BAND),
+                               0.0, SETTINGS, V_MAX)
+    assert 0.0 < cap.target(0.2) == pytest.approx(expected)
 
 
 def test_cap_goes_stale_after_its_timeout():

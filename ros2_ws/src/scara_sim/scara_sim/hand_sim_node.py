@@ -52,10 +52,12 @@ from hri_core.human_body import (
     standing_body,
 )
 from hri_core.node_common import (
+    REALTIME_PRIORITY,
     ParameterSpec,
     StartupError,
     declare_parameters,
     load_defaults,
+    request_realtime,
     run_node,
 )
 from hri_core.recorded_motion import (
@@ -82,6 +84,7 @@ SOURCES = (*HAND_PROFILES, RECORDING)
 PARAMETERS = {
     'rate_hz': ParameterSpec(float, 'publish rate of /target (Hz)', 1.0, 1000.0,
                              read_only=True),
+    'realtime_priority': REALTIME_PRIORITY,
     'profile': ParameterSpec(str, 'hand motion: ' + ', '.join(SOURCES),
                              choices=SOURCES),
     'start': ParameterSpec(list, 'start point [x, y] ([x, y, z] with dimension 3) (m); '
@@ -193,6 +196,9 @@ class HandSim(Node):
         # 1 kHz loop on the same cores, so the less it holds a CPU the better.
         self._template = point_stamped_template(self._frame)
         self.create_timer(1.0 / rate_hz, self._publish)
+        # Asked for once the set-up (a recording's placement: seconds of CPU) is done; below
+        # the 1 kHz loop's priority, which a profile changed at run time must not hold up.
+        request_realtime(self, values['realtime_priority'])
         self.get_logger().info(f'hand profile {self._describe()} at {rate_hz:g} Hz on '
                                f'{self._publisher.topic_name}, the body on '
                                f'{self._body_publisher.topic_name} ({self._describe_body()})')

@@ -77,7 +77,7 @@ class StandInArm:
     start: a thread stalled on a loaded machine sends the sample due when it wakes and leaves
     out those it missed, as a tracker drops frames, so a stretch of samples (a glitch) never
     lasts longer than its own samples' time. `sent`: the index of the newest sample;
-    `published`: the indices of those published."""
+    `published`: the indices of those published; `stamps`: their stamps (s)."""
 
     def __init__(self, probe, hand_at=None):
         self.probe = probe
@@ -87,6 +87,7 @@ class StandInArm:
         self.hand_at = hand_at or (lambda k: self.hand)
         self.sent = -1
         self.published: list[int] = []
+        self.stamps: list[float] = []
         self.publishing_joints = threading.Event()
         self.publishing_joints.set()
         self._stop = threading.Event()
@@ -102,7 +103,9 @@ class StandInArm:
             if due > self.sent:
                 where = self.hand_at(due)
                 if where is not None:
-                    self.targets.publish(point(self.probe, where))
+                    msg = point(self.probe, where)
+                    self.targets.publish(msg)
+                    self.stamps.append(stamp_seconds(msg.header.stamp))
                     self.published.append(due)
                 self.sent = due
             time.sleep(JOINT_PERIOD)

@@ -32,6 +32,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from hri_adaptive_controller.run_metrics import TakeCriteria, take_metrics
+from hri_adaptive_controller.target_filter import TargetFilterSettings
 from hri_bringup.processes import LIVE_LOOP, wait_for
 from hri_core import topics
 from hri_core.dynamics import forward_kinematics
@@ -228,7 +229,16 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     # least one of them is seen for most swaps. Every sample it saw and held is counted; none
     # it followed (below).
     assert 0.5 * sent_events <= counted <= sent_swaps
-    assert all(abs(s.distance - np.linalg.norm(HAND_OFFSET)) < 0.01 for s in used)
+    # No swap followed, unless the stand-in, held up, left a gap before one long enough for a
+    # hand to get there (the filter's speed bound: 1.5 m in 0.3 s at 5 m/s; seen once beside
+    # a busy process): such a sample is a hand that may really have moved, and is taken.
+    stamps = dict(zip(stand_in.published, stand_in.stamps, strict=True))
+    order = sorted(stamps)
+    reachable = [k for previous, k in zip(order[:-1], order[1:], strict=True)
+                 if k in swap_samples and stamps[k] - stamps[previous]
+                 >= (1.5 - 0.01) / TargetFilterSettings().max_speed]
+    followed = [s.distance for s in used if abs(s.distance - np.linalg.norm(HAND_OFFSET)) >= 0.01]
+    assert not followed or reachable, (followed[:5], reachable)
     sent = np.array([list(m.data) for m in commands.messages()])
     # Steps into zero torque are the stale-joint-state fallback (this test's own publisher
     # thread can stall under load), not a response to a glitch: left out.

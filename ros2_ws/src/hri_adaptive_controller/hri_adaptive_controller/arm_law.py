@@ -858,6 +858,10 @@ class ArmController(TaskDrives):
         if self.body is not None and self.body.chain is not None:
             far = Capsules(('far',), np.full((1, 3), 1e3), np.full((1, 3), 1e3), np.ones(1))
             self.whole_body_barrier(self.model.home.astype(float), zeros_n, far, None)
+        if self.body is not None:
+            # Not at the person's first approach: compiling it then held a cycle for seconds.
+            kernels.body_damper(zeros_n, np.zeros((1, n)), np.ones(1), np.zeros(1), 1.0, 0.0,
+                                -1.0, DAMPER_SOFTNESS, DAMPER_RIDGE)
 
     @property
     def gains(self) -> ArmGains:

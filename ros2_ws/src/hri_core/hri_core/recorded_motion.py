@@ -278,12 +278,20 @@ def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
             continue
         offset = xy[None, :, :] - chunk[:, None, :]           # (C, M, 2)
         radius = np.hypot(offset[..., 0], offset[..., 1])
-        bearing = np.arctan2(offset[..., 1], offset[..., 0])
-        mean_bearing = np.arctan2(np.sin(bearing).sum(1), np.cos(bearing).sum(1))
+        # The circular mean bearing from the unit vectors, without an angle per point (a
+        # point on the centre adds nothing, where a division by its zero radius would
+        # give NaN).
+        unit = offset / np.maximum(radius, 1e-12)[..., None]
+        mean_bearing = np.arctan2(unit[..., 1].sum(1), unit[..., 0].sum(1))
+        # Each point's bearing off the mean, in [-pi, pi]: the angle of offset turned back
+        # by the mean bearing.
+        c, s = np.cos(mean_bearing)[:, None], np.sin(mean_bearing)[:, None]
+        relative = np.arctan2(offset[..., 1] * c - offset[..., 0] * s,
+                              offset[..., 0] * c + offset[..., 1] * s)
         ring = (radius >= inner) & (radius <= outer)
         deviation = np.mean(np.abs(radius - middle), axis=1) / (outer - inner)
         for turn in turns:
-            turned = np.angle(np.exp(1j * (bearing - mean_bearing[:, None] - turn)))
+            turned = _wrapped(relative - turn)
             inside = ring & (np.abs(turned) <= reach.half_angle)
             spread = deviation + np.mean(np.abs(turned), axis=1) / math.pi
             scores.append(inside.mean(axis=1) - 1e-3 * spread)
@@ -298,6 +306,12 @@ def choose_placement(positions, reach: ReachAnnulus, grid: float = 0.02,
             return placement
     raise ValueError('no base place within reach of the path passes the placement rule '
                      '(the person clear of the arm at the start)')
+
+
+def _wrapped(angle: np.ndarray) -> np.ndarray:
+    """`angle` (rad) within [-3 pi, 3 pi] brought into [-pi, pi]."""
+    return np.where(angle > math.pi, angle - 2.0 * math.pi,
+                    np.where(angle < -math.pi, angle + 2.0 * math.pi, angle))
 
 
 def _base_at(centre, bearing: float) -> Placement:

@@ -7,7 +7,6 @@ and decodes them only when the test looks.
 """
 
 import bisect
-import contextlib
 import copy
 import json
 import math
@@ -18,15 +17,12 @@ import sys
 import threading
 import time
 import weakref
-from pathlib import Path
 
 import numpy as np
-import psutil
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
-from hri_bringup.processes import node_environment, ros2_run_command, wait_for
 from hri_core.cdr import EFFORT, LayoutReader, joint_state_layout, read_stamp
 from hri_core.node_common import stamp_seconds
 from tests.common import REPO_ROOT
@@ -265,57 +261,6 @@ def _commands_between(applied: list, commands: list, sequence) -> np.ndarray:
     return np.array([max(sequence[b] - sequence[a], 1) if a is not None and b is not None
                      and b > a else 1 for a, b in zip(where[:-1], where[1:], strict=True)],
                     dtype=float)
-
-
-class ForkedNodes:
-    """tests/node_forker.py as a process of the test: `start` forks a node from it and
-    returns the PID. Every node it started and the forker itself end by PID in `close`."""
-
-    def __init__(self, domain_id: int, log_dir: Path):
-        self.log_dir = Path(log_dir)
-        self.pids: list[int] = []
-        self._logs = 0
-        self._forker = subprocess.Popen(
-            [sys.executable, '-m', 'tests.node_forker'], cwd=REPO_ROOT,
-            env=node_environment(domain_id), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            text=True)
-
-    def start(self, executable: str, params: dict | None = None) -> tuple[int, Path]:
-        """Fork `executable` with `params` (as `ros2 run ... --ros-args -p`); (PID, log)."""
-        self._logs += 1
-        log = self.log_dir / f'forked-{self._logs:03d}-{executable}.log'
-        arguments = ros2_run_command('', executable, params)[4:]
-        self._forker.stdin.write(json.dumps([executable, str(log), *arguments]) + '\n')
-        self._forker.stdin.flush()
-        answer = json.loads(self._forker.stdout.readline() or '{"error": "forker gone"}')
-        if 'pid' not in answer:
-            raise RuntimeError(f'cannot fork {executable}: {answer["error"]}')
-        self.pids.append(answer['pid'])
-        return answer['pid'], log
-
-    def kill(self, *pids: int, timeout: float = 5.0) -> bool:
-        """SIGKILL every one of `pids` at once; True once all are gone (the forker reaps them
-        at once)."""
-        for pid in pids:
-            os.kill(pid, signal.SIGKILL)
-        return wait_for(lambda: not any(psutil.pid_exists(pid) for pid in pids), timeout,
-                        period=0.005)
-
-    def close(self) -> None:
-        running = [pid for pid in self.pids if psutil.pid_exists(pid)]
-        for pid in running:
-            os.kill(pid, signal.SIGINT)
-        if not wait_for(lambda: not any(psutil.pid_exists(pid) for pid in running), 5.0):
-            for pid in running:
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(pid, signal.SIGKILL)
-        self._forker.stdin.close()
-        try:
-            self._forker.wait(5.0)
-        except subprocess.TimeoutExpired:
-            self._forker.kill()
-            self._forker.wait()
-        self._forker.stdout.close()
 
 
 class SchedulingCanaries:

@@ -1,94 +1,245 @@
 """Start node processes without Python's start-up: fork them from a parent that has imported
 them once.
 
-Killing a peer node many times in a row (tests/test_faults.py) needs a new peer after every
-kill. `ros2 run` spends about a second of CPU per process on Python start-up and imports;
-forked from this parent, which imported every node module before any ROS context existed, a
-node only creates its context and entities: 0.13-0.54 s to its first log line here, one at a
-time beside a running loop. The child runs the node's own `main()` with the arguments
-`ros2 run` would pass, so it is the same node; only the start-up path differs.
+`ros2 run` spends about a second of CPU per node on Python's start-up, the imports and the
+controller's compiled kernels; the topic-level tests start some 250 nodes, on two cores. Forked
+from this parent, which imported every node module and loaded the kernels before any ROS
+context existed, a node only creates its context and entities. The child runs the node's own
+`main()` (the package's console script, what `ros2 run` calls) with the arguments `ros2 run`
+would pass, in the environment `ros2 run` would get, so it is the same node; only the start-up
+path differs. The tests that are about `ros2 run` itself (tests/test_node_exit.py,
+tests/test_ros2_cli.py, the `system` node's children) still start nodes through it.
 
-Run as `python -m tests.node_forker` in the nodes' environment (ROS_DOMAIN_ID and all). It
-reads one JSON request per line on stdin, [executable, log file, argument, ...], forks, and
-answers with the child's PID on a line of stdout. Children are reaped as they end (SIGCHLD
-ignored), so a killed child's PID disappears at once. End of stdin ends the parent, not the
-children: the caller ends those by PID.
+Run as `python -u -m tests.node_forker` in the nodes' environment. It prints `ready` once it
+has loaded everything, then reads one JSON request per line on stdin:
+{"package", "executable", "args", "env", "cwd", "log", "status"}, forks, and answers with
+{"pid": PID} (or {"error": reason}) on a line of stdout. The child's output goes to `log`.
+Children are reaped as soon as they end, and each one's exit code (negative: the signal that
+ended it) is written to its `status` file then, so the caller, which is not the parent, can
+wait for it. End of stdin ends the parent, not the children: the caller ends those by PID.
 """
 
+import contextlib
 import importlib
+import importlib.metadata
 import inspect
 import json
 import linecache
 import os
+import select
 import signal
+import subprocess
 import sys
+import time
+import traceback
+from pathlib import Path
 
-# The nodes it can start, by executable name: the module whose main(args) `ros2 run` calls.
-NODE_MODULES = {
-    'scara_sim': 'scara_sim.scara_sim_node',
-    'hand_sim': 'scara_sim.hand_sim_node',
-    'event_manager': 'hri_adaptive_controller.event_manager_node',
-    'recorder': 'hri_demo_learning.recorder_node',
-}
+# The project's packages whose console scripts (their nodes) the forker starts.
+PACKAGES = ('hri_adaptive_controller', 'hri_bringup', 'hri_demo_learning', 'scara_sim')
 # The message packages the nodes use: their C type supports load on first use, so the forker
 # loads them once for every child.
 MESSAGE_MODULES = ('builtin_interfaces.msg', 'geometry_msgs.msg', 'hri_interfaces.msg',
-                   'rcl_interfaces.msg', 'rosgraph_msgs.msg', 'sensor_msgs.msg', 'std_msgs.msg')
+                   'rcl_interfaces.msg', 'rosgraph_msgs.msg', 'sensor_msgs.msg', 'std_msgs.msg',
+                   'foxglove_msgs.msg')
 
 
-def preload(packages: tuple[str, ...]) -> None:
+def node_mains() -> dict[tuple[str, str], object]:
+    """{(package, executable): main} of every console script of PACKAGES, imported."""
+    mains = {}
+    for package in PACKAGES:
+        for entry in importlib.metadata.distribution(package).entry_points:
+            if entry.group == 'console_scripts':
+                mains[package, entry.name] = entry.load()
+    return mains
+
+
+def preload() -> None:
     """What each child would otherwise load in its first second: the message type supports,
-    the recorder's message store, and the source lines rclpy's logger reads (inspect) for the
-    file and line of each call from the modules of `packages`."""
+    the recorder's message store, the controller's compiled kernels (numba's cache), and the
+    source lines rclpy's logger reads (inspect) for the file and line of each call."""
     for name in MESSAGE_MODULES:
-        for message in vars(importlib.import_module(name)).values():
-            if inspect.isclass(message) and hasattr(message, '_TYPE_SUPPORT'):
-                type(message).__import_type_support__()
+        with contextlib.suppress(ImportError):
+            for message in vars(importlib.import_module(name)).values():
+                if inspect.isclass(message) and hasattr(message, '_TYPE_SUPPORT'):
+                    type(message).__import_type_support__()
     # rosbags loads a store's message types on first use: 0.14 s of each recorder's start.
     importlib.import_module('hri_demo_learning.bag_io').jazzy_typestore()
+    from hri_adaptive_controller.arm_kernels import warm_up_body_barrier
+    from hri_adaptive_controller.arm_law import ROBOT_GAINS, ArmController
+    from hri_core.bodies import capsule_distances, human_capsules, robot_body
+    from hri_core.human_body import BODY_POINTS, standing_body
+    from hri_core.robot_model import robot_model
+
+    warm_up_body_barrier()
+    for robot, gains in ROBOT_GAINS.items():
+        ArmController(robot_model(robot), gains)
+    scara = robot_model('scara')
+    capsule_distances(robot_body(scara).capsules(scara.home), human_capsules(
+        BODY_POINTS, standing_body([0.8, 0.0], 3.1, 0.0, [0.4, 0.0, 0.0])))
+    packages = ('rclpy', 'hri_core', *PACKAGES)
     for module in list(sys.modules.values()):
         path = getattr(module, '__file__', None)
         if path and path.endswith('.py') and module.__name__.split('.')[0] in packages:
             linecache.getlines(path)
 
 
-def run_child(main, executable: str, log_path: str, arguments: list[str]) -> None:
-    """In the forked child: a session of its own, no input, output to `log_path`, then the
-    node."""
+def run_child(main, request: dict, closing: list[int]) -> None:
+    """In the forked child: the request's environment and folder, a session of its own, no
+    input, output to its log, then the node; exits with what `ros2 run` would have."""
+    for fd in closing:
+        os.close(fd)
+    signal.set_wakeup_fd(-1)
+    signal.signal(signal.SIGCHLD, signal.SIG_DFL)
     os.setsid()
+    os.environ.clear()
+    os.environ.update(request['env'])
+    os.chdir(request['cwd'])
     nothing = os.open(os.devnull, os.O_RDONLY)
     os.dup2(nothing, 0)
     os.close(nothing)
-    log = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    log = os.open(request['log'], os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(log, 1)
     os.dup2(log, 2)
     os.close(log)
-    signal.signal(signal.SIGCHLD, signal.SIG_DFL)
-    sys.argv = [executable, *arguments]
+    sys.argv = [request['executable'], *request['args']]
     code = 1
     try:
         code = main() or 0
+    except SystemExit as exit_:
+        code = exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
+    except BaseException:  # noqa: BLE001 - printed as the interpreter would, then exit 1
+        traceback.print_exc()
     finally:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+            sys.stderr.flush()
         os._exit(code)
 
 
-def serve(requests, answers) -> None:
-    """Fork one node per request line; answer each with the child's PID (or an error)."""
-    mains = {name: importlib.import_module(module).main for name, module in NODE_MODULES.items()}
-    preload(('rclpy', 'hri_core', *{module.split('.')[0] for module in NODE_MODULES.values()}))
-    signal.signal(signal.SIGCHLD, signal.SIG_IGN)
-    for line in requests:
-        executable, log_path, *arguments = json.loads(line)
-        if executable not in mains:
-            print(json.dumps({'error': f'no node {executable!r}'}), file=answers, flush=True)
+def write_status(path: str, code: int) -> None:
+    """`code` into `path`, whole or not at all (a reader never sees half a number)."""
+    with open(path + '.tmp', 'w') as stream:
+        stream.write(f'{code}\n')
+    os.replace(path + '.tmp', path)
+
+
+def serve(requests_fd: int, answers) -> None:
+    """Fork one node per request line; answer each with the child's PID (or an error); write
+    each child's exit code to its status file as soon as it ends."""
+    mains = node_mains()
+    preload()
+    wake_read, wake_write = os.pipe()
+    os.set_blocking(wake_write, False)
+    signal.set_wakeup_fd(wake_write)
+    signal.signal(signal.SIGCHLD, lambda *_: None)  # wakes the select below
+    status_of: dict[int, str] = {}
+    print('ready', file=answers, flush=True)
+    pending = b''
+    while True:
+        readable, _, _ = select.select([requests_fd, wake_read], [], [], 1.0)
+        if wake_read in readable:
+            os.read(wake_read, 4096)
+        while status_of:
+            try:
+                pid, status = os.waitpid(-1, os.WNOHANG)
+            except ChildProcessError:
+                break
+            if pid == 0:
+                break
+            if pid in status_of:
+                write_status(status_of.pop(pid), os.waitstatus_to_exitcode(status))
+        if requests_fd not in readable:
             continue
-        pid = os.fork()
-        if pid == 0:
-            run_child(mains[executable], executable, log_path, arguments)
-        print(json.dumps({'pid': pid}), file=answers, flush=True)
+        data = os.read(requests_fd, 65536)
+        if not data:
+            # The caller is gone: its children stay theirs to end; stop reaping.
+            return
+        pending += data
+        *lines, pending = pending.split(b'\n')
+        for line in filter(None, lines):
+            request = json.loads(line)
+            main = mains.get((request['package'], request['executable']))
+            if main is None:
+                print(json.dumps({'error': f'no node {request["package"]}/'
+                                           f'{request["executable"]}'}),
+                      file=answers, flush=True)
+                continue
+            pid = os.fork()
+            if pid == 0:
+                run_child(main, request, [requests_fd, wake_read, wake_write])
+            status_of[pid] = request['status']
+            print(json.dumps({'pid': pid}), file=answers, flush=True)
+
+
+# ------------------------------------------------------------------- the tests' side
+
+
+class ForkedChild:
+    """A node the forker started, with what NodeProcess uses of a Popen: pid, poll(),
+    wait(timeout) and returncode (read from its status file once the forker has reaped it)."""
+
+    def __init__(self, pid: int, command: list[str], status: Path):
+        self.pid = pid
+        self.args = command
+        self.returncode: int | None = None
+        self._status = status
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            with contextlib.suppress(FileNotFoundError):
+                self.returncode = int(self._status.read_text())
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if deadline is not None and time.monotonic() >= deadline:
+                raise subprocess.TimeoutExpired(self.args, timeout)
+            time.sleep(0.005)
+        return self.returncode
+
+
+class NodeForker:
+    """This module as a process of the tests (one per pytest process): `spawn` is a
+    hri_bringup.processes Spawn that forks the node of a `ros2 run` command from it.
+    `close` ends the forker; the nodes are ended by PID by whoever started them."""
+
+    def __init__(self, cwd: Path):
+        self._process = subprocess.Popen(
+            [sys.executable, '-u', '-m', 'tests.node_forker'], cwd=cwd,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        self._ready = False
+
+    def spawn(self, command: list[str], env: dict[str, str], log_file) -> ForkedChild:
+        """Fork the node of `command` (`ros2 run PACKAGE EXECUTABLE ARGS...`) in `env`, its
+        output into `log_file`'s path."""
+        if command[:2] != ['ros2', 'run'] or len(command) < 4:
+            raise ValueError(f'not a ros2 run command: {command}')
+        if not self._ready:
+            # Its first line once it has loaded everything (seconds on a busy machine).
+            line = self._process.stdout.readline()
+            if line.strip() != 'ready':
+                raise RuntimeError(f'the node forker did not start: {line!r}')
+            self._ready = True
+        status = Path(f'{log_file.name}.exit')
+        request = {'package': command[2], 'executable': command[3], 'args': command[4:],
+                   'env': env, 'cwd': os.getcwd(), 'log': log_file.name, 'status': str(status)}
+        self._process.stdin.write(json.dumps(request) + '\n')
+        self._process.stdin.flush()
+        answer = json.loads(self._process.stdout.readline() or '{"error": "forker gone"}')
+        if 'pid' not in answer:
+            raise RuntimeError(f'cannot fork {command[2]}/{command[3]}: {answer["error"]}')
+        return ForkedChild(answer['pid'], command, status)
+
+    def close(self) -> None:
+        self._process.stdin.close()
+        try:
+            self._process.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+        self._process.stdout.close()
 
 
 if __name__ == '__main__':
-    serve(sys.stdin, sys.stdout)
+    serve(sys.stdin.fileno(), sys.stdout)

@@ -24,14 +24,13 @@ from hri_interfaces.msg import ControllerState, TaskState
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hri_bringup.processes import READY_LINES, wait_for
+from hri_bringup.processes import LIVE_LOOP_EXECUTABLES, READY_LINES, wait_for
 from hri_core.dynamics import ScaraParameters, kinetic_energy
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.topics import MONITOR_QOS
 from tests.common import PAPER_TASKS
 from tests.fault_tools import (
     REALTIME_PRIORITY,
-    ForkedNodes,
     RawListener,
     SchedulingCanaries,
     SentCommands,
@@ -186,14 +185,13 @@ def test_each_peer_killed_repeatedly_the_controller_answers_every_joint_state(
     joint states of a steadily running sim without a gap over MAX_ANSWER beyond what the
     machine held back a real-time thread at the time (`controller_gaps`, `machine_stall`);
     without the sim it commands zero torque within joint_state_timeout; a new sim gets
-    commands within RESUME_WITHIN of its ready line. The peers are forked
-    (tests/node_forker.py): the same nodes, started without Python's start-up; the others start
-    while the sim is killed and restarted.
+    commands within RESUME_WITHIN of its ready line. Like every node of the tests the peers
+    are forked (tests/node_forker.py): the same nodes, started without Python's start-up, which
+    here is what lets a peer come back within RESUME_WITHIN.
     """
     states = probe.collect('/hri/controller_state', ControllerState, MONITOR_QOS)
     joints = RawListener(probe, '/joint_states', JointState)
     commands = RawListener(probe, '/effort_controller/commands', Float64MultiArray)
-    forked = ForkedNodes(ros_domain, tmp_path)
     canaries = SchedulingCanaries(CANARY_PRIORITY)
     peers = {}
     logs = {}
@@ -202,8 +200,9 @@ def test_each_peer_killed_repeatedly_the_controller_answers_every_joint_state(
 
     def fork(*names: str) -> None:
         for name in names:
-            peers[name], logs[name] = forked.start(
-                name, peer_parameters(name, tmp_path, next(incarnations)))
+            peers[name] = nodes(*LIVE_LOOP_EXECUTABLES[name],
+                                params=peer_parameters(name, tmp_path, next(incarnations)))
+            logs[name] = peers[name].log_path
         events.append((time.time(), f'fork {", ".join(names)}'))
 
     def ready_times(*names: str) -> list[float]:
@@ -224,7 +223,9 @@ def test_each_peer_killed_repeatedly_the_controller_answers_every_joint_state(
 
     def kill(*names: str) -> None:
         events.append((time.time(), f'kill {", ".join(names)}'))
-        assert forked.kill(*(peers[name] for name in names)), names
+        for name in names:
+            peers[name].send(signal.SIGKILL)
+        assert all(peers[name].wait(5.0) is not None for name in names), names
 
     try:
         fork(*PEERS)
@@ -304,7 +305,6 @@ def test_each_peer_killed_repeatedly_the_controller_answers_every_joint_state(
         assert_all_finite(states, '/hri/controller_state')
         assert controller.alive()
     finally:
-        forked.close()
         canaries.close()
 
 

@@ -161,18 +161,31 @@ def ros2_run_command(package: str, executable: str, params: Mapping | None = Non
     return command
 
 
+def popen_in_a_session(command: list[str], env: dict[str, str], log_file) -> subprocess.Popen:
+    """`command` as a process in a session of its own, its stdout and stderr into
+    `log_file` (an open binary file): how a NodeProcess starts by default."""
+    return subprocess.Popen(command, env=env, stdout=log_file, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+
+
+# How a NodeProcess starts its command: (command, env, log file) -> an object with Popen's
+# pid, poll(), wait(timeout) and returncode.
+Spawn = Callable[[list[str], dict[str, str], object], subprocess.Popen]
+
+
 class NodeProcess:
     """One `ros2 run` process in its own session; its output goes to a log file; ended by
-    PID, never by name."""
+    PID, never by name. `spawn` starts it (default `popen_in_a_session`; the tests fork the
+    same node from a parent that has imported it, tests/node_forker.py)."""
 
     def __init__(self, package: str, executable: str, domain_id: int | None = None,
                  params: Mapping | None = None, remaps: Mapping | None = None,
                  extra_args: Iterable[str] = (), log_dir: Path | None = None,
-                 params_files: Sequence[str | Path] = ()):
+                 params_files: Sequence[str | Path] = (), spawn: Spawn | None = None):
         command = ros2_run_command(package, executable, params, remaps, extra_args,
                                    params_files)
         self._launch(f'{package}/{executable}', command, node_environment(domain_id), log_dir,
-                     executable)
+                     executable, spawn or popen_in_a_session)
 
     @classmethod
     def from_command(cls, name: str, command: Sequence[str], env: Mapping[str, str],
@@ -180,11 +193,11 @@ class NodeProcess:
         """Any command run and ended like a node (e.g. one wrapped in `ip netns exec`);
         `name` stands for it in messages and in its log file's name."""
         process = cls.__new__(cls)
-        process._launch(name, list(command), dict(env), log_dir, name)
+        process._launch(name, list(command), dict(env), log_dir, name, popen_in_a_session)
         return process
 
     def _launch(self, name: str, command: list[str], env: dict[str, str],
-                log_dir: Path | None, log_stem: str) -> None:
+                log_dir: Path | None, log_stem: str, spawn: Spawn) -> None:
         self.name = name
         self.command = command
         log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='hri-nodes-'))
@@ -194,15 +207,19 @@ class NodeProcess:
         self._log_file = open(self.log_path, 'wb')  # closed in wait_or_kill()
         self._read_offset = 0
         try:
-            self.process = subprocess.Popen(command, env=env, stdout=self._log_file,
-                                            stderr=subprocess.STDOUT, start_new_session=True)
-        except OSError:
+            self.process = spawn(command, env, self._log_file)
+        except BaseException:
             self._log_file.close()
             raise
 
     @property
     def pid(self) -> int:
         return self.process.pid
+
+    @property
+    def returncode(self) -> int | None:
+        """The exit code once the process has ended (negative: the signal that ended it)."""
+        return self.process.returncode
 
     def alive(self) -> bool:
         return self.process.poll() is None
@@ -229,9 +246,9 @@ class NodeProcess:
             self.send(signal.SIGUSR1)
             if self.wait(STACK_DUMP_TIME) is None:
                 self.send(signal.SIGKILL)
-            self.process.wait(timeout=5.0)
+            self.wait(5.0)
         self._log_file.close()
-        return self.process.returncode
+        return self.returncode
 
     def stop(self, timeout: float = 5.0, sig: int = signal.SIGINT) -> int:
         """Send `sig`, then SIGKILL after `timeout` s; return the exit code."""
@@ -261,10 +278,12 @@ class NodeProcess:
 def start_node(package: str, executable: str, domain_id: int | None = None,
                params: Mapping | None = None, remaps: Mapping | None = None,
                extra_args: Iterable[str] = (), log_dir: Path | None = None,
-               params_files: Sequence[str | Path] = ()) -> NodeProcess:
-    """Start `ros2 run package executable` with parameter files, parameters and remappings."""
+               params_files: Sequence[str | Path] = (),
+               spawn: Spawn | None = None) -> NodeProcess:
+    """Start `ros2 run package executable` with parameter files, parameters and remappings
+    (`spawn`: NodeProcess's)."""
     return NodeProcess(package, executable, domain_id, params, remaps, extra_args, log_dir,
-                       params_files)
+                       params_files, spawn)
 
 
 def stop_all(processes: Iterable[NodeProcess], timeout: float = 5.0,
@@ -336,9 +355,10 @@ def live_loop_parameters(overrides: Mapping[str, Mapping | None] | None = None
 def start_nodes(names: Iterable[str], domain_id: int | None,
                 params: Mapping[str, Mapping | None] | None = None,
                 log_dir: Path | None = None,
-                params_files: Sequence[str | Path] = ()) -> dict[str, NodeProcess]:
+                params_files: Sequence[str | Path] = (),
+                spawn: Spawn | None = None) -> dict[str, NodeProcess]:
     """Start the live-loop nodes `names` (in LIVE_LOOP_EXECUTABLES' order) with
-    `params[name]` and the parameter files; return {name: process}.
+    `params[name]` and the parameter files; return {name: process}. `spawn`: NodeProcess's.
 
     ValueError for a name that is not a live-loop node. If one fails to start, those
     already started are stopped before the error is raised."""
@@ -350,7 +370,7 @@ def start_nodes(names: Iterable[str], domain_id: int | None,
             if name in wanted:
                 started[name] = start_node(package, executable, domain_id,
                                            params=(params or {}).get(name), log_dir=log_dir,
-                                           params_files=params_files)
+                                           params_files=params_files, spawn=spawn)
     except BaseException:
         stop_all(started.values())
         raise
@@ -361,7 +381,8 @@ def start_live_loop(domain_id: int | None,
                     overrides: Mapping[str, Mapping | None] | None = None,
                     log_dir: Path | None = None, record: str | Path | None = None,
                     nodes: Iterable[str] = LIVE_LOOP,
-                    ready_timeout: float | None = None) -> dict[str, NodeProcess]:
+                    ready_timeout: float | None = None,
+                    spawn: Spawn | None = None) -> dict[str, NodeProcess]:
     """Start the live loop on `domain_id`; return {node name: process}.
 
     `overrides` maps a node name (LIVE_LOOP_EXECUTABLES) to parameters that replace the
@@ -370,16 +391,17 @@ def start_live_loop(domain_id: int | None,
     `nodes` picks the nodes (default LIVE_LOOP). Without `ready_timeout` all start at once
     and the caller waits for what it needs; with it the hand starts last, once every other
     node has logged its READY_LINES line, and NodesNotReadyError is raised (everything stopped)
-    if one has not within `ready_timeout` s. On any error nothing is left running.
+    if one has not within `ready_timeout` s. `spawn`: NodeProcess's. On any error nothing is
+    left running.
     """
     names = [*nodes, *(['recorder'] if record is not None else [])]
     parameters = live_loop_parameters(overrides)
     if record is not None:
         parameters['recorder']['output'] = str(record)
     if ready_timeout is None:
-        return start_nodes(names, domain_id, parameters, log_dir)
+        return start_nodes(names, domain_id, parameters, log_dir, spawn=spawn)
     processes = start_nodes([name for name in names if name != 'hand_sim'], domain_id,
-                            parameters, log_dir)
+                            parameters, log_dir, spawn=spawn)
     try:
         expected = {process: READY_LINES[LIVE_LOOP_EXECUTABLES[name][1]]
                     for name, process in processes.items()}
@@ -388,7 +410,8 @@ def start_live_loop(domain_id: int | None,
             raise NodesNotReadyError([name for name, process in processes.items()
                                       if process in late], ready_timeout)
         if 'hand_sim' in names:
-            processes.update(start_nodes(['hand_sim'], domain_id, parameters, log_dir))
+            processes.update(start_nodes(['hand_sim'], domain_id, parameters, log_dir,
+                                         spawn=spawn))
     except BaseException:
         stop_all(processes.values())
         raise

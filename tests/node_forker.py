@@ -20,6 +20,7 @@ wait for it. End of stdin ends the parent, not the children: the caller ends tho
 """
 
 import contextlib
+import gc
 import importlib
 import importlib.metadata
 import inspect
@@ -88,6 +89,7 @@ def run_child(main, request: dict, closing: list[int]) -> None:
     input, output to its log, then the node; exits with what `ros2 run` would have."""
     for fd in closing:
         os.close(fd)
+    gc.enable()
     signal.set_wakeup_fd(-1)
     signal.signal(signal.SIGCHLD, signal.SIG_DFL)
     os.setsid()
@@ -126,13 +128,23 @@ def write_status(path: str, code: int) -> None:
 def serve(requests_fd: int, answers) -> None:
     """Fork one node per request line; answer each with the child's PID (or an error); write
     each child's exit code to its status file as soon as it ends."""
+    # What the children share with this parent stays shared (Python's advice for fork
+    # without exec): no collection here leaves holes in its pages, and the objects it made are
+    # frozen, so the children's collections never write to them (each write copies a page of
+    # the parent's 270 MB). A node's start to its ready line: 0.1 s of CPU with this, 0.15 s
+    # without.
+    gc.disable()
     mains = node_mains()
     preload()
+    gc.freeze()
     wake_read, wake_write = os.pipe()
     os.set_blocking(wake_write, False)
     signal.set_wakeup_fd(wake_write)
     signal.signal(signal.SIGCHLD, lambda *_: None)  # wakes the select below
     status_of: dict[int, str] = {}
+    # HRI_NODE_CPU_LOG: a file each child's CPU time (s) and status file are appended to as
+    # it ends (which test's nodes cost what; the status file's path holds the test's name).
+    cpu_log = os.environ.get('HRI_NODE_CPU_LOG')
     print('ready', file=answers, flush=True)
     pending = b''
     while True:
@@ -141,12 +153,16 @@ def serve(requests_fd: int, answers) -> None:
             os.read(wake_read, 4096)
         while status_of:
             try:
-                pid, status = os.waitpid(-1, os.WNOHANG)
+                pid, status, usage = os.wait4(-1, os.WNOHANG)
             except ChildProcessError:
                 break
             if pid == 0:
                 break
             if pid in status_of:
+                if cpu_log:
+                    with open(cpu_log, 'a') as stream:
+                        stream.write(f'{usage.ru_utime + usage.ru_stime:.3f} '
+                                     f'{status_of[pid]}\n')
                 write_status(status_of.pop(pid), os.waitstatus_to_exitcode(status))
         if requests_fd not in readable:
             continue

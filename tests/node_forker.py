@@ -19,6 +19,7 @@ ended it) is written to its `status` file then, so the caller, which is not the 
 wait for it. End of stdin ends the parent, not the children: the caller ends those by PID.
 """
 
+import atexit
 import contextlib
 import gc
 import importlib
@@ -109,10 +110,16 @@ def run_child(main, request: dict, closing: list[int]) -> None:
         code = main() or 0
     except SystemExit as exit_:
         code = exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
+        if not isinstance(exit_.code, int | None):
+            print(exit_.code, file=sys.stderr)
     except BaseException:  # noqa: BLE001 - printed as the interpreter would, then exit 1
         traceback.print_exc()
     finally:
-        with contextlib.suppress(Exception):
+        # The interpreter's own way out, but for tearing down the modules: the exit functions
+        # (a node's, the libraries') and the streams flushed.
+        with contextlib.suppress(BaseException):
+            atexit._run_exitfuncs()
+        with contextlib.suppress(BaseException):
             sys.stdout.flush()
             sys.stderr.flush()
         os._exit(code)

@@ -1,5 +1,6 @@
 """Unit tests of hri_core.recorded_motion: Vicon CSV reading, transform, placement."""
 
+import functools
 import math
 from pathlib import Path
 
@@ -216,15 +217,35 @@ ARM_REACH = {'scara': SCARA_REACH, 'panda': ReachAnnulus(0.30, 0.75)}
 MIN_IN_REACH = 0.65
 
 
+@functools.cache
+def recorded_body(take: Path):
+    """The take's whole body (human_body.read_recorded_body), read once per test process:
+    the tests below read it 40 times (0.14 s each)."""
+    from hri_core.human_body import read_recorded_body
+
+    return read_recorded_body(take)
+
+
+@functools.cache
+def trunk_clear_placement(take: Path, arm: str):
+    """choose_placement of the take's right wrist with the arm's reach and the trunk kept
+    BODY_CLEARANCE[arm] away (no further rule), found once per test process."""
+    from hri_core.human_body import BODY_POINTS
+
+    body = recorded_body(take)
+    return choose_placement(body.points[:, BODY_POINTS.index('r_wrist')], ARM_REACH[arm],
+                            body=body.trunk(), clearance=BODY_CLEARANCE[arm])
+
+
 @pytest.mark.parametrize('arm', sorted(ARM_REACH))
 @pytest.mark.parametrize('take', TAKES, ids=lambda path: path.stem)
 def test_auto_place_keeps_the_trunk_clear_and_most_of_the_hand_in_reach(take, arm):
-    from hri_core.human_body import BODY_POINTS, read_recorded_body
+    from hri_core.human_body import BODY_POINTS
 
-    body = read_recorded_body(take)
+    body = recorded_body(take)
     hand = body.points[:, BODY_POINTS.index('r_wrist')]
     reach, clearance = ARM_REACH[arm], BODY_CLEARANCE[arm]
-    placement = choose_placement(hand, reach, body=body.trunk(), clearance=clearance)
+    placement = trunk_clear_placement(take, arm)
     trunk = placement.apply(body.trunk())
     trunk = trunk[np.all(np.isfinite(trunk), axis=1)]
     assert len(trunk) > 0.9 * 3 * len(body.times)
@@ -234,10 +255,10 @@ def test_auto_place_keeps_the_trunk_clear_and_most_of_the_hand_in_reach(take, ar
 
 def test_without_a_clearance_two_takes_put_the_hip_by_the_panda():
     # What the clearance is for: the placement by reach alone.
-    from hri_core.human_body import BODY_POINTS, read_recorded_body
+    from hri_core.human_body import BODY_POINTS
 
     for name, closest in (('RobotHumanHandover_1', 0.05), ('CollaborativeHammering_1', 0.3)):
-        body = read_recorded_body(next(t for t in TAKES if t.stem == name))
+        body = recorded_body(next(t for t in TAKES if t.stem == name))
         hip = body.points[:, BODY_POINTS.index('body')]
         placed = choose_placement(body.points[:, BODY_POINTS.index('r_wrist')],
                                   ARM_REACH['panda']).apply(hip)
@@ -298,9 +319,9 @@ def start_distance(placement, names, points, arm) -> float:
 @pytest.mark.parametrize('take', TAKES, ids=lambda path: path.stem)
 def test_auto_place_keeps_the_person_off_the_arm_at_its_start(take, arm, arms):
     from hri_core.bodies import clear_of_arm, human_capsules
-    from hri_core.human_body import BODY_POINTS, read_recorded_body
+    from hri_core.human_body import BODY_POINTS
 
-    body = read_recorded_body(take)
+    body = recorded_body(take)
     hand = body.points[:, BODY_POINTS.index('r_wrist')]
     names, points = body.first_frame()
     assert names, take.stem
@@ -315,15 +336,10 @@ def test_auto_place_keeps_the_person_off_the_arm_at_its_start(take, arm, arms):
 
 def test_without_the_arm_rule_most_takes_start_the_person_over_the_scara(arms):
     # What the rule is for: the SCARA's home pose points along the path's mean bearing.
-    from hri_core.human_body import BODY_POINTS, read_recorded_body
-
     inside = 0
     for take in TAKES:
-        body = read_recorded_body(take)
-        placement = choose_placement(body.points[:, BODY_POINTS.index('r_wrist')],
-                                     SCARA_REACH, body=body.trunk(),
-                                     clearance=BODY_CLEARANCE['scara'])
-        inside += start_distance(placement, *body.first_frame(), arms['scara']) < 0.10
+        inside += start_distance(trunk_clear_placement(take, 'scara'),
+                                 *recorded_body(take).first_frame(), arms['scara']) < 0.10
     assert inside >= len(TAKES) // 2
 
 

@@ -499,6 +499,18 @@ class _Run:
         self.torque_limited[i], self.fault[i] = out.torque_limited, out.fault
         self.phase[i], self.active_task[i] = weight.phase, weight.active_task
 
+    def truncate(self, steps: int) -> None:
+        """Keep the first `steps` rows of every recorded series (a run ended early)."""
+        self.time = self.time[:steps]
+        for rows in (self.rows, self.scalars):
+            for name, values in rows.items():
+                rows[name] = values[:steps]
+        for name in ('theta_hat', 'body_distance', 'torque_limited', 'fault', 'phase',
+                     'active_task', 'drives'):
+            values = getattr(self, name)
+            if values is not None:
+                setattr(self, name, values[:steps])
+
     def result(self) -> SimulationResult:
         """The recorded run, with the task terms of V and dV/dt for all its steps at once."""
         scalars, drives, kp = self.scalars, self.drives, self.gains.kp
@@ -520,16 +532,23 @@ class _Run:
 
 def simulate(tasks: Mapping[str, TaskShape], events: Sequence[tuple[float, str | None]],
              target: TargetTrajectory, duration: float,
-             conditions: LoopConditions = LoopConditions()) -> SimulationResult:
+             conditions: LoopConditions = LoopConditions(),
+             until: Callable[[float, float], bool] | None = None) -> SimulationResult:
     """Run the closed loop for `duration` s with control period and integration step
     conditions.dt (s).
 
     tasks: task name -> TaskShape; events: (time s, task name or None) that switch tasks
     through a(E, t) (eq. 13); target: t -> (x_d, xdot_d, xddot_d); conditions: the arm, the
-    gains and the loop's timing (LoopConditions).
+    gains and the loop's timing (LoopConditions). until: (t s, the step's task distance m)
+    -> True ends the run after that step, its result holding the steps run (e.g. once the
+    arm is in its region).
     Raises ValueError for unknown task names or bad values.
     """
     run = _Run(tasks, events, target, duration, conditions)
+    distance = run.scalars['distance']
     for i, t in enumerate(run.time):
         run.step(i, t)
+        if until is not None and until(t, distance[i]):
+            run.truncate(i + 1)
+            break
     return run.result()

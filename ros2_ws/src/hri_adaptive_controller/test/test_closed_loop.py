@@ -227,12 +227,12 @@ ARM = np.array([0.35, 0.30])  # m, the end-effector at q = (0, pi/2)
 REACH_IN_SPEED = 0.5  # m/s, peak speed of a hand reaching in
 
 
-def run_rows(rows, events, target, duration, **kwargs):
+def run_rows(rows, events, target, duration, until=None, **kwargs):
     tasks = {name: shape for name, (shape, _) in rows.items()}
     gains = {name: k for name, (_, k) in rows.items()}
     return simulate(tasks, events, target, duration, LoopConditions(
         arm=SCARA, theta_hat0=WRONG_THETA, dt=DT, monitor=False, task_gains=gains,
-        **kwargs))
+        **kwargs), until=until)
 
 
 def reach_in(stop_distance, leave_at=None, leave_speed=0.2, away=(0.35, 0.0)):
@@ -398,11 +398,23 @@ def test_a_slower_demonstration_gives_a_slower_approach():
     shape, k = ROWS['learned']['follow']
     times = []
     for divisor in (1.0, 4.0, 16.0):
+        # Up to 30 s, ended once in the region (18 s for K / 16).
         result = run_rows({'follow': (shape, k / divisor)}, [],
-                          still_target(ARM + [0.0, -0.25]), 30.0, initial_task='follow')
+                          still_target(ARM + [0.0, -0.25]), 30.0, initial_task='follow',
+                          until=lambda _, distance: distance <= shape.d2)
         first = np.argmax(result.distance <= result.distance[0] - 0.002)
         inside = np.flatnonzero(result.distance <= shape.d2)
         assert inside.size, divisor
         times.append(result.time[inside[0]] - result.time[first])
     assert times[1] >= 2.5 * times[0], times
     assert times[2] >= times[1]
+
+
+def test_until_ends_the_run_after_the_step_it_holds_for():
+    shape, k = ROWS['learned']['follow']
+    result = run_rows({'follow': (shape, k)}, [], still_target(ARM + [0.0, -0.25]), 1.0,
+                      initial_task='follow', until=lambda t, _: t >= 0.05 - 1e-12)
+    assert result.time.size == round(0.05 / DT) + 1
+    assert result.tau.shape[0] == result.distance.size == result.theta_hat.shape[0] == \
+        result.phase.size == result.time.size
+    assert np.all(np.isfinite(result.distance))

@@ -6,6 +6,7 @@ tests import directly.
 
 import itertools
 import os
+import time
 from pathlib import Path
 
 from rcl_interfaces.srv import SetParameters
@@ -33,6 +34,28 @@ def next_domain_id() -> int:
     slots = DOMAIN_ID_COUNT // workers
     slot = (_session_offset + next(_domain_counter)) % slots
     return DOMAIN_ID_FIRST + slot * workers + worker
+
+
+# s: how long one handshake request of `wait_for_service` waits for its answer.
+HANDSHAKE_WAIT = 1.0
+
+
+def wait_for_service(client, timeout: float) -> bool:
+    """True once `client`'s service answers it, within `timeout` s. rclpy's wait_for_service
+    sees only the server's request reader: a response sent before the server has found the
+    client's response reader is dropped (the node logs `failed to send response (timeout)`;
+    seen with a node called within milliseconds of its start, beside phase 1). So an empty
+    request of the service's type (a parameter service's no-op: no parameter set or read) is
+    sent until one is answered."""
+    deadline = time.monotonic() + timeout
+    if not client.wait_for_service(timeout_sec=timeout):
+        return False
+    while (left := deadline - time.monotonic()) > 0.0:
+        future = client.call_async(client.srv_type.Request())
+        if wait_for(future.done, min(HANDSHAKE_WAIT, left)):
+            return True
+        client.remove_pending_request(future)
+    return False
 
 
 def call_service(client, request, timeout: float = 15.0):

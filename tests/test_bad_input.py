@@ -36,7 +36,7 @@ from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.robot_model import robot_model
 from hri_core.topics import LEARNED_TASKS_QOS, MONITOR_QOS, TASK_STATE_QOS
-from tests.common import PAPER_TASKS, REPO_ROOT, call_service, set_parameter
+from tests.common import PAPER_TASKS, REPO_ROOT, call_service, set_parameter, wait_for_service
 from tests.fault_tools import REALTIME_PRIORITY, RELIABLE, RawListener, assert_all_finite
 
 pytestmark = pytest.mark.integration
@@ -601,7 +601,7 @@ def test_out_of_range_parameters_are_refused_at_run_time(nodes, probe):
     clients = {name: probe.node.create_client(SetParameters, f'/{name}/set_parameters')
                for name in ('controller', 'event_manager')}
     for client in clients.values():
-        assert client.wait_for_service(timeout_sec=30.0), (controller.log(), manager.log())
+        assert wait_for_service(client, 30.0), (controller.log(), manager.log())
     refused = {
         'controller': [('kp', -1.0), ('effort_limit', -5.0), ('ks', [1.0]), ('ks', [-1.0, 4.0]),
                        ('adaptation_gain', [-1.0] * 7), ('max_task_speed', 0.0),
@@ -616,7 +616,7 @@ def test_out_of_range_parameters_are_refused_at_run_time(nodes, probe):
             assert result.reason, (node, name, value)
             print(f'{node} {name}={value!r} refused: {result.reason}')
     getter = probe.node.create_client(GetParameters, '/controller/get_parameters')
-    assert getter.wait_for_service(timeout_sec=10.0)
+    assert wait_for_service(getter, 10.0)
     values = call_service(getter, GetParameters.Request(names=['kp', 'effort_limit'])).values
     # Unchanged by the refusals (effort_limit 0: no cap on the robot's own limits).
     assert [values[0].double_value, values[1].double_value] == [10.0, 0.0]

@@ -10,7 +10,7 @@ from rcl_interfaces.srv import SetParameters
 from hri_bringup.processes import wait_for
 from hri_core.node_common import stamp_seconds
 from hri_core.topics import LEARNED_TASKS_QOS, TASK_STATE_QOS
-from tests.common import set_parameter
+from tests.common import set_parameter, wait_for_service
 
 RAMP_TIME = 0.5
 
@@ -73,7 +73,7 @@ def test_heartbeat_follows_heartbeat_period_between_ramps(manager, probe):
     # publish_rate_hz.
     process, states, events = manager
     client = probe.node.create_client(SetParameters, '/event_manager/set_parameters')
-    assert client.wait_for_service(timeout_sec=10.0)
+    assert wait_for_service(client, 10.0)
     assert set_parameter(client, 'heartbeat_period', 5.0).successful
     assert len(heartbeats(states, 1.0)) <= 1
     assert set_parameter(client, 'heartbeat_period', 0.1).successful

@@ -38,7 +38,7 @@ from hri_core import topics
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.recorded_motion import Placement, ReachAnnulus, read_vicon_csv
-from tests.common import PAPER_TASKS, REPO_ROOT, call_service
+from tests.common import PAPER_TASKS, REPO_ROOT, call_service, wait_for_service
 from tests.fault_tools import RawListener, SentCommands, effort_change_per_step
 from tests.test_bad_input import HAND_OFFSET, StandInArm
 
@@ -337,7 +337,7 @@ def test_hand_sim_takes_a_recording_at_run_time_and_refuses_a_bad_one(nodes, pro
     hand = nodes('scara_sim', 'hand_sim')
     client = probe.node.create_client(SetParametersAtomically,
                                       '/hand_sim/set_parameters_atomically')
-    assert client.wait_for_service(timeout_sec=20.0), hand.log()
+    assert wait_for_service(client, 20.0), hand.log()
 
     def set_all(**values):
         return call_service(client, SetParametersAtomically.Request(parameters=[

@@ -17,7 +17,7 @@ from std_msgs.msg import Float64MultiArray
 from hri_bringup.processes import wait_for
 from hri_core.dynamics import forward_kinematics
 from hri_core.node_common import stamp_seconds
-from tests.common import set_parameter
+from tests.common import set_parameter, wait_for_service
 from tests.fault_tools import RawListener, sim_joint_efforts
 
 pytestmark = pytest.mark.integration
@@ -80,7 +80,7 @@ def test_publishes_stamped_joint_states(nodes, probe):
 def test_parameters_change_at_run_time_only_when_valid(nodes, probe):
     sim, states, _ = start_sim(nodes, probe)
     client = probe.node.create_client(SetParameters, '/scara_sim/set_parameters')
-    assert client.wait_for_service(timeout_sec=5.0)
+    assert wait_for_service(client, 5.0)
     assert set_parameter(client, 'effort_limit', 3.0).successful
     assert not set_parameter(client, 'effort_limit', -1.0).successful
     rejected = set_parameter(client, 'joint_lower_limits', [0.0, 3.0])

@@ -33,6 +33,7 @@ from hri_bringup.processes import LIVE_LOOP, paper_tasks_dir, wait_for
 from hri_core import topics
 from hri_core.node_common import load_defaults
 from hri_core.potential import TaskShape, default_task_gain
+from tests.common import wait_for_service
 from tests.fault_tools import RawListener, SentCommands, effort_change_per_step
 
 pytestmark = [pytest.mark.integration, pytest.mark.exclusive]  # the 1 kHz loop
@@ -260,7 +261,7 @@ def test_follow_reaches_and_tracks_the_hand_a1_a2_act_and_the_switch_to_avoid_is
     # profile changed at run time, from where the hand is); the arm follows and settles in
     # the region again, where the task force, and so the torque, goes to ~0.
     hand = probe.node.create_client(SetParametersAtomically, '/hand_sim/set_parameters_atomically')
-    assert hand.wait_for_service(timeout_sec=10.0)
+    assert wait_for_service(hand, 10.0)
     walk = {'waypoints': [*(ARM + [0.0, -0.25]), *(ARM + [0.12, -0.34])], 'speed': 0.1,
             'start_delay': 0.2, 'profile': 'waypoints'}
     future = hand.call_async(SetParametersAtomically.Request(parameters=[

@@ -297,6 +297,8 @@ class HandSim(Node):
         return float(np.min(np.hypot(trunk[:, 0], trunk[:, 1]))) if len(trunk) else math.inf
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
+        if not parameters:  # an empty request (a client's handshake): nothing to check
+            return SetParametersResult(successful=True)
         try:
             self._source_from({p.name: p.value for p in parameters})
         except (ValueError, TypeError) as error:

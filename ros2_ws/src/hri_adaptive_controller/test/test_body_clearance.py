@@ -235,6 +235,7 @@ def test_a_person_coming_closer_widens_the_band_and_a_still_one_does_not():
     assert np.linalg.norm(glitch) == pytest.approx(3.0)  # MAX_BODY_SPEED, not 100 m/s
 
 
+@pytest.mark.first
 def test_a_person_pressing_the_scaras_elbow_does_not_drive_it_into_its_stop():
     """A recorded person inspecting an object beside the SCARA (avoid, auto_place with the
     arm rule, as bench_body_takes): the person's capsules fold link2 towards joint 2's stop.

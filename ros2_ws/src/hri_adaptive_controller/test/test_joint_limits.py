@@ -162,6 +162,7 @@ def test_inverse_kinematics_reaches_and_prefers_the_elbow_the_box_allows():
     assert inner == pytest.approx(0.2223, abs=1e-4) and outer == pytest.approx(0.65)
 
 
+@pytest.mark.first
 def test_the_arm_no_longer_pushes_into_joint_2s_stop(crossing):
     # Without limits joint 2 folds onto its stop (2.46 rad) and pushes up to the full 20 N m
     # while the hand is on the far side; theta_hat drifted (pi1 2-5 times its value).
@@ -235,6 +236,7 @@ def test_reach_round_blend_is_off_for_avoid_tasks_and_without_a_task():
     assert law.reaching_round and outputs[-1].blend > 0.0
 
 
+@pytest.mark.first
 def test_theta_hat_stays_bounded_with_the_hand_out_of_reach_half_the_time():
     # 60 s: the hand 0.1 m in front of the arm, then out of reach (1 m away) for 7.5 s, back
     # for 7.5 s, ... Afterwards the arm follows the still hand as well as before.

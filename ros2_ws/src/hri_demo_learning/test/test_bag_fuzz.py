@@ -99,6 +99,7 @@ def _alarm(_signum, _frame):
 
 
 # 200 bags of up to 10 s each; 57 s at SCHED_IDLE beside the loop tests (scripts/test.sh).
+@pytest.mark.first
 @pytest.mark.timeout(600)
 def test_mutated_bags_are_learned_or_refused_in_one_line(tmp_path):
     rng = random.Random(SEED)

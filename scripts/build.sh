@@ -45,13 +45,7 @@ colcon --log-level error build --symlink-install --base-paths ros2_ws/src \
   "$venv/bin/python" -c 'from hri_adaptive_controller.arm_kernels import warm_up_body_barrier
 warm_up_body_barrier()' &
   barrier=$!
-  "$venv/bin/python" -c 'from hri_adaptive_controller.arm_law import PANDA_GAINS, ArmController
-from hri_core.bodies import capsule_distances, human_capsules, robot_body
-from hri_core.human_body import BODY_POINTS, standing_body
-from hri_core.robot_model import robot_model
-ArmController(robot_model("panda"), PANDA_GAINS)
-scara = robot_model("scara")
-capsule_distances(robot_body(scara).capsules(scara.home), human_capsules(
-    BODY_POINTS, standing_body([0.8, 0.0], 3.1, 0.0, [0.4, 0.0, 0.0])))'
+  "$venv/bin/python" -c 'from hri_adaptive_controller.arm_law import warm_up_law
+warm_up_law()'
   wait "$barrier" )
 echo "$sources" > "$stamp"

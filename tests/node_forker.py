@@ -41,8 +41,7 @@ PACKAGES = ('hri_adaptive_controller', 'hri_bringup', 'hri_demo_learning', 'scar
 # The message packages the nodes use: their C type supports load on first use, so the forker
 # loads them once for every child.
 MESSAGE_MODULES = ('builtin_interfaces.msg', 'geometry_msgs.msg', 'hri_interfaces.msg',
-                   'rcl_interfaces.msg', 'rosgraph_msgs.msg', 'sensor_msgs.msg', 'std_msgs.msg',
-                   'foxglove_msgs.msg')
+                   'rcl_interfaces.msg', 'rosgraph_msgs.msg', 'sensor_msgs.msg', 'std_msgs.msg')
 
 
 def node_mains() -> dict[tuple[str, str], object]:
@@ -60,24 +59,16 @@ def preload() -> None:
     the recorder's message store, the controller's compiled kernels (numba's cache), and the
     source lines rclpy's logger reads (inspect) for the file and line of each call."""
     for name in MESSAGE_MODULES:
-        with contextlib.suppress(ImportError):
-            for message in vars(importlib.import_module(name)).values():
-                if inspect.isclass(message) and hasattr(message, '_TYPE_SUPPORT'):
-                    type(message).__import_type_support__()
+        for message in vars(importlib.import_module(name)).values():
+            if inspect.isclass(message) and hasattr(message, '_TYPE_SUPPORT'):
+                type(message).__import_type_support__()
     # rosbags loads a store's message types on first use: 0.14 s of each recorder's start.
     importlib.import_module('hri_demo_learning.bag_io').jazzy_typestore()
     from hri_adaptive_controller.arm_kernels import warm_up_body_barrier
-    from hri_adaptive_controller.arm_law import ROBOT_GAINS, ArmController
-    from hri_core.bodies import capsule_distances, human_capsules, robot_body
-    from hri_core.human_body import BODY_POINTS, standing_body
-    from hri_core.robot_model import robot_model
+    from hri_adaptive_controller.arm_law import warm_up_law
 
     warm_up_body_barrier()
-    for robot, gains in ROBOT_GAINS.items():
-        ArmController(robot_model(robot), gains)
-    scara = robot_model('scara')
-    capsule_distances(robot_body(scara).capsules(scara.home), human_capsules(
-        BODY_POINTS, standing_body([0.8, 0.0], 3.1, 0.0, [0.4, 0.0, 0.0])))
+    warm_up_law()
     packages = ('rclpy', 'hri_core', *PACKAGES)
     for module in list(sys.modules.values()):
         path = getattr(module, '__file__', None)

@@ -178,7 +178,7 @@ def largest_step(stamps: np.ndarray, efforts: np.ndarray) -> float:
 @pytest.mark.parametrize('kills', [
     KILLS, pytest.param(KILLS_SLOW, marks=pytest.mark.slow, id=f'{KILLS_SLOW}-kills')])
 def test_each_peer_killed_repeatedly_the_controller_answers_every_joint_state(
-        nodes, probe, ros_domain, tmp_path, kills):
+        nodes, probe, tmp_path, kills):
     """Hand, recorder and event_manager (at once), then the sim, each killed with SIGKILL and
     restarted `kills` times in a row around the real controller, which runs with the sim at
     SCHED_FIFO (as on a robot's computer). Once the loop is up the controller answers the

@@ -368,6 +368,23 @@ ROBOT_GAINS = {'scara': SCARA_GAINS, 'panda': PANDA_GAINS}
 """Gains tuned for a named robot (RobotModel.name); any other arm: default_gains."""
 
 
+def warm_up_law() -> None:
+    """Compile the law's per-cycle kernels and the capsule distances (or load them from
+    numba's cache): an ArmController of each robot of ROBOT_GAINS, and the SCARA's capsules
+    against a standing person. scripts/build.sh runs it beside
+    arm_kernels.warm_up_body_barrier, so that no controller or test compiles them at its
+    start; the tests' node forker runs both before it forks."""
+    from hri_core.bodies import human_capsules, robot_body
+    from hri_core.human_body import BODY_POINTS, standing_body
+    from hri_core.robot_model import robot_model
+
+    for robot, gains in ROBOT_GAINS.items():
+        ArmController(robot_model(robot), gains)
+    scara = robot_model('scara')
+    capsule_distances(robot_body(scara).capsules(scara.home), human_capsules(
+        BODY_POINTS, standing_body([0.8, 0.0], 3.1, 0.0, [0.4, 0.0, 0.0])))
+
+
 def sampled_configurations(model: RobotModel, samples: int) -> np.ndarray:
     """`samples` joint configurations (samples, n) rad drawn uniformly within the model's
     joint limits (+-pi where a limit is unbounded) from a generator seeded with 0: the same

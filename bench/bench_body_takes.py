@@ -18,14 +18,20 @@ Per run:
   from it); avoid's and follow_safe's share of those samples closer than d1 - 3 cm;
 - the peak |effort| (N m) and the seconds the run took.
 
+`--turns N` places each take N more times, turned about the base's vertical axis by seeded
+random angles (`--seed`): the person keeps every distance from the base (so the body
+clearance), stands elsewhere round the arm, and a turn that puts them inside the arm at the
+start (the same rule) is drawn again. The barrier is then on only.
+
 Run it in the project's environment: `source scripts/env.sh; python bench/bench_body_takes.py
-[--robots scara,panda] [--tasks follow,avoid,follow_safe] [--crop 10]`. `--json` prints one
-JSON object.
+[--robots scara,panda] [--tasks follow,avoid,follow_safe] [--crop 10] [--turns 0 --seed 0]`.
+`--json` prints one JSON object.
 """
 
 import argparse
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 
@@ -51,6 +57,7 @@ from hri_core.human_body import BODY_POINTS, TRUNK, read_recorded_body
 from hri_core.potential import TaskShape
 from hri_core.recorded_motion import (
     BODY_CLEARANCE,
+    Placement,
     ReachAnnulus,
     choose_placement,
     read_vicon_csv,
@@ -66,6 +73,7 @@ TASKS = ROOT / 'ros2_ws' / 'src' / 'hri_adaptive_controller' / 'tasks'
 REACH = {'scara': ReachAnnulus(0.222, 0.65), 'panda': ReachAnnulus(0.30, 0.75)}
 MARGIN = 0.03  # m: "closer than clearance - 3 cm", and avoid's d1 - 3 cm
 SAMPLE_EVERY = 10  # steps (10 ms) between the trunk checks
+TURN_DRAWS = 50  # turns drawn per placement before giving up on one the start rule accepts
 
 
 def task(name: str) -> TaskShape:
@@ -82,15 +90,39 @@ def trunk_capsules(frame: np.ndarray) -> Capsules | None:
     return human_capsules([BODY_POINTS[k] for k in kept], frame[kept])
 
 
-def run(robot: str, body, path: Path, names, crop: float) -> list[dict]:
+def turned(placement: Placement, turn: float) -> Placement:
+    """`placement` followed by a turn (rad) about the base's vertical axis."""
+    c, s = math.cos(turn), math.sin(turn)
+    x, y, z = placement.translation
+    return Placement((c * x - s * y, s * x + c * y, z), placement.yaw + turn)
+
+
+def placements(robot: str, body, path: Path, turns: int, rng) -> list[tuple[float, Placement]]:
+    """(turn in rad, placement) of a take: choose_placement's (turn 0) and `turns` more,
+    each turned by a random angle the start rule accepts (module docstring)."""
+    recorded = read_recorded_body(path)
+    start = clear_of_arm(body, human_capsules(*recorded.first_frame()),
+                         ClearanceSettings().clearance)
+    chosen = choose_placement(read_vicon_csv(path).positions, REACH[robot],
+                              body=recorded.trunk(), clearance=BODY_CLEARANCE[robot],
+                              accept=start)
+    found = [(0.0, chosen)]
+    for _ in range(turns):
+        for _ in range(TURN_DRAWS):
+            turn = float(rng.uniform(-math.pi, math.pi))
+            if start(turned(chosen, turn)):
+                found.append((turn, turned(chosen, turn)))
+                break
+    return found
+
+
+def run(robot: str, body, path: Path, names, crop: float, placement: Placement,
+        forces: tuple[float, ...]) -> list[dict]:
+    """The rows of one take placed by `placement`: each of the tasks `names` with each
+    barrier force (N) of `forces` (module docstring)."""
     model = robot_model(robot)
     clearance = ClearanceSettings().clearance
     tool_radius = float(body.radius[body.names.index(body.tool)])
-    recorded = read_recorded_body(path)
-    start = clear_of_arm(body, human_capsules(*recorded.first_frame()), clearance)
-    placement = choose_placement(read_vicon_csv(path).positions, REACH[robot],
-                                 body=recorded.trunk(), clearance=BODY_CLEARANCE[robot],
-                                 accept=start)
     motion = read_vicon_csv(path, placement=placement)
     person = read_recorded_body(path, placement=placement)
     keep = motion.times <= crop
@@ -105,7 +137,7 @@ def run(robot: str, body, path: Path, names, crop: float) -> list[dict]:
     rows = []
     for name in names:
         shape = task(name)
-        for force in (0.0, ClearanceSettings().force):
+        for force in forces:
             gains = dataclasses.replace(ArmController(model).gains,
                                         body=ClearanceSettings(force=force))
             started = time.perf_counter()
@@ -153,7 +185,8 @@ def text(row: dict) -> str:
                and row['median_clear'] is not None else
                f"median {row.get('median')}" if 'median' in row else
                f"closer than d1 - 3 cm {row['too_close']}")
-    return (f"{row['robot']:5s} {row['take'][:24]:24s} {row['task']:11s} "
+    return (f"{row['robot']:5s} {row['take'][:24]:24s} {row.get('turn', 0):+4d} deg "
+            f"{row['task']:11s} "
             f"{'on ' if row['barrier'] else 'off'} trunk < c - 3 cm {row['trunk_close']:.3f} "
             f"(least {row['trunk_min']:+.3f} m); {figures}; peak {row['peak_effort']:.1f} N m; "
             f"{row['seconds']} s")
@@ -164,17 +197,26 @@ def main() -> None:
     parser.add_argument('--robots', default='scara,panda')
     parser.add_argument('--tasks', default='follow,avoid,follow_safe')
     parser.add_argument('--crop', type=float, default=10.0, help='s of each take')
+    parser.add_argument('--turns', type=int, default=0,
+                        help='more placements per take, turned about the base (barrier on)')
+    parser.add_argument('--seed', type=int, default=0, help="seed of the turns' angles")
     parser.add_argument('--json', action='store_true')
     options = parser.parse_args()
     rows = []
+    rng = np.random.default_rng(options.seed)
     for robot in options.robots.split(','):
         # example-robot-data's meshes (every arm's there) resolve in the Panda's folder
         body = robot_body(robot_model(robot), panda_package_dirs())
         for path in TAKES:
-            for row in run(robot, body, path, options.tasks.split(','), options.crop):
-                rows.append(row)
-                if not options.json:
-                    print(text(row), flush=True)
+            for turn, placement in placements(robot, body, path, options.turns, rng):
+                forces = ((0.0, ClearanceSettings().force) if options.turns == 0
+                          else (ClearanceSettings().force,))
+                for row in run(robot, body, path, options.tasks.split(','), options.crop,
+                               placement, forces):
+                    row['turn'] = round(math.degrees(turn))
+                    rows.append(row)
+                    if not options.json:
+                        print(text(row), flush=True)
     if options.json:
         print(json.dumps(rows))
 

@@ -40,7 +40,7 @@ from hri_core.node_common import load_defaults, stamp_seconds
 from hri_core.recorded_motion import Placement, ReachAnnulus, read_vicon_csv
 from tests.common import PAPER_TASKS, REPO_ROOT, call_service, wait_for_service
 from tests.fault_tools import RawListener, SentCommands, effort_change_per_step
-from tests.test_bad_input import HAND_OFFSET, StandInArm
+from tests.test_bad_input import HAND_OFFSET, HAND_PERIOD, StandInArm
 
 pytestmark = pytest.mark.integration
 
@@ -224,16 +224,22 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     # the real hand after a gap longer than confirm_time that follows a held sample, until it
     # is confirmed (26 held of 24 swap samples in one fresh-clone run: this test's publisher
     # stalls beside the other tests, and the controller then kept only the newest /target).
-    replayed = TargetFilter(TargetFilterSettings())
+    replayed = TargetFilter()
     for k, stamp in zip(stand_in.published, stand_in.stamps, strict=True):
         replayed.offer(stamp, stand_in.hand_at(k))
     print(f'{sent_swaps} swap samples sent, {counted} held ({replayed.glitches} by the same '
           f'filter); distance to the used target '
           f'{min(s.distance for s in used):.4f}-{max(s.distance for s in used):.4f} m')
     # The controller reads /target in order with a queue of 10 samples (200 ms): it sees
-    # every one unless its own process stalls longer. Every sample it held is counted; none
-    # it followed (below).
-    assert 0.5 * sent_events <= counted <= replayed.glitches, (sent_swaps, replayed.glitches)
+    # every one unless its own process stalls longer, and a gap it suffered after a swap
+    # holds the real hand until confirmed too, at most confirm_time's worth of samples per
+    # swap (32 held of 23 swap samples, 23 replayed, in one fresh-clone run). Every sample
+    # it held is counted, no more (a filter that held the real hand for good: hundreds);
+    # none it followed (below).
+    settings = TargetFilterSettings()
+    confirmation = math.ceil(settings.confirm_time / HAND_PERIOD) + 1
+    assert 0.5 * sent_events <= counted <= replayed.glitches + confirmation * sent_events, (
+        sent_swaps, replayed.glitches, sent_events)
     # No swap followed, unless the stand-in, held up, left a gap before one long enough for a
     # hand to get there (the filter's speed bound: 1.5 m in 0.3 s at 5 m/s; seen once beside
     # a busy process): such a sample is a hand that may really have moved, and is taken.
@@ -241,7 +247,7 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     order = sorted(stamps)
     reachable = [k for previous, k in zip(order[:-1], order[1:], strict=True)
                  if k in swap_samples and stamps[k] - stamps[previous]
-                 >= (1.5 - 0.01) / TargetFilterSettings().max_speed]
+                 >= (1.5 - 0.01) / settings.max_speed]
     followed = [s.distance for s in used if abs(s.distance - np.linalg.norm(HAND_OFFSET)) >= 0.01]
     assert not followed or reachable, (followed[:5], reachable)
     sent = np.array([list(m.data) for m in commands.messages()])

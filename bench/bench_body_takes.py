@@ -110,8 +110,9 @@ def placements(robot: str, body, path: Path, turns: int, rng) -> list[tuple[floa
     for _ in range(turns):
         for _ in range(TURN_DRAWS):
             turn = float(rng.uniform(-math.pi, math.pi))
-            if start(turned(chosen, turn)):
-                found.append((turn, turned(chosen, turn)))
+            placement = turned(chosen, turn)
+            if start(placement):
+                found.append((turn, placement))
                 break
     return found
 

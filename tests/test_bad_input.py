@@ -361,9 +361,9 @@ def test_controller_drops_bad_targets_and_task_states(nodes, probe, arm):
                        point(probe, [-0.2, 0.1])]  # stamped 5 s back
         publish_each(probe, arm.targets, bad_targets, stamp_back=5.0)
         # Bytes no PointStamped reader can take, as a raw publisher may send them. The
-        # controller keeps only the newest /target and the stand-in's hand shares the topic: a
-        # controller held up beside a busy process took a later hand sample instead of both
-        # (a fresh-clone run), so they go again until it has said why it dropped them.
+        # stand-in's hand shares the topic: a controller held up beside a busy process past
+        # its /target queue missed both for later hand samples (a fresh-clone run, when the
+        # queue held one), so they go again until it has said why it dropped them.
         unreadable = (serialize_message(point(probe, [0.3, 0.1]))[:20], b'\x00\x01\x00\x00')
         deadline = time.monotonic() + 5.0
         while ('target dropped: unreadable' not in controller.log()

@@ -168,8 +168,6 @@ def bag_truncated(tmp_path: Path) -> str:
     return str(bag)
 
 
-
-
 def not_a_bag(tmp_path: Path) -> str:
     (tmp_path / 'notes').mkdir()
     (tmp_path / 'notes' / 'readme.txt').write_text('not a bag')

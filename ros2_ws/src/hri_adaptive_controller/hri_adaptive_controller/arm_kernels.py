@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from hri_adaptive_controller import task_variable
+from hri_adaptive_controller import joint_limits, task_variable
 from hri_adaptive_controller.joint_limits import SPEED_NORM, STOP_SHARE, STOP_SOFTNESS
 from hri_adaptive_controller.task_variable import SECH_LIMIT
 from hri_core.capsule_kernels import add_normal_row, chain_frames, placed_capsules, segment_table
@@ -109,6 +109,8 @@ def damped_pseudo_inverse(jac, rate, threshold2, max_damping2):
 # task_variable.speed_cap itself, compiled: the smooth cap (value, d/d speed) of a signed speed
 # (m/s) at v_max (m/s), one source for the SCARA's path and this one.
 speed_cap = njit(cache=True, nogil=True)(task_variable.speed_cap)
+joint_motion = njit(cache=True, nogil=True)(joint_limits.joint_motion)
+planar_inverse_kinematics = njit(cache=True, nogil=True)(joint_limits.inverse_kinematics)
 
 
 @njit(cache=True, nogil=True)

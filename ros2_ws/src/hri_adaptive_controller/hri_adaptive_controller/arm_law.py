@@ -840,8 +840,6 @@ class ArmController(TaskDrives):
         self._feed_speed = FEED_FORWARD_RATIO * gains.max_task_speed
         self._last: tuple = (None, 0.0, None)
         self._approach = None  # limit_approach: (row (n,), allowed m/s, |row|^2) or None
-        self._reach = reach_round(gains.reach_round, model, self._lower, self._upper,
-                                  gains.limit_band, self._task_reach)
         # The per-cycle arithmetic compiled (arm_kernels; numba, imported here so that a
         # reference-only user does not load it), or numpy's (the reference).
         self._compiled = compiled
@@ -853,6 +851,9 @@ class ArmController(TaskDrives):
             from hri_adaptive_controller import arm_kernels
             self._kernels = arm_kernels
             self._load_kernels()
+        self._reach = reach_round(gains.reach_round, model, self._lower, self._upper,
+                                  gains.limit_band, self._task_reach,
+                                  compiled)
         self.reset(model.theta if theta_hat0 is None else theta_hat0)
 
     def _load_kernels(self) -> None:
@@ -872,6 +873,8 @@ class ArmController(TaskDrives):
                        zeros_n, zeros_n)
         kernels.adapt(np.zeros((n, p)), zeros_n, np.zeros(p), 0.0, np.zeros(p),
                       self.model.theta_lower, self.model.theta_upper)
+        kernels.joint_motion(zeros_n, True, zeros_n, zeros_n, zeros_n, zeros_n, zeros_n, 1e-3,
+                             1.0, 1.0, 1.0, 1.0)
         if self.body is not None and self.body.chain is not None:
             far = Capsules(('far',), np.full((1, 3), 1e3), np.full((1, 3), 1e3), np.ones(1))
             self.whole_body_barrier(self.model.home.astype(float), zeros_n, far, None)

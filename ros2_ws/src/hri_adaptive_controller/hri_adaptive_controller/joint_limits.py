@@ -253,21 +253,21 @@ def inverse_kinematics(x1: float, x2: float, near1: float, near2: float, l1: flo
     c2 = (r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
     c2 = min(max(c2, -1.0), 1.0)
     margin = GOAL_MARGIN * band
-    best = None
+    best_cost, best1, best2 = math.inf, 0.0, 0.0
     for elbow in (1.0, -1.0):
         q2 = elbow * math.acos(c2)
         q1 = math.atan2(x2, x1) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
-        # In (-pi, pi]: the nearest writing to a box centred on 0.
-        q1 = math.remainder(q1, 2.0 * math.pi)
+        # In [-pi, pi]: the nearest writing to a box centred on 0 (atan2, not math.remainder:
+        # numba compiles this function, arm_kernels.planar_inverse_kinematics).
+        q1 = math.atan2(math.sin(q1), math.cos(q1))
         k1 = min(max(q1, lower[0] + margin), upper[0] - margin)
         k2 = min(max(q2, lower[1] + margin), upper[1] - margin)
         # A solution the box cuts short misses the point: the one that reaches first.
         cost = (CLAMP_COST * ((k1 - q1) ** 2 + (k2 - q2) ** 2)
                 + (k1 - near1) ** 2 + (k2 - near2) ** 2)
-        q1, q2 = k1, k2
-        if best is None or cost < best[0]:
-            best = (cost, q1, q2)
-    return best[1], best[2]
+        if elbow == 1.0 or cost < best_cost:  # (the first kept: a NaN stays a NaN)
+            best_cost, best1, best2 = cost, k1, k2
+    return best1, best2
 
 
 def _segment_clearance(x1: float, x2: float, y1: float, y2: float) -> float:
@@ -281,15 +281,20 @@ def _segment_clearance(x1: float, x2: float, y1: float, y2: float) -> float:
 class _JointBlend:
     """The reach-round blend's state, for any number of joints: sigma's ramp (with a dwell
     between switches), the slewed and filtered joint goal q_f and the joint motion u
-    (module docstring). ReachRound (the SCARA) and ReachRoundN (n joints) decide when to
-    blend and where to; `_blend` does the rest. `reset` forgets the state (the joint goal
-    restarts from the arm's joints at the next update)."""
+    (module docstring). PlanarReachRound (the SCARA) and ReachRoundN (n joints) decide when
+    to blend and where to; `_blend` does the rest, its joint motion through joint_motion
+    (compiled: arm_kernels.joint_motion, the same function through numba). `reset` forgets
+    the state (the joint goal restarts from the arm's joints at the next update)."""
 
     NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
     FAR_GOAL = 0.06  # m from the goal: far
 
-    def __init__(self, settings: ReachRoundSettings):
+    def __init__(self, settings: ReachRoundSettings, compiled: bool = False):
         self.settings = settings
+        self._motion = joint_motion
+        if compiled:  # imported here: arm_kernels imports this module
+            from hri_adaptive_controller import arm_kernels
+            self._motion = arm_kernels.joint_motion
         self.reset()
 
     def reset(self) -> None:
@@ -299,7 +304,7 @@ class _JointBlend:
         self._switched = -math.inf  # time of the last switch
         self._resting = True  # sigma is 0 with no ramp to evaluate
         self._full = False  # sigma is 1 with no ramp to evaluate
-        self._filtered = None  # (q_in, q_f, dq_f), tuples of floats
+        self._filtered = None  # (q_in, q_f, dq_f), arrays (n,)
 
     @property
     def engaged(self) -> bool:
@@ -308,9 +313,9 @@ class _JointBlend:
 
     def _blend(self, wanted: bool, joint_goal, q, dq, dt: float):
         """Advance by dt (s) towards `wanted` and return (sigma, dsigma/dt, u, du/dt) with u
-        and du/dt tuples of floats, or None while sigma rests at 0. joint_goal: a callable
-        giving the joint goal q* (a tuple, rad), or None to hold q_in where it is; q, dq the
-        joints (tuples of floats)."""
+        and du/dt arrays (n,), or None while sigma rests at 0. joint_goal: a callable giving
+        the joint goal q* (an array (n,), rad), or None to hold q_in where it is; q, dq the
+        joints (arrays (n,) of floats)."""
         settings = self.settings
         self._time += dt
         now = self._time
@@ -332,54 +337,66 @@ class _JointBlend:
             self._filtered = None
             self._resting = True
             return None
-        state = self._filtered
-        if state is None:
-            state = (tuple(q), tuple(q), (0.0,) * len(q))
-        q_in, filtered, rate = state
-        if joint_goal is not None:
-            step = settings.slew * dt
-            q_in = tuple(value + min(max(goal - value, -step), step)
-                         for goal, value in zip(joint_goal(), q_in, strict=True))
-        omega = settings.filter_rate
-        stiffness, damping = omega * omega, 2.0 * omega
-        # One plain loop over the joints (each tuple built from a zip cost about 1 us; the
-        # blend took 12 us a cycle for two joints). A critically damped second-order filter
-        # (semi-implicit Euler); its acceleration is continuous (q_in is), so the
-        # feed-forward of dq_f steps nothing. e = q - q_f, de = dq - dq_f.
-        acc, rate_out, filtered_out, e, de = [], [], [], [], []
-        for target, f, df, value, v in zip(q_in, filtered, rate, q, dq, strict=True):
-            a = stiffness * (target - f) - damping * df
-            df = df + dt * a
-            f = f + dt * df
-            acc.append(a)
-            rate_out.append(df)
-            filtered_out.append(f)
-            e.append(value - f)
-            de.append(v - df)
-        rate = tuple(rate_out)
-        self._filtered = (q_in, tuple(filtered_out), rate)
-        # u = -cap(k e) with a smooth cap on the norm (C1), and its exact time derivative.
-        k = settings.gain
-        norm = math.hypot(*e)
-        speed_max = settings.max_speed
-        raw = k * norm
-        if raw <= 1e-12:
-            return (sigma, sigma_rate, tuple(df - k * ei for df, ei in zip(rate, e, strict=True)),
-                    tuple(a - k * dei for a, dei in zip(acc, de, strict=True)))
-        capped = speed_max * math.tanh(raw / speed_max)
-        # d capped / d norm; sech^2 is 0 in double precision long before cosh overflows (a
-        # state far from its filtered goal, as when a simulated xArm7 diverged, raised
-        # OverflowError: no torque).
-        slope = (0.0 if raw > SECH_LIMIT * speed_max
-                 else 1.0 / math.cosh(raw / speed_max) ** 2 * k)
-        scale = capped / norm  # u = -scale e
-        along = sum(ei * dei for ei, dei in zip(e, de, strict=True)) / norm  # d |e| / dt
-        dscale = (slope - scale) / norm * along
-        u, du = [], []
-        for df, a, ei, dei in zip(rate, acc, e, de, strict=True):
-            u.append(df - scale * ei)
-            du.append(a - (scale * dei + dscale * ei))
-        return sigma, sigma_rate, tuple(u), tuple(du)
+        if self._filtered is None:
+            self._filtered = (q.copy(), q.copy(), np.zeros(q.size))
+        has_goal = joint_goal is not None
+        goal = joint_goal() if has_goal else self._filtered[0]
+        q_in, filtered, rate, u, du = self._motion(
+            goal, has_goal, *self._filtered, q, dq, dt, settings.slew, settings.filter_rate,
+            settings.gain, settings.max_speed)
+        self._filtered = (q_in, filtered, rate)
+        return sigma, sigma_rate, u, du
+
+
+def joint_motion(goal, has_goal, q_in, filtered, rate, q, dq, dt, slew, filter_rate, gain,
+                 max_speed):
+    """One step of the reach-round's joint motion (module docstring), for n joints: q_in
+    slewed towards the joint goal (n,) rad at `slew` rad/s (left where it is unless
+    has_goal), q_f (`filtered`, rad) and dq_f/dt (`rate`, rad/s) advanced by dt (s) through a
+    critically damped second-order filter of rate `filter_rate` (1/s; semi-implicit Euler: its
+    acceleration is continuous, as q_in is, so the feed-forward of dq_f steps nothing), and
+    u = dq_f/dt - cap(gain e) (rad/s; e = q - q_f, the cap smooth in |e|: max_speed tanh) with
+    its exact time derivative du/dt (rad/s^2). Arrays (n,) of floats in and out: returns
+    (q_in, q_f, dq_f/dt, u, du/dt), new arrays. Plain loops, so that numba compiles the same
+    function (arm_kernels.joint_motion, the controller's; this one is its reference)."""
+    n = q.shape[0]
+    q_in_out, filtered_out, rate_out = np.empty(n), np.empty(n), np.empty(n)
+    acc, e, de = np.empty(n), np.empty(n), np.empty(n)
+    step = slew * dt
+    stiffness, damping = filter_rate * filter_rate, 2.0 * filter_rate
+    norm2 = 0.0
+    along = 0.0
+    for i in range(n):
+        value = q_in[i]
+        if has_goal:
+            value += min(max(goal[i] - value, -step), step)
+        a = stiffness * (value - filtered[i]) - damping * rate[i]
+        df = rate[i] + dt * a
+        q_in_out[i], acc[i], rate_out[i] = value, a, df
+        filtered_out[i] = filtered[i] + dt * df
+        e[i] = q[i] - filtered_out[i]
+        de[i] = dq[i] - df
+        norm2 += e[i] * e[i]
+        along += e[i] * de[i]
+    u, du = np.empty(n), np.empty(n)
+    norm = math.sqrt(norm2)
+    raw = gain * norm
+    if raw <= 1e-12:
+        for i in range(n):
+            u[i] = rate_out[i] - gain * e[i]
+            du[i] = acc[i] - gain * de[i]
+        return q_in_out, filtered_out, rate_out, u, du
+    capped = max_speed * math.tanh(raw / max_speed)
+    # d capped / d norm; sech^2 is 0 in double precision long before cosh overflows (a state
+    # far from its filtered goal, as when a simulated xArm7 diverged, raised OverflowError:
+    # no torque).
+    slope = 0.0 if raw > SECH_LIMIT * max_speed else gain / math.cosh(raw / max_speed) ** 2
+    scale = capped / norm  # u = -scale e
+    dscale = (slope - scale) / norm * (along / norm)  # along / norm: d |e| / dt
+    for i in range(n):
+        u[i] = rate_out[i] - scale * e[i]
+        du[i] = acc[i] - (scale * de[i] + dscale * e[i])
+    return q_in_out, filtered_out, rate_out, u, du
 
 
 class PlanarReachRound(_JointBlend):
@@ -388,7 +405,8 @@ class PlanarReachRound(_JointBlend):
 
     model: a planar RobotModel with link_lengths (l1, l2) m; lower, upper (2,) rad; band
     (rad): the barrier's; reach (m): unused (the annulus comes from the link lengths and
-    joint 2's limits). `update` runs once per control step with its dt.
+    joint 2's limits); compiled: _JointBlend's. `update` runs once per control step with its
+    dt.
     """
 
     BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
@@ -397,17 +415,22 @@ class PlanarReachRound(_JointBlend):
     STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
 
     def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
-                 reach: float):
+                 reach: float, compiled: bool = False):
         self._l1, self._l2 = model.link_lengths
         self._lower, self._upper = tuple(map(float, lower)), tuple(map(float, upper))
         self._band = band
         self._inner, self._outer = workspace_radii(
             self._l1, self._l2, _Box(self._lower, self._upper))
-        super().__init__(settings)
+        super().__init__(settings, compiled)
+        self._inverse_kinematics = inverse_kinematics
+        if compiled:
+            from hri_adaptive_controller import arm_kernels
+            self._inverse_kinematics = arm_kernels.planar_inverse_kinematics
+            self._solve(self._outer, 0.0, 0.0, 0.0)  # compiled (or loaded) now, not mid-task
 
     def _solve(self, g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
-        return inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self._lower,
-                                  self._upper, self._band)
+        return self._inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self._lower,
+                                        self._upper, self._band)
 
     def goal(self, x1: float, x2: float, h1: float, h2: float, d1: float, d2: float):
         """The task-space goal (m): the hand h (d1 = 0) or the point of the region's annulus
@@ -473,15 +496,11 @@ class PlanarReachRound(_JointBlend):
             joint_goal = None
         elif target is not None:
             def joint_goal():
-                return target
+                return np.array(target)
         else:
             def joint_goal():
-                return self._solve(goal[0], goal[1], q1, q2)
-        out = self._blend(wanted, joint_goal, (q1, q2), tuple(dq.tolist()), dt)
-        if out is None:
-            return None
-        sigma, sigma_rate, u, du = out
-        return sigma, sigma_rate, np.array(u), np.array(du)
+                return np.array(self._solve(goal[0], goal[1], q1, q2))
+        return self._blend(wanted, joint_goal, q, dq, dt)
 
 
 class _Box(NamedTuple):
@@ -533,7 +552,8 @@ class ReachRoundN(_JointBlend):
     solve stays off most control cycles.
 
     model: a RobotModel (tool_position, tool_jacobian, home, shoulder); lower, upper (n,)
-    rad; band (rad): the barrier's; reach (m): the attained reach round the shoulder.
+    rad; band (rad): the barrier's; reach (m): the attained reach round the shoulder;
+    compiled: _JointBlend's.
     """
 
     IK_PERIOD = 0.02  # s between refreshes of the joint goal while engaged
@@ -541,7 +561,7 @@ class ReachRoundN(_JointBlend):
     CLEAR_BANDS = 0.5  # a joint goal this many bands inside the box hands back to the descent
 
     def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
-                 reach: float):
+                 reach: float, compiled: bool = False):
         self._model, self._band = model, band
         # q* outside the barrier's band (not GOAL_MARGIN band in, as the SCARA's): there the
         # descent, handed the arm back at the goal, is not blocked again (with half a band,
@@ -554,7 +574,7 @@ class ReachRoundN(_JointBlend):
         home = np.clip(model.home, *self._box)
         arm = model.tool_position(home) - self._shoulder
         self._home, self._home_azimuth = home, math.atan2(arm[1], arm[0])
-        super().__init__(settings)
+        super().__init__(settings, compiled)
 
     def reset(self) -> None:
         super().reset()
@@ -619,14 +639,10 @@ class ReachRoundN(_JointBlend):
                 wanted = (near > self.NEAR_BARRIER and distance > self.FAR_GOAL) or outside
             if wanted:
                 def joint_goal():
-                    return tuple(self._refresh(goal, q, x).tolist())
+                    return self._refresh(goal, q, x)
             else:
                 self._joint_goal = None
-        out = self._blend(wanted, joint_goal, tuple(q.tolist()), tuple(dq.tolist()), dt)
-        if out is None:
-            return None
-        sigma, sigma_rate, u, du = out
-        return sigma, sigma_rate, np.array(u), np.array(du)
+        return self._blend(wanted, joint_goal, q, dq, dt)
 
     def _clear(self, joint_goal) -> bool:
         """Whether the joint goal (time, q*) lies CLEAR_BANDS band inside the box."""
@@ -649,10 +665,11 @@ class ReachRoundN(_JointBlend):
 
 
 def reach_round(settings: ReachRoundSettings, model, lower, upper, band: float,
-                reach: float) -> _JointBlend:
+                reach: float, compiled: bool = False) -> _JointBlend:
     """The reach-round blend for `model`: a planar 2-link arm (task_axes 2, link_lengths) gets
     PlanarReachRound (its hole round the base, its two elbows), any other ReachRoundN (the
-    model's numerical inverse kinematics). Arguments as theirs."""
+    model's numerical inverse kinematics). Arguments as theirs; compiled: the per-cycle
+    arithmetic through arm_kernels (numba), as ArmController's."""
     if model.task_axes == 2 and getattr(model, 'link_lengths', None) is not None:
-        return PlanarReachRound(settings, model, lower, upper, band, reach)
-    return ReachRoundN(settings, model, lower, upper, band, reach)
+        return PlanarReachRound(settings, model, lower, upper, band, reach, compiled)
+    return ReachRoundN(settings, model, lower, upper, band, reach, compiled)

@@ -1,7 +1,7 @@
 """Unit tests of arm_kernels: the law's compiled arithmetic gives arm_law's numpy results (the
 reference, `ArmController(..., compiled=False)`) to rounding, on the SCARA's two task axes and
 the Panda's three, in the usual case, within the barrier bands, through the reach-round blend
-and in a closed loop."""
+(its joint motion and the SCARA's inverse kinematics) and in a closed loop."""
 
 import dataclasses
 import math
@@ -10,7 +10,7 @@ from importlib import metadata
 import numpy as np
 import pytest
 
-from hri_adaptive_controller import arm_kernels
+from hri_adaptive_controller import arm_kernels, joint_limits
 from hri_adaptive_controller.arm_law import (
     PANDA_GAINS,
     ActiveTask,
@@ -105,6 +105,30 @@ def test_speed_cap_is_task_variables(panda):
     # Beyond SECH_LIMIT sech^2 is 0, no overflow.
     assert arm_kernels.speed_cap(1e6, 0.3)[1] == 0.0
     assert SECH_LIMIT * 0.06 < 1e6
+
+
+@pytest.mark.parametrize('joints', [2, 7])
+def test_the_reach_rounds_joint_motion_is_the_reference(joints):
+    rng = np.random.default_rng(joints)
+    for scale in (1e-9, 0.01, 1.0, 1e3):  # from no joint error to one past SECH_LIMIT
+        for has_goal in (True, False):
+            arrays = [scale * rng.normal(size=joints) for _ in range(6)]
+            args = (arrays[0], has_goal, *arrays[1:], DT, 1.0, 8.0, 4.0, 1.0)
+            for compiled, reference in zip(arm_kernels.joint_motion(*args),
+                                            joint_limits.joint_motion(*args), strict=True):
+                np.testing.assert_allclose(compiled, reference, rtol=1e-12, atol=1e-15)
+                assert np.all(np.isfinite(compiled))
+
+
+def test_the_scaras_compiled_inverse_kinematics_is_the_reference():
+    scara = robot_model('scara')
+    lower, upper = tuple(scara.limits.lower.tolist()), tuple(scara.limits.upper.tolist())
+    l1, l2 = scara.link_lengths
+    rng = np.random.default_rng(0)
+    for x1, x2, near1, near2 in rng.uniform(-0.6, 0.6, (500, 4)):
+        args = (x1, x2, near1, near2, l1, l2, lower, upper, 0.2)
+        assert arm_kernels.planar_inverse_kinematics(*args) == pytest.approx(
+            joint_limits.inverse_kinematics(*args), rel=1e-13, abs=1e-15)
 
 
 @pytest.mark.parametrize('max_damping', [0.05, 0.0])

@@ -434,12 +434,14 @@ def test_the_reach_round_joint_motion_stays_finite_for_any_joint_error():
     # 1000 rad between the joints and the filtered goal (a state no arm reaches, but a law
     # must not raise on it): sech^2 of the capped motion underflows instead of cosh
     # overflowing (an OverflowError left the arm without torque).
-    blend = _JointBlend(ReachRoundSettings())
-    q, dq = (0.1, 0.2, 0.3), (0.0, 0.0, 0.0)
-    blend._blend(True, None, q, dq, DT)
-    sigma, sigma_rate, u, u_rate = blend._blend(True, None, (1000.0, 0.2, 0.3), dq, DT)
-    assert all(math.isfinite(v) for v in (sigma, sigma_rate, *u, *u_rate))
-    assert math.hypot(*u) <= ReachRoundSettings().max_speed + 1e-9
+    for compiled in (False, True):
+        blend = _JointBlend(ReachRoundSettings(), compiled)
+        q, dq = np.array([0.1, 0.2, 0.3]), np.zeros(3)
+        blend._blend(True, None, q, dq, DT)
+        sigma, sigma_rate, u, u_rate = blend._blend(True, None, np.array([1000.0, 0.2, 0.3]),
+                                                    dq, DT)
+        assert all(math.isfinite(v) for v in (sigma, sigma_rate, *u, *u_rate))
+        assert math.hypot(*u) <= ReachRoundSettings().max_speed + 1e-9
 
 
 def test_the_gravity_hold_is_the_estimates_gravity_within_the_limits(panda):

@@ -327,13 +327,15 @@ def _body_gradient(q, parents, placements, axes, prismatic, index, joint, local_
     placements, axes, prismatic, index; the capsules' joint (K,), ends local_a, local_b (K, 3)
     m and radius (K,) m) and the person's capsules (human_a, human_axis (H, 3) m, radius (H,)
     m, end velocities human_va, human_vb (H, 3) m/s; part (H,): KEPT, LEFT_OUT or AT_SURFACE).
-    settings: (clearance, influence, reaction_time, max_influence, force, posture_influence).
+    settings: (clearance, influence, reaction_time, max_influence, force, posture_influence,
+    posture_force).
     Returns (g (n,) N m, U J, the posture push (n,) N m, whether some pair pushes the posture,
     the least distance m, its robot and human capsules, the gate, and where `collect`, the
     approach damper's pairs (those within clearance + influence, in (robot, human) order):
     their rows n^T J_p (m, n), distances (m,) m and approach speeds (m,) m/s (empty arrays
     without `collect`)."""
-    clearance, influence, reaction_time, max_influence, force, posture_influence = settings
+    (clearance, influence, reaction_time, max_influence, force, posture_influence,
+     posture_force) = settings
     rotations, origins = chain_frames(q, parents, placements, axes, prismatic, index)
     a, axis = placed_capsules(rotations, origins, joint, local_a, local_b)
     s, t, between, centre = segment_table(a, axis, human_a, human_axis)
@@ -384,7 +386,7 @@ def _body_gradient(q, parents, placements, axes, prismatic, index, joint, local_
             posture_weight = 0.0
             if posture and posture_influence > 0.0:
                 posture_weight = _smoothstep_weight(distance, clearance + posture_influence,
-                                                    posture_influence, force)[0]
+                                                    posture_influence, posture_force)[0]
             if weight > 0.0:
                 add_normal_row(rotations, origins, parents, axes, prismatic, index, joint[i],
                                point, normal, weight, gradient)
@@ -547,6 +549,6 @@ def warm_up_body_barrier() -> None:
     body_barrier(np.zeros(1), np.zeros(1), 1e-6, parents, placements, axes, prismatic, index,
                  np.array([1], dtype=np.int64), ends, ends.copy(), np.ones(1), far,
                  np.zeros((1, 3)), np.ones(1), np.zeros((1, 3)), np.zeros((1, 3)),
-                 np.zeros(1, dtype=np.int64), (0.1, 0.1, 0.3, 0.19, 5.0, 0.1), False)
+                 np.zeros(1, dtype=np.int64), (0.1, 0.1, 0.3, 0.19, 5.0, 0.1, 5.0), False)
     body_damper(np.zeros(1), np.zeros((1, 1)), np.zeros(1), np.zeros(1), 5.0, 0.09, -0.5,
                 0.02, 1e-6)

@@ -152,7 +152,8 @@ class ClearanceSettings:
     the barrier's task-space velocity J+^T g / Kp in the reference is capped at this plus the
     person's fastest speed (smoothly; the torque keeps g whole); posture_influence (m,
     >= 0): a redundant arm's posture (its null space, which leaves the tool where the task
-    puts it) is pushed off the person from this far beyond the clearance (0: not); tracked:
+    puts it) is pushed off the person from this far beyond the clearance (0: not), with
+    posture_force (N, >= 0) at the clearance (the same band's shape as the barrier's); tracked:
     the human capsules of the tracked hand (/target), which the arm may reach in a task whose
     region reaches into the hand's clearance (a follow task whose d1, measured between the
     tool's and the hand's points, is below the clearance plus the hand's and the tool's
@@ -185,6 +186,11 @@ class ClearanceSettings:
     # a joint, at the 20 N m limit for 0.3 s (0.75 m/s: still 33 ms at the limit).
     max_speed: float = 0.5
     posture_influence: float = 0.10
+    # 5 N over 0.10 m. 20 N over 0.40 m swung the Panda's elbow off the person's arm and
+    # brought follow to the hand on the two handovers (median 0.031, 0.067 m against 0.18
+    # m), but the gripper then pressed the recorded hand in MuJoCo at up to 497 N (Table
+    # A.2's hands: 280 N) (docs/design.md).
+    posture_force: float = 5.0
     tracked: tuple[str, ...] = ('r_forearm', 'r_hand')
     tracked_arm: tuple[str, ...] = ('r_upper_arm',)
     stop_rate: float = 5.0
@@ -204,6 +210,9 @@ class ClearanceSettings:
         if not (math.isfinite(self.posture_influence) and self.posture_influence >= 0.0):
             raise ValueError(f'posture_influence must be finite and >= 0 m, got '
                              f'{self.posture_influence}')
+        if not (math.isfinite(self.posture_force) and self.posture_force >= 0.0):
+            raise ValueError(f'posture_force must be finite and >= 0 N, got '
+                             f'{self.posture_force}')
         if not (math.isfinite(self.force) and self.force >= 0.0):
             raise ValueError(f'clearance force must be finite and >= 0 N, got {self.force}')
         if not (math.isfinite(self.max_speed) and self.max_speed > 0.0):
@@ -650,7 +659,8 @@ def _body_gradient(body: RobotBody, q, human: Capsules, settings: ClearanceSetti
         free *= 1.0 - weight / force
         if posture and settings.posture_influence > 0.0:
             pushes.append(_smoothstep_energy(distance, clearance + settings.posture_influence,
-                                             settings.posture_influence, force)[0])
+                                             settings.posture_influence,
+                                             settings.posture_force)[0])
         if distance < clearance + settings.influence:
             damped.append(k)
             gaps.append(distance)
@@ -1371,7 +1381,8 @@ class ArmController(TaskDrives):
             q, dq, BODY_RATE_STEP, *body.chain, self._body_joints, body.local_a, body.local_b,
             body.radius, *inputs[2],
             (settings.clearance, settings.influence, settings.reaction_time,
-             settings.max_influence, settings.force, settings.posture_influence),
+             settings.max_influence, settings.force, settings.posture_influence,
+             settings.posture_force),
             self._null_space)
         pair = (body.names[i], human.names[j])
         if gaps.size == 0:

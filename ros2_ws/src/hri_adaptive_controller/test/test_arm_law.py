@@ -17,6 +17,7 @@ from hri_adaptive_controller.arm_law import (
     ActiveTask,
     ArmController,
     ArmGains,
+    ClearanceSettings,
     HandState,
     default_arm_ks,
     default_gains,
@@ -247,6 +248,8 @@ def test_bad_gains_and_models_are_refused(panda, tmp_path):
                       ArmGains(ks=(1.0, 1.0), kp=1.0, adaptation=(0.0,) * 11))
     with pytest.raises(ValueError, match='theta_hat0 must be 77'):
         ArmController(panda, PANDA_GAINS, theta_hat0=np.zeros(3))
+    with pytest.raises(ValueError, match='posture_force must be finite and >= 0 N'):
+        ClearanceSettings(posture_force=-1.0)
 
 
 def test_avoid_backs_away_from_a_hand_reaching_in_along_z(panda):

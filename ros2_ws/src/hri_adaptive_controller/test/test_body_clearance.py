@@ -18,6 +18,7 @@ from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_
 from hri_core.bodies import (
     HUMAN_RADII,
     body_point_velocities,
+    capsule_distances,
     human_capsules,
     panda_package_dirs,
     robot_body,
@@ -164,6 +165,34 @@ def test_the_upper_arm_in_follow_is_kept_at_its_surface_not_the_clearance(robot)
     assert follow.gradient is None and follow.gate == 0.0
     avoid = body_barrier(body, q, still, arm, SETTINGS, law._exempt(law.drive(AVOID), True, arm))
     assert avoid.gradient is not None and 0.0 < avoid.gate < 1.0
+
+
+def test_a_stronger_posture_push_swings_the_pandas_elbow_off_the_persons_arm():
+    """A person standing beside the Panda holds out their right hand, 0.4 m from the base:
+    reaching it with the home pose's elbow brings link5 into the band of the person's upper
+    arm and shoulder, whose push (about 1 N) balances follow's pull near the hand (the
+    approach floor, Kp 0.1 m/s): with the default posture push (5 N over 0.10 m) the tool
+    stops 0.18 m short. The posture push is the person's barrier through the null space;
+    20 N over 0.40 m (posture_force, posture_influence) swings the elbow off them and the tool
+    reaches the hand, the trunk kept clear either way."""
+    model, body = scene('panda', 'aside')[:2]
+    hand = np.array([0.4, 0.25, 0.3])
+    points = standing_body([0.3, 0.6], -math.pi / 2, -0.2, hand)
+    trunk = human_capsules(list(TRUNK), points[[BODY_POINTS.index(name) for name in TRUNK]])
+    distances = {}
+    for name, settings in (('default', SETTINGS), ('strong', ClearanceSettings(
+            posture_force=20.0, posture_influence=0.40))):
+        gains = dataclasses.replace(ArmController(model).gains, body=settings)
+        result = simulate({'follow': FOLLOW}, [], still_target(hand), 5.0,
+                          LoopConditions(arm=model, gains=gains, initial_task='follow',
+                                         monitor=False, body=still_body(BODY_POINTS, points),
+                                         robot_body=body))
+        assert not result.fault.any()
+        distances[name] = float(result.distance[-1])
+        least = min(capsule_distances(body.capsules(q, checked=False), trunk).distance.min()
+                    for q in result.q[::10])
+        assert least >= SETTINGS.clearance - 0.03, (name, least)
+    assert distances['strong'] <= 0.06 and distances['default'] >= 0.15, distances
 
 
 @pytest.mark.parametrize('robot, place, hand', [

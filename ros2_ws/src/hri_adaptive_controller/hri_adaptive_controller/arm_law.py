@@ -862,8 +862,7 @@ class ArmController(TaskDrives):
             self._kernels = arm_kernels
             self._load_kernels()
         self._reach = reach_round(gains.reach_round, model, self._lower, self._upper,
-                                  gains.limit_band, self._task_reach,
-                                  compiled)
+                                  gains.limit_band, self._task_reach, compiled)
         self.reset(model.theta if theta_hat0 is None else theta_hat0)
 
     def _load_kernels(self) -> None:

@@ -3,8 +3,9 @@
 The paper's controller knows no joint limits. A SCARA's joint 2 stops at about +-141 deg (the
 arm folded to r = 0.222 m) and joint 1 at about +-132 deg; a hand that crosses over the base
 pulls the arm straight into joint 2's stop, where the reference keeps asking for motion, s
-grows and -Ks s pushes the full effort into the stop. Three pieces, all in plain floats for
-the 1 kHz step (adaptive_law.step_lean and step call the same functions), no ROS import.
+grows and -Ks s pushes the full effort into the stop. Three pieces, no ROS import; the
+blend's joint motion and the SCARA's inverse kinematics are plain loops that numba also
+compiles for the 1 kHz step (arm_kernels), these being their reference.
 
 Barrier (in V)
 --------------

@@ -27,6 +27,7 @@ stepping thread, each tick before its steps: inputs other than the joint command
 import math
 import threading
 import time
+from typing import NoReturn
 
 import numpy as np
 from geometry_msgs.msg import PointStamped, WrenchStamped
@@ -410,7 +411,7 @@ class SteppedSimNode(Node):
 
 
 
-def run_sim_node(node_class, node_name: str, args=None) -> int:
+def run_sim_node(node_class, node_name: str, args=None) -> NoReturn:
     """run_node for a SteppedSimNode: the EventsExecutor (for the few callbacks, at a
     fraction of the CPU of the SingleThreadedExecutor, bench/bench_sim.py), exit code 1
     after a failed step, the timing summary on the way out."""

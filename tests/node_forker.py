@@ -19,7 +19,6 @@ ended it) is written to its `status` file then, so the caller, which is not the 
 wait for it. End of stdin ends the parent, not the children: the caller ends those by PID.
 """
 
-import atexit
 import contextlib
 import gc
 import importlib
@@ -35,6 +34,8 @@ import sys
 import time
 import traceback
 from pathlib import Path
+
+from hri_core.node_common import end_process
 
 # The project's packages whose console scripts (their nodes) the forker starts.
 PACKAGES = ('hri_adaptive_controller', 'hri_bringup', 'hri_demo_learning', 'scara_sim')
@@ -106,14 +107,8 @@ def run_child(main, request: dict, closing: list[int]) -> None:
     except BaseException:  # noqa: BLE001 - printed as the interpreter would, then exit 1
         traceback.print_exc()
     finally:
-        # The interpreter's own way out, but for tearing down the modules: the exit functions
-        # (a node's, the libraries') and the streams flushed.
-        with contextlib.suppress(BaseException):
-            atexit._run_exitfuncs()
-        with contextlib.suppress(BaseException):
-            sys.stdout.flush()
-            sys.stderr.flush()
-        os._exit(code)
+        # The interpreter's own way out, but for tearing down the modules (as run_node's).
+        end_process(code)
 
 
 def write_status(path: str, code: int) -> None:

@@ -292,9 +292,11 @@ class _JointBlend:
 
     def __init__(self, settings: ReachRoundSettings, compiled: bool = False):
         self.settings = settings
+        self._kernels = None  # arm_kernels where compiled
         self._motion = joint_motion
         if compiled:  # imported here: arm_kernels imports this module
             from hri_adaptive_controller import arm_kernels
+            self._kernels = arm_kernels
             self._motion = arm_kernels.joint_motion
         self.reset()
 
@@ -424,9 +426,8 @@ class PlanarReachRound(_JointBlend):
             self._l1, self._l2, _Box(self._lower, self._upper))
         super().__init__(settings, compiled)
         self._inverse_kinematics = inverse_kinematics
-        if compiled:
-            from hri_adaptive_controller import arm_kernels
-            self._inverse_kinematics = arm_kernels.planar_inverse_kinematics
+        if self._kernels is not None:
+            self._inverse_kinematics = self._kernels.planar_inverse_kinematics
             self._solve(self._outer, 0.0, 0.0, 0.0)  # compiled (or loaded) now, not mid-task
 
     def _solve(self, g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:

@@ -110,7 +110,7 @@ def damped_pseudo_inverse(jac, rate, threshold2, max_damping2):
 # (m/s) at v_max (m/s), one source for the SCARA's path and this one.
 speed_cap = njit(cache=True, nogil=True)(task_variable.speed_cap)
 joint_motion = njit(cache=True, nogil=True)(joint_limits.joint_motion)
-planar_inverse_kinematics = njit(cache=True, nogil=True)(joint_limits.inverse_kinematics)
+reach_goal = njit(cache=True, nogil=True)(joint_limits.reach_goal)
 
 
 @njit(cache=True, nogil=True)

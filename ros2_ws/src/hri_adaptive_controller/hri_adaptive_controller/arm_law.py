@@ -83,7 +83,7 @@ caller's, by default where the tool is) and the retreat from an approaching hand
 Reach-round (follow tasks): where a joint sits in its barrier band while the goal is far
 (the straight descent stalls: the Panda leaning back to a hand behind its base stopped 14 cm
 short) or the region lies beyond the reach (for a planar arm also: the straight path
-crosses the hole round its base), joint_limits.reach_round's blend brings in the joint
+crosses the hole round its base), joint_limits.ReachRound's blend brings in the joint
 motion u towards an inverse-kinematics pose with sigma (a C2 ramp, slewed goal filter and
 capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
 so is the posture pull of the null space (the barrier's push is not). The blend stands down
@@ -102,12 +102,12 @@ import numpy as np
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import (
     PUSH_SCALE,
+    ReachRound,
     ReachRoundSettings,
     barrier,
     barrier_energy,
     gate_feed_forward,
     joint_speed_limit,
-    reach_round,
 )
 from hri_adaptive_controller.task_variable import (
     CAP_BAND,
@@ -861,8 +861,9 @@ class ArmController(TaskDrives):
             from hri_adaptive_controller import arm_kernels
             self._kernels = arm_kernels
             self._load_kernels()
-        self._reach = reach_round(gains.reach_round, model, self._lower, self._upper,
-                                  gains.limit_band, self._task_reach, compiled)
+        self._reach = ReachRound(gains.reach_round, model, self._lower, self._upper,
+                                 gains.limit_band, self._task_reach, gains.damping.threshold,
+                                 compiled)
         self.reset(model.theta if theta_hat0 is None else theta_hat0)
 
     def _load_kernels(self) -> None:
@@ -1171,7 +1172,7 @@ class ArmController(TaskDrives):
             # 0), so it stands down and the task's descent slides the arm round the person.
             region = (None if drive is None or avoid or body.gate > REACH_ROUND_BODY_GATE
                       else (drive.shape.d1, drive.shape.d2))
-            blend = self._reach.update(q, dq, x, hand.position, region, near, dt)
+            blend = self._reach.update(q, dq, x, jac, hand.position, region, near, dt)
             scale = 1.0
             if blend is not None:
                 # eq. 14 blended with the joint motion a u, weighted as the task's pull.

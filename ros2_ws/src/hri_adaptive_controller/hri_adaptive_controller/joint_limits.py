@@ -82,28 +82,19 @@ terms of the reference's change, as with the feed-forward gate.
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep_array
 from hri_adaptive_controller.task_variable import SECH_LIMIT, speed_cap
 
-GOAL_MARGIN = 0.5
-"""The joint goal q* is kept GOAL_MARGIN band inside the limits (where the barrier's weight is
-1/2: its force there is below the task's largest)."""
-
-CLAMP_COST = 1000.0
-"""Weight of the joint-box clamping against the joint distance when choosing an elbow."""
-
-IK_ITERATIONS = 50
-"""Damped least-squares steps of inverse_kinematics_n from each seed."""
-
-IK_DAMPING = 0.05
-"""m: the damping of inverse_kinematics_n's steps."""
-
-IK_TOLERANCE = 1e-3
-"""m: inverse_kinematics_n stops a seed's iterations this near the goal."""
+GOAL_MARGIN = 1.0
+"""The joint goal q* is kept GOAL_MARGIN band inside the limits: the barrier is off there, so
+an arm holding q* is not pushed off it (with half a band the Panda, behind its base, ended
+0.04 m nearer a person's trunk: docs/design.md)."""
+CLEAR_BANDS = 0.5
+"""The reach-round hands back at the goal only with its joint goal this many bands inside its
+box (ReachRound)."""
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
@@ -237,118 +228,50 @@ def joint_speed_limit(q, dq, qdot_r, qddot_r, lower, upper, speed, stop_rate: fl
     return qdot_r, qddot_r, changed
 
 
-def workspace_radii(l1: float, l2: float, limits) -> tuple[float, float]:
-    """(folded, stretched) reach (m) of a planar 2-link arm: the base-to-tip distance at
-    joint 2's nearer limit (or |l1 - l2| when joint 2 may fold fully) and l1 + l2. limits:
-    lower and upper (2,) rad (hri_core.robot_model.JointLimits)."""
-    fold = min(abs(limits.lower[1]), abs(limits.upper[1]), math.pi)
-    return math.sqrt(max(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(fold), 0.0)), l1 + l2
-
-
-def inverse_kinematics(x1: float, x2: float, near1: float, near2: float, l1: float, l2: float,
-                       lower, upper, band: float) -> tuple[float, float]:
-    """Joint angles (rad) of a planar 2-link arm that put the tip at (x1, x2) m or nearest to
-    it, clamped GOAL_MARGIN band inside the limits lower, upper (2,) rad; of the two elbows,
-    the one the box cuts least, then the one nearer to (near1, near2)."""
-    r2 = x1 * x1 + x2 * x2
-    c2 = (r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
-    c2 = min(max(c2, -1.0), 1.0)
-    margin = GOAL_MARGIN * band
-    best_cost, best1, best2 = math.inf, 0.0, 0.0
-    for elbow in (1.0, -1.0):
-        q2 = elbow * math.acos(c2)
-        q1 = math.atan2(x2, x1) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
-        # In [-pi, pi]: the nearest writing to a box centred on 0 (atan2, not math.remainder:
-        # numba compiles this function, arm_kernels.planar_inverse_kinematics).
-        q1 = math.atan2(math.sin(q1), math.cos(q1))
-        k1 = min(max(q1, lower[0] + margin), upper[0] - margin)
-        k2 = min(max(q2, lower[1] + margin), upper[1] - margin)
-        # A solution the box cuts short misses the point: the one that reaches first.
-        cost = (CLAMP_COST * ((k1 - q1) ** 2 + (k2 - q2) ** 2)
-                + (k1 - near1) ** 2 + (k2 - near2) ** 2)
-        if elbow == 1.0 or cost < best_cost:  # (the first kept: a NaN stays a NaN)
-            best_cost, best1, best2 = cost, k1, k2
-    return best1, best2
-
-
-def _segment_clearance(x1: float, x2: float, y1: float, y2: float) -> float:
-    """Distance (m) from the base (0, 0) to the segment from x to y."""
-    d1, d2 = y1 - x1, y2 - x2
-    length2 = d1 * d1 + d2 * d2
-    t = 0.0 if length2 == 0.0 else min(max(-(x1 * d1 + x2 * d2) / length2, 0.0), 1.0)
-    return math.hypot(x1 + t * d1, x2 + t * d2)
-
-
-class _JointBlend:
-    """The reach-round blend's state, for any number of joints: sigma's ramp (with a dwell
-    between switches), the slewed and filtered joint goal q_f and the joint motion u
-    (module docstring). PlanarReachRound (the SCARA) and ReachRoundN (n joints) decide when
-    to blend and where to; `_blend` does the rest, its joint motion through joint_motion
-    (compiled: arm_kernels.joint_motion, the same function through numba). `reset` forgets
-    the state (the joint goal restarts from the arm's joints at the next update)."""
-
-    NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
-    FAR_GOAL = 0.06  # m from the goal: far
-
-    def __init__(self, settings: ReachRoundSettings, compiled: bool = False):
-        self.settings = settings
-        self._kernels = None  # arm_kernels where compiled
-        self._motion = joint_motion
-        if compiled:  # imported here: arm_kernels imports this module
-            from hri_adaptive_controller import arm_kernels
-            self._kernels = arm_kernels
-            self._motion = arm_kernels.joint_motion
-        self.reset()
-
-    def reset(self) -> None:
-        self._time = 0.0
-        self._schedule = EventWeightSchedule(self.settings.blend_time)
-        self._engaged = False
-        self._switched = -math.inf  # time of the last switch
-        self._resting = True  # sigma is 0 with no ramp to evaluate
-        self._full = False  # sigma is 1 with no ramp to evaluate
-        self._filtered = None  # (q_in, q_f, dq_f), arrays (n,)
-
-    @property
-    def engaged(self) -> bool:
-        """Whether the blend is heading to (or at) the joint-space motion."""
-        return self._engaged
-
-    def _blend(self, wanted: bool, joint_goal, q, dq, dt: float):
-        """Advance by dt (s) towards `wanted` and return (sigma, dsigma/dt, u, du/dt) with u
-        and du/dt arrays (n,), or None while sigma rests at 0. joint_goal: a callable giving
-        the joint goal q* (an array (n,), rad), or None to hold q_in where it is; q, dq the
-        joints (arrays (n,) of floats)."""
-        settings = self.settings
-        self._time += dt
-        now = self._time
-        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
-            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
-        if wanted != self._engaged:
-            self._engaged, self._switched = wanted, now
-            self._schedule.request('round' if wanted else None, now)
-            self._resting = self._full = False
-        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
-            return None
-        if self._engaged and self._full:  # sigma at 1 and staying there
-            sigma, sigma_rate = 1.0, 0.0
-        else:
-            weight = self._schedule.evaluate(now)
-            sigma, sigma_rate = weight.weight, weight.rate
-            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
-        if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
-            self._filtered = None
-            self._resting = True
-            return None
-        if self._filtered is None:
-            self._filtered = (q.copy(), q.copy(), np.zeros(q.size))
-        has_goal = joint_goal is not None
-        goal = joint_goal() if has_goal else self._filtered[0]
-        q_in, filtered, rate, u, du = self._motion(
-            goal, has_goal, *self._filtered, q, dq, dt, settings.slew, settings.filter_rate,
-            settings.gain, settings.max_speed)
-        self._filtered = (q_in, filtered, rate)
-        return sigma, sigma_rate, u, du
+def reach_goal(tool, hand, d1: float, d2: float, centre, high: float, low: float):
+    """The reach-round's task-space goal and what its decisions measure (ReachRound), for k
+    task axes: the hand (d1 = 0) or the point of the region's shell towards the tool, d1 +
+    (min(d2, d1 + 0.2) - d1) / 2 from the hand, moved into the shell round `centre` between
+    `low` and `high` (m; the goal on the hand's ray, or towards the tool for a hand at the
+    centre). tool, hand, centre (k,) m. Returns (goal (k,) m, its distance from the tool,
+    its distance from the centre before it was moved into the shell, the centre's from the
+    segment tool-goal), all m. Plain loops, so that numba compiles the same function
+    (arm_kernels.reach_goal, the controller's)."""
+    k = tool.shape[0]
+    goal = np.empty(k)
+    away2 = 0.0
+    for i in range(k):
+        goal[i] = hand[i]
+        away2 += (tool[i] - hand[i]) ** 2
+    if d1 > 0.0 and away2 > 0.0:
+        scale = 0.5 * (d1 + min(d2, d1 + 0.2)) / math.sqrt(away2)
+        for i in range(k):
+            goal[i] += scale * (tool[i] - hand[i])
+    length2 = 0.0
+    for i in range(k):
+        length2 += (goal[i] - centre[i]) ** 2
+    length = math.sqrt(length2)
+    unmoved = length
+    if length > high or length < low:
+        radius = high if length > high else low
+        if length <= 1e-9:  # at the centre: the shell's point towards the tool
+            tool2 = 0.0
+            for i in range(k):
+                goal[i] = tool[i]
+                tool2 += (tool[i] - centre[i]) ** 2
+            length = math.sqrt(tool2) if tool2 > 0.0 else 1.0
+        scale = radius / length
+        for i in range(k):
+            goal[i] = centre[i] + (goal[i] - centre[i]) * scale
+    span2 = along = 0.0
+    for i in range(k):
+        span2 += (goal[i] - tool[i]) ** 2
+        along += (centre[i] - tool[i]) * (goal[i] - tool[i])
+    t = 0.0 if span2 == 0.0 else min(max(along / span2, 0.0), 1.0)
+    clearance2 = 0.0
+    for i in range(k):
+        clearance2 += (tool[i] + t * (goal[i] - tool[i]) - centre[i]) ** 2
+    return goal, math.sqrt(span2), unmoved, math.sqrt(clearance2)
 
 
 def joint_motion(goal, has_goal, q_in, filtered, rate, q, dq, dt, slew, filter_rate, gain,
@@ -402,276 +325,228 @@ def joint_motion(goal, has_goal, q_in, filtered, rate, q, dq, dt, slew, filter_r
     return q_in_out, filtered_out, rate_out, u, du
 
 
-class PlanarReachRound(_JointBlend):
-    """The reach-round blend of a planar 2-link arm (the SCARA): when and where to (module
-    docstring), with the hole round its base and its elbow choice (inverse_kinematics).
+def _det(square: np.ndarray) -> float:
+    """det of a 2 x 2 or 3 x 3 matrix (a square task Jacobian)."""
+    if square.shape == (2, 2):
+        (a, b), (c, d) = square.tolist()
+        return a * d - b * c
+    return float(np.linalg.det(square))
 
-    model: a planar RobotModel with link_lengths (l1, l2) m; lower, upper (2,) rad; band
-    (rad): the barrier's; reach (m): unused (the annulus comes from the link lengths and
-    joint 2's limits); compiled: _JointBlend's. `update` runs once per control step with its
-    dt.
+
+class ReachRound:
+    """The reach-round blend of any arm (arm_law.ArmController): when to blend, and where to
+    (module docstring).
+
+    The goal is the hand (d1 = 0) or the middle of the region's shell towards the arm, kept in
+    the shell round the model's shoulder between its folded reach (RobotModel.folded_reach:
+    the SCARA's hole round its base; 0 for a model that knows none) plus inner_margin and the
+    attained reach less outer_margin. The blend engages when the straight path to the goal
+    passes within BLOCKED_CLEARANCE beyond the hole, when a joint sits in its barrier's band
+    (near > NEAR_BARRIER) while the goal is more than FAR_GOAL away, or when the region lies
+    out of the shell (the goal, before it is moved into the shell, more than d2 beyond it).
+    Once engaged it stays, unless the region is out of the shell or the path blocked, until
+
+    - the tool is within FAR_GOAL / 2 of the goal with the joint goal CLEAR_BANDS band inside
+      its box (a pose handed back at the band's edge drifts into it, and the barrier's push
+      takes the tool off the goal again), or
+    - the straight descent can be trusted, which only an arm with as many joints as task axes
+      allows (the SCARA: its inverse kinematics has branches, the elbows, which the sign of
+      det J tells apart): the joint goal on the arm's branch and within STRAIGHT_TURN of its
+      first joint, the path CLEAR_CLEARANCE beyond the hole, no joint near a limit, and J+
+      undamped at the arm (off the stretched arm: leaving earlier hands the arm back to the
+      descent that was blocked). A redundant arm's descent, which stalled, is not trusted
+      before the goal.
+
+    The joint goal q* comes from the model's inverse kinematics (RobotModel.inverse_kinematics:
+    the SCARA's two elbows in closed form, damped least squares otherwise) within the joint box
+    GOAL_MARGIN band inside the limits. It is solved on engaging from the arm's joints, from its
+    home pose swung to the goal's azimuth about the first joint (for a vertical first axis, the
+    Panda's: a far side reached by turning round) and from the arm's joints so swung, the
+    nearest that reaches (1.3 ms for the Panda's hand behind its base, 2.6 ms for one out of
+    reach, once); then refreshed every IK_PERIOD s from the arm's joints and from the last q*
+    (IK_REFRESH iterations each), the nearest to the arm that reaches (the SCARA: the elbow
+    nearer to the arm's), so that the numerical solve stays off most control cycles. While
+    sigma ramps down, q* keeps following the goal; it is forgotten once sigma rests.
+
+    model: a RobotModel; lower, upper (n,) rad; band (rad): the barrier's; reach (m): the
+    attained reach round the shoulder; damping_threshold w0 (m^k): J+ is undamped where
+    sqrt(det(J J^T)) >= w0 (task_variable.damped_pseudo_inverse); compiled: the joint
+    motion through arm_kernels.joint_motion (numba), else through joint_motion (its
+    reference). `update` runs once per control step with its dt; `reset` forgets the state
+    (the joint goal restarts from the arm's joints at the next update).
     """
 
-    BLOCKED_CLEARANCE = 0.02  # m beyond the folded reach: the straight path is blocked
+    NEAR_BARRIER = 0.03  # barrier proximity above which a far goal counts as blocked
+    FAR_GOAL = 0.06  # m from the goal: far
+
+    BLOCKED_CLEARANCE = 0.02  # m beyond the hole: the straight path is blocked
     CLEAR_CLEARANCE = 0.06  # m beyond it: clear again (hysteresis)
-    STRAIGHT_TURN = 1.0  # rad of joint 1 the straight descent is trusted with
-    STRETCHED = 0.5  # rad of joint 2: nearer the stretched arm (J+ damped), stay in joint space
+    STRAIGHT_TURN = 1.0  # rad of the first joint the straight descent is trusted with
+    IK_PERIOD = 0.02  # s between refreshes of the joint goal
+    IK_REFRESH = 5  # iterations of each refresh, from the arm's joints and the last joint goal
 
     def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
-                 reach: float, compiled: bool = False):
-        self._l1, self._l2 = model.link_lengths
-        self._lower, self._upper = tuple(map(float, lower)), tuple(map(float, upper))
-        self._band = band
-        self._inner, self._outer = workspace_radii(
-            self._l1, self._l2, _Box(self._lower, self._upper))
-        super().__init__(settings, compiled)
-        self._inverse_kinematics = inverse_kinematics
-        if self._kernels is not None:
-            self._inverse_kinematics = self._kernels.planar_inverse_kinematics
-            self._solve(self._outer, 0.0, 0.0, 0.0)  # compiled (or loaded) now, not mid-task
-
-    def _solve(self, g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
-        return self._inverse_kinematics(g1, g2, q1, q2, self._l1, self._l2, self._lower,
-                                        self._upper, self._band)
-
-    def goal(self, x1: float, x2: float, h1: float, h2: float, d1: float, d2: float):
-        """The task-space goal (m): the hand h (d1 = 0) or the point of the region's annulus
-        towards the arm x, projected onto the reachable annulus."""
-        g1, g2 = h1, h2
-        if d1 > 0.0:
-            e1, e2 = x1 - h1, x2 - h2
-            norm = math.hypot(e1, e2)
-            if norm > 0.0:
-                middle = 0.5 * (d1 + min(d2, d1 + 0.2))
-                g1, g2 = h1 + middle * e1 / norm, h2 + middle * e2 / norm
-        radius = math.hypot(g1, g2)
-        low = self._inner + self.settings.inner_margin
-        high = self._outer - self.settings.outer_margin
-        if radius > high:
-            g1, g2 = g1 * high / radius, g2 * high / radius
-        elif radius < low:
-            if radius > 1e-9:
-                g1, g2 = g1 * low / radius, g2 * low / radius
-            else:  # the hand over the base: the point of the inner circle towards the arm
-                norm = math.hypot(x1, x2) or 1.0
-                g1, g2 = x1 * low / norm, x2 * low / norm
-        return g1, g2, radius
-
-    def update(self, q, dq, x, hand, region, near: float, dt: float):
-        """Advance by dt (s) and return (sigma, dsigma/dt, u (2,), du/dt (2,)) or None while
-        sigma rests at 0. q, dq (2,); x, hand (2,) m: the tip and the target; region (d1, d2)
-        m of a follow task, or None (no task, or an avoid task: sigma fades to 0); near: the
-        barrier's proximity (barrier())."""
-        settings = self.settings
-        (q1, q2), (x1, x2) = q.tolist(), x.tolist()
-        target = None  # the joint goal, when worked out for the decision below
-        if not settings.enabled or region is None:
-            wanted = False
-            goal = None
-        else:
-            g1, g2, hand_radius = self.goal(x1, x2, float(hand[0]), float(hand[1]), *region)
-            clearance = _segment_clearance(x1, x2, g1, g2)
-            distance = math.hypot(g1 - x1, g2 - x2)
-            # The whole region out of reach: beyond the stretched arm or inside the hole.
-            outside = (hand_radius - region[1] > self._outer - settings.outer_margin
-                       or hand_radius + region[1] < self._inner + settings.inner_margin)
-            if self._engaged:
-                # Stay on the joint-space motion until the arm is at the goal or the straight
-                # descent would get there: the path clear of the hole, no joint near a limit,
-                # the goal on the arm's elbow and within STRAIGHT_TURN of its joint 1, the arm
-                # off the stretched singularity (leaving earlier hands the arm back to the
-                # descent that was blocked).
-                t1, t2 = self._solve(g1, g2, q1, q2)
-                target = (t1, t2)
-                straight = (clearance >= self._inner + self.CLEAR_CLEARANCE
-                            and near < 0.5 * self.NEAR_BARRIER and t2 * q2 > 0.0
-                            and abs(t1 - q1) < self.STRAIGHT_TURN
-                            and abs(q2) > self.STRETCHED)
-                wanted = (outside or clearance < self._inner + self.BLOCKED_CLEARANCE
-                          or (distance > 0.5 * self.FAR_GOAL and not straight))
-            else:
-                wanted = (clearance < self._inner + self.BLOCKED_CLEARANCE
-                          or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL)
-                          or outside)
-            goal = (g1, g2)
-        if goal is None:
-            joint_goal = None
-        elif target is not None:
-            def joint_goal():
-                return np.array(target)
-        else:
-            def joint_goal():
-                return np.array(self._solve(goal[0], goal[1], q1, q2))
-        return self._blend(wanted, joint_goal, q, dq, dt)
-
-
-class _Box(NamedTuple):
-    lower: tuple[float, ...]
-    upper: tuple[float, ...]
-
-
-def inverse_kinematics_n(model, goal, seeds, lower, upper, iterations: int = IK_ITERATIONS):
-    """Joints (n,) rad that put `model`'s tool point at `goal` (3,) m or nearest to it, within
-    the box [lower, upper] (n,) rad: damped least squares from each seed (rows of `seeds`,
-    (k, n)), clamped into the box at every step; of the results, the one that reaches the
-    goal best (CLAMP_COST per m^2 of miss), then the one nearest to the first seed (the
-    arm's joints). model: a RobotModel (tool_position, tool_jacobian)."""
-    best = None
-    first = seeds[0]
-    for seed in seeds:
-        q = np.clip(seed, lower, upper)
-        for _ in range(iterations):
-            miss = goal - model.tool_position(q)
-            if float(miss @ miss) < IK_TOLERANCE ** 2:
-                break
-            jac = model.tool_jacobian(q)
-            step = jac.T @ np.linalg.solve(jac @ jac.T + IK_DAMPING ** 2 * np.eye(3), miss)
-            q = np.clip(q + step, lower, upper)
-        miss = goal - model.tool_position(q)
-        cost = CLAMP_COST * float(miss @ miss) + float((q - first) @ (q - first))
-        if best is None or cost < best[0]:
-            best = (cost, q)
-    return best[1]
-
-
-class ReachRoundN(_JointBlend):
-    """The reach-round blend for an arm of n joints in 3-D (arm_law.ArmController).
-
-    As ReachRound's, with the model's own inverse kinematics (inverse_kinematics_n) and no
-    hole round the base: the blend engages when a joint is in its barrier's band
-    (near > NEAR_BARRIER) while the goal is more than FAR_GOAL away, or the whole region lies
-    beyond the reach; once engaged, it stays until the tool is within FAR_GOAL / 2 of the
-    goal and the joint goal lies CLEAR_BANDS band inside its box (the straight descent, which
-    stalled, is not trusted again before). The joint goal is kept a whole band inside the
-    limits (the barrier off there), and so is the arm while it holds it. The goal is the
-    hand, or the middle of the region's shell towards the arm (d1 > 0), projected into the
-    sphere of the attained reach round the shoulder (less outer_margin). The joint goal q*
-    is solved on engaging from the arm's joints, from its home pose swung to the goal's
-    azimuth about the first joint (for a vertical first axis, the Panda's: a far side
-    reached by turning round) and from the arm's joints so swung, the nearest that reaches
-    (1.3 ms for the Panda's hand behind its base, 2.6 ms for one out of reach, once); then
-    refreshed every IK_PERIOD s from the last q* (IK_REFRESH iterations), so the numerical
-    solve stays off most control cycles.
-
-    model: a RobotModel (tool_position, tool_jacobian, home, shoulder); lower, upper (n,)
-    rad; band (rad): the barrier's; reach (m): the attained reach round the shoulder;
-    compiled: _JointBlend's.
-    """
-
-    IK_PERIOD = 0.02  # s between refreshes of the joint goal while engaged
-    IK_REFRESH = 5  # iterations of each refresh, from the last joint goal
-    CLEAR_BANDS = 0.5  # a joint goal this many bands inside the box hands back to the descent
-
-    def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
-                 reach: float, compiled: bool = False):
+                 reach: float, damping_threshold: float, compiled: bool = False):
         self._model, self._band = model, band
-        # q* outside the barrier's band (not GOAL_MARGIN band in, as the SCARA's): there the
-        # descent, handed the arm back at the goal, is not blocked again (with half a band,
-        # the Panda reaching behind its base cycled between the two every 2 s).
-        self._box = (np.asarray(lower, dtype=float) + band,
-                     np.asarray(upper, dtype=float) - band)
-        self._shoulder = np.asarray(model.shoulder, dtype=float)
-        self._shoulder_point = tuple(self._shoulder.tolist())
-        self._outer = float(reach)
+        axes = model.task_axes
+        margin = GOAL_MARGIN * band
+        self._box = (np.asarray(lower, dtype=float) + margin,
+                     np.asarray(upper, dtype=float) - margin)
+        self._centre = np.array(model.shoulder[:axes], dtype=float)
+        self._centre_point = tuple(self._centre.tolist())
+        self._inner = float(model.folded_reach)
+        # The goal's shell (no hole: from the shoulder on).
+        self._high = float(reach) - settings.outer_margin
+        self._low = self._inner + settings.inner_margin if self._inner > 0.0 else 0.0
+        self._square = model.dof == axes
+        self._still = np.zeros(model.dof)
+        clear = CLEAR_BANDS * band
+        self._clear_box = ((self._box[0] + clear).tolist(), (self._box[1] - clear).tolist())
+        self._undamped2 = damping_threshold * damping_threshold
         home = np.clip(model.home, *self._box)
-        arm = model.tool_position(home) - self._shoulder
+        arm = model.tool_position(home)[:2] - model.shoulder[:2]
         self._home, self._home_azimuth = home, math.atan2(arm[1], arm[0])
-        super().__init__(settings, compiled)
+        self.settings = settings
+        self._motion, self._goal = joint_motion, reach_goal
+        if compiled:  # imported here: arm_kernels imports this module
+            from hri_adaptive_controller import arm_kernels
+            self._motion, self._goal = arm_kernels.joint_motion, arm_kernels.reach_goal
+            self._goal(self._centre, self._centre, 0.0, 0.0, self._centre, 1.0, 0.0)  # loaded
+        self.reset()
 
     def reset(self) -> None:
-        super().reset()
-        self._joint_goal = None  # (time solved, q* (n,))
+        self._time = 0.0
+        self._schedule = EventWeightSchedule(self.settings.blend_time)
+        self._engaged = False
+        self._switched = -math.inf  # time of the last switch
+        self._resting = True  # sigma is 0 with no ramp to evaluate
+        self._full = False  # sigma is 1 with no ramp to evaluate
+        self._filtered = None  # (q_in, q_f, dq_f), arrays (n,)
+        self._joint_goal = None  # (time solved, q* (n,), whether q* is clear of the limits)
+        self._branch = 0.0  # det J at q* (an arm with as many joints as task axes)
 
-    def goal(self, x, hand, d1: float, d2: float):
-        """The task-space goal (3,) m (the class docstring) and the hand's distance from the
-        shoulder (m)."""
-        goal = np.array(hand, dtype=float)
-        if d1 > 0.0:
-            away = x - goal
-            norm = math.sqrt(float(away @ away))
-            if norm > 0.0:
-                goal = goal + 0.5 * (d1 + min(d2, d1 + 0.2)) * away / norm
-        radius = float(np.linalg.norm(np.asarray(hand, dtype=float) - self._shoulder))
-        arm = goal - self._shoulder
-        length = math.sqrt(float(arm @ arm))
-        high = self._outer - self.settings.outer_margin
-        if length > high:
-            goal = self._shoulder + arm * (high / length)
-        return goal, radius
+    @property
+    def engaged(self) -> bool:
+        """Whether the blend is heading to (or at) the joint-space motion."""
+        return self._engaged
+
+    def _blend(self, wanted: bool, joint_goal, q, dq, dt: float):
+        """Advance by dt (s) towards `wanted` and return (sigma, dsigma/dt, u, du/dt) with u
+        and du/dt arrays (n,), or None while sigma rests at 0. joint_goal: a callable giving
+        the joint goal q* (an array (n,), rad), or None to hold q_in where it is; q, dq the
+        joints (arrays (n,) of floats)."""
+        settings = self.settings
+        self._time += dt
+        now = self._time
+        if wanted != self._engaged and now - self._switched < 0.5 * settings.blend_time:
+            wanted = self._engaged  # a dwell: the blend's ramps do not pile up
+        if wanted != self._engaged:
+            self._engaged, self._switched = wanted, now
+            self._schedule.request('round' if wanted else None, now)
+            self._resting = self._full = False
+        elif self._resting:  # sigma at 0 and staying there: nothing to evaluate
+            return None
+        if self._engaged and self._full:  # sigma at 1 and staying there
+            sigma, sigma_rate = 1.0, 0.0
+        else:
+            weight = self._schedule.evaluate(now)
+            sigma, sigma_rate = weight.weight, weight.rate
+            self._full = self._engaged and sigma == 1.0 and sigma_rate == 0.0
+        if sigma == 0.0 and sigma_rate == 0.0 and not wanted:
+            self._filtered = None
+            self._resting = True
+            return None
+        if self._filtered is None:
+            self._filtered = (q.copy(), q.copy(), np.zeros(q.size))
+        has_goal = joint_goal is not None
+        goal = joint_goal() if has_goal else self._filtered[0]
+        q_in, filtered, rate, u, du = self._motion(
+            goal, has_goal, *self._filtered, q, dq, dt, settings.slew, settings.filter_rate,
+            settings.gain, settings.max_speed)
+        self._filtered = (q_in, filtered, rate)
+        return sigma, sigma_rate, u, du
+
+    def update(self, q, dq, x, jac, hand, region, near: float, dt: float):
+        """Advance by dt (s) and return (sigma, dsigma/dt, u (n,), du/dt (n,)) or None while
+        sigma rests at 0. q, dq (n,); x, hand (k,) m: the tool and the target on the task
+        axes; jac (k, n): the task Jacobian at q; region (d1, d2) m of a follow task, or None
+        (no task, or an avoid task: sigma fades to 0); near: the barrier's proximity
+        (barrier())."""
+        settings = self.settings
+        if region is None or not settings.enabled:
+            if self._resting:
+                self._time += dt  # as _blend
+                return None
+            blend = self._blend(False, None, q, dq, dt)
+            if blend is None:
+                self._joint_goal = None  # the next engagement solves afresh
+            return blend
+        d1, d2 = region
+        hole = self._inner > 0.0
+        if (self._resting and not hole and near <= self.NEAR_BARRIER
+                and math.dist(hand.tolist(), self._centre_point) - d2 <= self._high):
+            self._time += dt  # resting, no hole and nothing to engage it (the usual case)
+            return None
+        goal, distance, radius, clearance = self._goal(
+            x, hand, d1, d2, self._centre, self._high, self._low)
+        outside = radius - d2 > self._high or radius + d2 < self._low
+        blocked = hole and clearance < self._inner + self.BLOCKED_CLEARANCE
+        path_clear = not hole or clearance >= self._inner + self.CLEAR_CLEARANCE
+        if self._engaged:
+            target = self._refresh(goal, q, x)
+            settled = distance <= 0.5 * self.FAR_GOAL and self._joint_goal[2]
+            wanted = outside or blocked or not (
+                settled or (path_clear and self._straight(q, jac, target, near)))
+
+            def joint_goal():
+                return target
+        else:
+            wanted = blocked or (near > self.NEAR_BARRIER and distance > self.FAR_GOAL) or outside
+
+            def joint_goal():
+                return self._refresh(goal, q, x)
+        blend = self._blend(wanted, joint_goal, q, dq, dt)
+        if blend is None:
+            self._joint_goal = None
+        return blend
+
+    def _straight(self, q, jac, target, near: float) -> bool:
+        """Whether the straight descent is trusted (the class docstring; the path's clearance
+        checked by the caller)."""
+        if not self._square or near >= 0.5 * self.NEAR_BARRIER:
+            return False
+        if abs(float(target[0]) - float(q[0])) >= self.STRAIGHT_TURN:
+            return False
+        det = _det(jac)
+        return det * self._branch > 0.0 and det * det >= self._undamped2
 
     def _solve(self, goal, q, x) -> np.ndarray:
-        """q* for `goal` (3,) m from the seeds of the class docstring; q (n,) the arm's
-        joints, x (3,) m its tool."""
-        arm, tool = goal - self._shoulder, x - self._shoulder
-        azimuth = math.atan2(arm[1], arm[0])
-        swung_home, swung_arm = self._home.copy(), np.array(q, dtype=float)
-        swung_home[0] = math.remainder(self._home[0] + azimuth - self._home_azimuth,
-                                        2.0 * math.pi)
-        swung_arm[0] += math.remainder(azimuth - math.atan2(tool[1], tool[0]), 2.0 * math.pi)
-        return inverse_kinematics_n(self._model, goal, np.array([q, swung_home, swung_arm]),
-                                    *self._box)
-
-    def update(self, q, dq, x, hand, region, near: float, dt: float):
-        """Advance by dt (s) and return (sigma, dsigma/dt, u (n,), du/dt (n,)) or None while
-        sigma rests at 0. q, dq (n,); x, hand (3,) m: the tool and the target; region (d1, d2)
-        m of a follow task, or None (no task, or an avoid task: sigma fades to 0); near: the
-        barrier's proximity (joint_limits.barrier)."""
-        settings = self.settings
-        joint_goal = None
-        if self._resting and (region is None or not settings.enabled or (
-                near <= self.NEAR_BARRIER and math.dist(hand, self._shoulder_point) - region[1]
-                <= self._outer - settings.outer_margin)):
-            self._time += dt  # resting and nothing to engage it (the usual case): as _blend
-            return None
-        if not settings.enabled or region is None:
-            wanted = False
-        else:
-            goal, hand_radius = self.goal(x, hand, *region)
-            miss = goal - x
-            distance = math.sqrt(float(miss @ miss))
-            outside = hand_radius - region[1] > self._outer - settings.outer_margin
-            if self._engaged:
-                # Stay on the joint-space motion until the tool is at the goal with its joint
-                # goal clear of the limits (CLEAR_BANDS band beyond the barrier's): the
-                # descent handed a pose at the band's edge drifts into it and its push
-                # takes the tool off the goal again.
-                wanted = (outside or distance > 0.5 * self.FAR_GOAL
-                          or not self._clear(self._joint_goal))
-            else:
-                wanted = (near > self.NEAR_BARRIER and distance > self.FAR_GOAL) or outside
-            if wanted:
-                def joint_goal():
-                    return self._refresh(goal, q, x)
-            else:
-                self._joint_goal = None
-        return self._blend(wanted, joint_goal, q, dq, dt)
-
-    def _clear(self, joint_goal) -> bool:
-        """Whether the joint goal (time, q*) lies CLEAR_BANDS band inside the box."""
-        if joint_goal is None:
-            return False
-        q, (low, high) = joint_goal[1], self._box
-        margin = self.CLEAR_BANDS * self._band
-        return bool(np.all(q >= low + margin) and np.all(q <= high - margin))
+        """q* for `goal` (k,) m from the seeds of the class docstring; q (n,) the arm's
+        joints, x (k,) m its tool point."""
+        (c1, c2), home = self._centre[:2].tolist(), self._home
+        azimuth = math.atan2(goal[1] - c2, goal[0] - c1)
+        swung_home, swung_arm = home.copy(), np.array(q, dtype=float)
+        swung_home[0] = math.remainder(home[0] + azimuth - self._home_azimuth, 2.0 * math.pi)
+        swung_arm[0] += math.remainder(azimuth - math.atan2(x[1] - c2, x[0] - c1),
+                                       2.0 * math.pi)
+        return self._model.inverse_kinematics(goal, np.array([q, swung_home, swung_arm]),
+                                              *self._box)
 
     def _refresh(self, goal, q, x) -> np.ndarray:
-        """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s."""
+        """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s; with it
+        whether it lies CLEAR_BANDS band inside its box and, for an arm with as many joints
+        as task axes, det J there (its branch)."""
         now = self._time
         if self._joint_goal is None:
-            self._joint_goal = (now, self._solve(goal, q, x))
+            target = self._solve(goal, q, x)
         elif now - self._joint_goal[0] >= self.IK_PERIOD:
-            last = self._joint_goal[1]
-            self._joint_goal = (now, inverse_kinematics_n(
-                self._model, goal, last[None, :], *self._box, self.IK_REFRESH))
-        return self._joint_goal[1]
-
-
-def reach_round(settings: ReachRoundSettings, model, lower, upper, band: float,
-                reach: float, compiled: bool = False) -> _JointBlend:
-    """The reach-round blend for `model`: a planar 2-link arm (task_axes 2, link_lengths) gets
-    PlanarReachRound (its hole round the base, its two elbows), any other ReachRoundN (the
-    model's numerical inverse kinematics). Arguments as theirs; compiled: the per-cycle
-    arithmetic through arm_kernels (numba), as ArmController's."""
-    if model.task_axes == 2 and getattr(model, 'link_lengths', None) is not None:
-        return PlanarReachRound(settings, model, lower, upper, band, reach, compiled)
-    return ReachRoundN(settings, model, lower, upper, band, reach, compiled)
+            target = self._model.inverse_kinematics(goal, np.array([q, self._joint_goal[1]]),
+                                                    *self._box, self.IK_REFRESH)
+        else:
+            return self._joint_goal[1]
+        clear = all(low <= v <= high for v, low, high in zip(
+            target.tolist(), *self._clear_box, strict=True))
+        self._joint_goal = (now, target, clear)
+        if self._square:
+            self._branch = _det(self._model.task_kinematics(target, self._still)[1])
+        return target

@@ -14,7 +14,7 @@ from hri_adaptive_controller.arm_law import (
 )
 from hri_adaptive_controller.controller_node import rest_position_from
 from hri_adaptive_controller.event_weight import quintic_smoothstep
-from hri_adaptive_controller.joint_limits import ReachRoundN
+from hri_adaptive_controller.joint_limits import ReachRound
 from hri_adaptive_controller.task_variable import rest_term, retreat_term
 from hri_core.potential import TaskShape
 from hri_core.robot_model import ScaraModel, robot_model
@@ -121,8 +121,8 @@ def test_follow_reaches_round_behind_the_base_without_stalling_at_a_limit(panda)
     measured), and the tool in the follow region within 4 s (2.3 s)."""
     hand = HandState(np.array([-0.35, 0.0, 0.5]), np.zeros(3), np.zeros(3))
     result = run(panda, lambda t: hand, ActiveTask(FOLLOW, 1.0), 4.0, seed=14)
-    stalled = (result['near'] > ReachRoundN.NEAR_BARRIER) & (
-        result['distance'] > ReachRoundN.FAR_GOAL)
+    stalled = (result['near'] > ReachRound.NEAR_BARRIER) & (
+        result['distance'] > ReachRound.FAR_GOAL)
     assert longest_run(stalled) <= 1.0, longest_run(stalled)
     assert result['distance'][-1] <= FOLLOW.d2, result['distance'][-1]
     assert np.all(np.abs(result['tau']) <= panda.limits.effort)

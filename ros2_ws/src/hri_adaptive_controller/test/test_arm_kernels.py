@@ -120,15 +120,32 @@ def test_the_reach_rounds_joint_motion_is_the_reference(joints):
                 assert np.all(np.isfinite(compiled))
 
 
-def test_the_scaras_compiled_inverse_kinematics_is_the_reference():
-    scara = robot_model('scara')
-    lower, upper = tuple(scara.limits.lower.tolist()), tuple(scara.limits.upper.tolist())
-    l1, l2 = scara.link_lengths
-    rng = np.random.default_rng(0)
-    for x1, x2, near1, near2 in rng.uniform(-0.6, 0.6, (500, 4)):
-        args = (x1, x2, near1, near2, l1, l2, lower, upper, 0.2)
-        assert arm_kernels.planar_inverse_kinematics(*args) == pytest.approx(
-            joint_limits.inverse_kinematics(*args), rel=1e-13, abs=1e-15)
+@pytest.mark.parametrize('axes', [2, 3])
+def test_the_reach_rounds_goal_is_the_reference_and_in_its_shell(axes):
+    rng = np.random.default_rng(axes)
+    centre = rng.normal(scale=0.3, size=axes)
+    low, high = 0.23, 0.62
+    for _ in range(500):
+        tool, hand = centre + rng.normal(scale=0.5, size=(2, axes))
+        d1 = rng.choice([0.0, rng.uniform(0.0, 0.3)])
+        args = (tool, hand, d1, d1 + rng.uniform(0.0, 0.3), centre, high, low)
+        compiled, reference = arm_kernels.reach_goal(*args), joint_limits.reach_goal(*args)
+        np.testing.assert_allclose(compiled[0], reference[0], rtol=1e-13, atol=1e-15)
+        assert compiled[1:] == pytest.approx(reference[1:], rel=1e-13, abs=1e-15)
+        goal, distance, radius, clearance = reference
+        d2 = args[3]
+        away = (tool - hand) / np.linalg.norm(tool - hand)
+        unmoved = hand + (0.5 * (d1 + min(d2, d1 + 0.2)) * away if d1 > 0.0 else 0.0)
+        assert radius == pytest.approx(np.linalg.norm(unmoved - centre))
+        np.testing.assert_allclose(
+            goal, centre + (unmoved - centre) * np.clip(radius, low, high) / radius)
+        assert distance == pytest.approx(np.linalg.norm(goal - tool))
+        path = tool + np.linspace(0.0, 1.0, 2001)[:, None] * (goal - tool)
+        assert clearance == pytest.approx(np.min(np.linalg.norm(path - centre, axis=1)),
+                                          abs=1e-3)
+    # The hand on the centre: the goal is the shell's point towards the tool.
+    goal = joint_limits.reach_goal(centre + 0.5, centre, 0.0, 0.04, centre, high, low)[0]
+    np.testing.assert_allclose(goal, centre + low / np.sqrt(axes))
 
 
 @pytest.mark.parametrize('max_damping', [0.05, 0.0])

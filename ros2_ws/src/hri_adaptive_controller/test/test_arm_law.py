@@ -27,8 +27,8 @@ from hri_adaptive_controller.arm_law import (
 from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_target
 from hri_adaptive_controller.event_weight import quintic_smoothstep
 from hri_adaptive_controller.joint_limits import (
+    ReachRound,
     ReachRoundSettings,
-    _JointBlend,
     barrier,
     barrier_energy,
     gate_feed_forward,
@@ -433,18 +433,20 @@ def test_a_urdf_arm_without_gains_of_its_own_follows_a_still_hand(urdf):
     assert np.all((q > model.limits.lower) & (q < model.limits.upper))
 
 
-def test_the_reach_round_joint_motion_stays_finite_for_any_joint_error():
+def test_the_reach_round_joint_motion_stays_finite_for_any_joint_error(panda):
     # 1000 rad between the joints and the filtered goal (a state no arm reaches, but a law
     # must not raise on it): sech^2 of the capped motion underflows instead of cosh
     # overflowing (an OverflowError left the arm without torque).
+    settings = ReachRoundSettings()
     for compiled in (False, True):
-        blend = _JointBlend(ReachRoundSettings(), compiled)
-        q, dq = np.array([0.1, 0.2, 0.3]), np.zeros(3)
+        blend = ReachRound(settings, panda, panda.limits.lower, panda.limits.upper, 0.15, 0.8,
+                           PANDA_GAINS.damping.threshold, compiled)
+        q, dq = panda.home.copy(), np.zeros(7)
         blend._blend(True, None, q, dq, DT)
-        sigma, sigma_rate, u, u_rate = blend._blend(True, None, np.array([1000.0, 0.2, 0.3]),
-                                                    dq, DT)
+        q[0] += 1000.0
+        sigma, sigma_rate, u, u_rate = blend._blend(True, None, q, dq, DT)
         assert all(math.isfinite(v) for v in (sigma, sigma_rate, *u, *u_rate))
-        assert math.hypot(*u) <= ReachRoundSettings().max_speed + 1e-9
+        assert np.linalg.norm(u) <= settings.max_speed + 1e-9
 
 
 def test_the_gravity_hold_is_the_estimates_gravity_within_the_limits(panda):

@@ -18,16 +18,13 @@ from hri_adaptive_controller.arm_law import (
 )
 from hri_adaptive_controller.closed_loop import LoopConditions, path_target, simulate
 from hri_adaptive_controller.joint_limits import (
-    PlanarReachRound,
+    ReachRound,
     ReachRoundSettings,
     barrier,
     barrier_energy,
     gate_feed_forward,
-    inverse_kinematics,
-    reach_round,
-    workspace_radii,
 )
-from hri_core.dynamics import ScaraParameters, dynamic_parameters, forward_kinematics
+from hri_core.dynamics import ScaraParameters, dynamic_parameters
 from hri_core.potential import TaskShape
 from hri_core.robot_model import SCARA_LIMITS, JointLimits, ScaraModel
 
@@ -153,15 +150,6 @@ def test_the_gated_feed_forwards_rate_is_its_time_derivative():
         assert (later[0] - earlier[0]) / (2 * h) == pytest.approx(rate[0], abs=1e-5)
 
 
-def test_inverse_kinematics_reaches_and_prefers_the_elbow_the_box_allows():
-    for point in ((0.4, 0.2), (-0.35, -0.15), (0.0, -0.5), (0.3, -0.1)):
-        q = inverse_kinematics(*point, 0.0, 1.0, L1, L2, LOWER, UPPER, BAND)
-        np.testing.assert_allclose(forward_kinematics(np.array(q), L1, L2), point, atol=1e-9)
-        assert all(low < v < high for v, low, high in zip(q, LOWER, UPPER, strict=True))
-    inner, outer = workspace_radii(L1, L2, SCARA.limits)
-    assert inner == pytest.approx(0.2223, abs=1e-4) and outer == pytest.approx(0.65)
-
-
 @pytest.mark.first
 def test_the_arm_no_longer_pushes_into_joint_2s_stop(crossing):
     # Without limits joint 2 folds onto its stop (2.46 rad) and pushes up to the full 20 N m
@@ -194,8 +182,7 @@ def test_a_hand_out_of_reach_is_held_at_the_nearest_reachable_point_without_jitt
     result = run(far, 8.0)
     last = result.time >= 6.0
     reach = np.linalg.norm(result.position[last], axis=1)
-    _, outer = workspace_radii(L1, L2, SCARA.limits)
-    goal = outer - ReachRoundSettings().outer_margin
+    goal = SCARA.attained_reach - ReachRoundSettings().outer_margin
     assert np.all(np.abs(reach - goal) <= 0.01)  # held just inside the stretched reach
     assert np.max(np.abs(result.dq[last])) <= 0.01  # still: no stretched-arm jitter
     assert np.max(np.abs(result.tau[last])) <= 0.5  # with small effort
@@ -215,12 +202,12 @@ def test_follow_safe_reaches_its_annulus_on_the_far_side():
 def test_reach_round_blend_is_off_for_avoid_tasks_and_without_a_task():
     # Joint 2 in its band (near 0.9) and the hand on the far side: a follow task would
     # engage; without a region (no task, or an avoid task) sigma stays at 0.
-    blend = reach_round(ReachRoundSettings(), SCARA, LOWER, UPPER, BAND, L1 + L2)
-    assert isinstance(blend, PlanarReachRound)
+    blend = ReachRound(ReachRoundSettings(), SCARA, LOWER, UPPER, BAND, L1 + L2,
+                       SCARA_GAINS.damping.threshold)
     q, dq = np.array([0.0, 2.4]), np.zeros(2)
-    x = np.array(forward_kinematics(q, L1, L2))
+    x, jac, _ = SCARA.task_kinematics(q, dq)
     for _ in range(100):
-        assert blend.update(q, dq, x, np.array([-0.3, -0.1]), None, 0.9, 1e-3) is None
+        assert blend.update(q, dq, x, jac, np.array([-0.3, -0.1]), None, 0.9, 1e-3) is None
     assert not blend.engaged
     # The law passes no region for an avoid task, nor without one.
     hand = HandState(np.array([-0.3, -0.1]), np.zeros(2), np.zeros(2))

@@ -20,7 +20,6 @@ import pytest
 
 from hri_adaptive_controller.arm_law import SCARA_GAINS
 from hri_adaptive_controller.closed_loop import LoopConditions, recorded_target, simulate
-from hri_adaptive_controller.joint_limits import workspace_radii
 from hri_adaptive_controller.run_metrics import TakeCriteria, take_metrics
 from hri_core.dynamics import ScaraParameters
 from hri_core.potential import TaskShape
@@ -32,7 +31,7 @@ TAKES = sorted((Path(__file__).resolve().parents[4] / 'data' / 'human-motion').g
 TASKS_DIR = Path(__file__).resolve().parents[1] / 'tasks'
 PARAMS = ScaraParameters()
 ARM = ScaraModel(PARAMS)  # scara_sim's arm, its joint limits and its 20 N m effort limit
-REACH = ReachAnnulus(*workspace_radii(PARAMS.l1, PARAMS.l2, ARM.limits))
+REACH = ReachAnnulus(ARM.folded_reach, ARM.attained_reach)
 EFFORT_LIMIT = float(ARM.limits.effort.min())
 CROP = 12.0  # s of each take
 HAND_PERIOD = 0.01  # s, the takes' 100 Hz

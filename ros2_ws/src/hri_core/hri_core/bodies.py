@@ -33,10 +33,11 @@ pair with the least distance. Equal to coal's capsule distances (unit test, 1e-9
 
 **Point Jacobian** (`RobotBody.point_jacobian(q, capsule, point)`): J (3, n) with
 v_point = J dq (m/s) for a point (3,) m moving with the capsule's link: pinocchio's joint
-Jacobian (LOCAL_WORLD_ALIGNED) with the point's offset from the joint, J_v - [p - o]x J_w;
-the SCARA's analytically. Zero for a capsule on the base. `RobotBody.normal_rows(q, capsules,
+Jacobian at the joint (the model's `joint_jacobians`: pinocchio's LOCAL_WORLD_ALIGNED one, the
+SCARA's in closed form) with the point's offset from the joint, J_v - [p - o]x J_w. Zero for a
+capsule on the base. `RobotBody.normal_rows(q, capsules,
 points, normals)` gives n^T J (m, n) for m points at once, what a barrier on the distances
-needs: one pinocchio pass for every joint's Jacobian (computeJointJacobians), then
+needs: every joint's Jacobian once (for a URDF arm one pinocchio pass), then
 J_v^T n + J_w^T ((p - o) x n) per point.
 
 **The chain** (`RobotBody.chain`, a `Chain`): the arm's joints as placements and axes, from
@@ -463,25 +464,14 @@ class RobotBody:
         self.tool = tool
         self.planar = planar
         self.chain = chain
-        self._scara = isinstance(model, ScaraModel)
+        self._joints = np.array(self.joint, dtype=np.int64)
 
     def capsules(self, q, checked: bool = True) -> Capsules:
         """The capsules in the base frame at joint positions q (n,) rad (checked: finite and
         within the joint limits; unchecked: the caller's finite (n,) floats, the 1 kHz path)."""
         q = self.model.joint_position(q, 'q') if checked else np.asarray(q, dtype=float)
-        if self._scara:
-            l1, l2 = self.model.params.l1, self.model.params.l2
-            elbow = np.array([l1 * math.cos(q[0]), l1 * math.sin(q[0]), 0.0])
-            tool = elbow + l2 * np.array([math.cos(q[0] + q[1]), math.sin(q[0] + q[1]), 0.0])
-            return Capsules(self.names, np.array([np.zeros(3), elbow]),
-                            np.array([elbow, tool]), self.radius)
-        pin, pmodel, data = self.model._pin, self.model.model, self.model.data
-        pin.forwardKinematics(pmodel, data, q)
-        # data.oMi taken once and one homogeneous matrix per capsule: each attribute access
-        # through pinocchio's bindings costs about 1 us (the Panda's 9 capsules: 44 -> 15 us).
-        placements = data.oMi
-        frames = np.array([placements[j].homogeneous for j in self.joint])   # (K, 4, 4)
-        rotations, origins = frames[:, :3, :3], frames[:, :3, 3]
+        rotations, origins = self.model.joint_frames(q)
+        rotations, origins = rotations[self._joints], origins[self._joints]
         a = np.einsum('kij,kj->ki', rotations, self.local_a) + origins
         b = np.einsum('kij,kj->ki', rotations, self.local_b) + origins
         return Capsules(self.names, a, b, self.radius)
@@ -491,57 +481,29 @@ class RobotBody:
         with capsule `capsule`'s link, is J dq (q checked as in `capsules`)."""
         q = self.model.joint_position(q, 'q') if checked else np.asarray(q, dtype=float)
         point = np.asarray(point, dtype=float).reshape(3)
-        n = self.model.dof
-        if self._scara:
-            jacobian = np.zeros((3, n))
-            jacobian[0, 0], jacobian[1, 0] = -point[1], point[0]
-            if capsule == 1:
-                l1 = self.model.params.l1
-                elbow = np.array([l1 * math.cos(q[0]), l1 * math.sin(q[0])])
-                jacobian[0, 1], jacobian[1, 1] = -(point[1] - elbow[1]), point[0] - elbow[0]
-            return jacobian
         joint = self.joint[capsule]
         if joint == 0:
-            return np.zeros((3, n))
-        pin, pmodel, data = self.model._pin, self.model.model, self.model.data
-        full = pin.computeJointJacobian(pmodel, data, q, joint)  # LOCAL: joint frame axes
-        pin.forwardKinematics(pmodel, data, q)
-        placement = data.oMi[joint]
-        rotation = placement.rotation
-        linear, angular = rotation @ full[:3], rotation @ full[3:]
-        offset = point - placement.translation
-        cross = np.array([[0.0, -offset[2], offset[1]], [offset[2], 0.0, -offset[0]],
-                          [-offset[1], offset[0], 0.0]])
-        return linear - cross @ angular
-
+            return np.zeros((3, self.model.dof))
+        origin, jacobian = self.model.joint_jacobians(q, (joint,))[joint]
+        (rx, ry, rz) = (point - origin).tolist()
+        cross = np.array([[0.0, -rz, ry], [rz, 0.0, -rx], [-ry, rx, 0.0]])
+        return jacobian[:3] - cross @ jacobian[3:]  # v_o + w x (p - o)
 
     def normal_rows(self, q, capsules, points, normals) -> np.ndarray:
         """n_k^T J_k (m, n), m/rad: the speed (m/s) along the unit normal n_k (m, 3) of each
         point p_k (m, 3) m moving with capsule capsules[k] (m,) is row k times dq; the
         caller's finite (n,) q (unchecked: the 1 kHz path). The same as normal @
-        point_jacobian(q, k, p) per point, in one pinocchio pass."""
+        point_jacobian(q, k, p) per point, with each joint's Jacobian once."""
         q = np.asarray(q, dtype=float)
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         normals = np.asarray(normals, dtype=float).reshape(-1, 3)
-        capsules = [int(k) for k in capsules]
-        if self._scara:
-            return np.array([normal @ self.point_jacobian(q, k, point, checked=False)
-                             for k, point, normal in zip(capsules, points, normals,
-                                                         strict=True)]).reshape(-1, q.size)
-        pin, pmodel, data = self.model._pin, self.model.model, self.model.data
-        pin.computeJointJacobians(pmodel, data, q)
-        frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        placements = data.oMi
-        rows = np.zeros((len(capsules), q.size))
-        taken = {}
-        for k, capsule in enumerate(capsules):
-            joint = self.joint[capsule]
+        joints = [self.joint[int(k)] for k in capsules]
+        taken = self.model.joint_jacobians(q, {joint for joint in joints if joint != 0})
+        rows = np.zeros((len(joints), q.size))
+        for k, joint in enumerate(joints):
             if joint == 0:
                 continue  # the base: still
-            if joint not in taken:
-                taken[joint] = (pin.getJointJacobian(pmodel, data, joint, frame),
-                                placements[joint].translation)
-            jacobian, origin = taken[joint]
+            origin, jacobian = taken[joint]
             # v_p = J_v dq + w x (p - o), so n . v_p = (J_v^T n + J_w^T ((p - o) x n)) . dq;
             # the cross product in floats (numpy's np.cross costs 15 us for two 3-vectors).
             (rx, ry, rz), (nx, ny, nz) = (points[k] - origin).tolist(), normals[k].tolist()

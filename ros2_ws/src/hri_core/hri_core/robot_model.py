@@ -16,7 +16,11 @@ linear-in-parameters dynamics of eq. 15 and 18.
   adaptive law's estimate;
 * reach: an upper bound of the tool point's distance from `shoulder` (3,), the origin of the
   first moving joint, over every configuration (the sum of the chain's fixed joint-to-joint
-  distances and the last joint to the tool point; exact for the SCARA, l1 + l2).
+  distances and the last joint to the tool point; exact for the SCARA, l1 + l2);
+* every joint's frame and Jacobian at q (the body capsules ride on them, hri_core.bodies);
+* inverse kinematics of the tool point within a joint box (the controller's reach-round:
+  damped least squares; the SCARA's two elbows in closed form) and, where known, the hole
+  round the base (`folded_reach`: the SCARA's folded arm).
 
 Two implementations:
 
@@ -68,8 +72,10 @@ __all__ = [
     'RobotModel',
     'ScaraModel',
     'example_robot_urdf_path',
+    'folded_reach',
     'generic_model',
     'panda_urdf_path',
+    'planar_inverse_kinematics',
     'robot_model',
     'scara_urdf',
 ]
@@ -114,6 +120,15 @@ EXAMPLE_ROBOTS = 'cmeel.prefix/share/example-robot-data/robots'
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)  # m/s^2 in the base frame, z up
 # theta's box (PinocchioModel): a link's mass at least this fraction of its URDF mass.
 MASS_FLOOR = 0.01
+IK_ITERATIONS = 50
+"""Damped least-squares steps of RobotModel.inverse_kinematics from each seed."""
+IK_DAMPING = 0.05
+"""m: the damping of those steps."""
+IK_TOLERANCE = 1e-3
+"""m: a seed's iterations stop this near the goal."""
+CLAMP_COST = 1000.0
+"""Weight (per m^2 of miss, or rad^2 of the box's cut) of a solution that misses the goal
+against its joint distance from the first seed, when the inverse kinematics chooses."""
 INERTIA_NAMES = ('m', 'mcx', 'mcy', 'mcz', 'Ixx', 'Ixy', 'Iyy', 'Ixz', 'Iyz', 'Izz')
 
 
@@ -230,6 +245,50 @@ class RobotModel(ABC):
     the model knows it exactly; None: sampled by the law (arm_law.attained_reach)."""
 
     @abstractmethod
+    def joint_frames(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """Every joint's frame in the base frame at q (n,) rad, the caller's finite floats:
+        rotations (J, 3, 3) and origins (J, 3) m, J = n + 1, index 0 the base's (for the body
+        capsules riding on the joints, hri_core.bodies)."""
+
+    @abstractmethod
+    def joint_jacobians(self, q, joints) -> dict:
+        """For each joint index in `joints` (as joint_frames'), at q (n,) rad (the caller's
+        finite floats): (origin (3,) m, J (6, n)), J dq the velocity of that origin (m/s) and
+        the joint frame's angular velocity (rad/s), both in the base frame's axes."""
+
+    folded_reach: float = 0.0
+    """The nearest the tool point gets to `shoulder` on the task axes within the joint limits
+    (m), where the model knows it (the SCARA's folded arm: a hole round its base); 0: none
+    known."""
+
+    def inverse_kinematics(self, goal, seeds, lower, upper,
+                           iterations: int = IK_ITERATIONS) -> np.ndarray:
+        """Joints (n,) rad that put the tool point at `goal` (k,) m on the task axes, or
+        nearest to it, within the box [lower, upper] (n,) rad: damped least squares from each
+        seed (rows of `seeds`, (s, n) rad), clamped into the box at every step, at most
+        `iterations` steps; of the results, the one that reaches the goal best (CLAMP_COST per
+        m^2 of miss), then the one nearest to the first seed. Inputs unchecked (the
+        controller's reach-round)."""
+        axes = self.task_axes
+        damping = IK_DAMPING ** 2 * np.eye(axes)
+        best = None
+        first = seeds[0]
+        for seed in seeds:
+            q = np.clip(seed, lower, upper)
+            for _ in range(iterations):
+                miss = goal - self.tool_position(q)[:axes]
+                if float(miss @ miss) < IK_TOLERANCE ** 2:
+                    break
+                jac = self.tool_jacobian(q)[:axes]
+                q = np.clip(q + jac.T @ np.linalg.solve(jac @ jac.T + damping, miss),
+                            lower, upper)
+            miss = goal - self.tool_position(q)[:axes]
+            cost = CLAMP_COST * float(miss @ miss) + float((q - first) @ (q - first))
+            if best is None or cost < best[0]:
+                best = (cost, q)
+        return best[1]
+
+    @abstractmethod
     def task_kinematics(self, q, dq) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """x (k,) m, J (k, n) and dJ/dt (k, n) on the task axes at q, dq (n,) rad, rad/s:
         finite floats the caller has checked (the 1 kHz path; no checks here)."""
@@ -303,6 +362,7 @@ class ScaraModel(RobotModel):
         self.reach = params.l1 + params.l2
         self.attained_reach = self.reach  # joint 2 stretches out within its limits
         self.link_lengths = (params.l1, params.l2)
+        self.folded_reach = folded_reach(params.l1, params.l2, limits)
         self.task_axes = 2
         self.shoulder = np.zeros(3)
         self.urdf = scara_urdf(params, limits)
@@ -370,6 +430,73 @@ class ScaraModel(RobotModel):
         """dynamics.forward_dynamics of one state, unchecked."""
         return np.array(dynamics.acceleration_floats(*q.tolist(), *dq.tolist(), tau.tolist(),
                                                      self._constants))
+
+
+    def joint_frames(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """RobotModel.joint_frames: the base, joint 1 at the base turned by q1, joint 2 at the
+        elbow turned by q1 + q2, both about z."""
+        l1 = self.link_lengths[0]
+        q1, q12 = float(q[0]), float(q[0]) + float(q[1])
+        c1, s1, c12, s12 = math.cos(q1), math.sin(q1), math.cos(q12), math.sin(q12)
+        rotations = np.array([np.eye(3), [[c1, -s1, 0.0], [s1, c1, 0.0], [0.0, 0.0, 1.0]],
+                              [[c12, -s12, 0.0], [s12, c12, 0.0], [0.0, 0.0, 1.0]]])
+        origins = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [l1 * c1, l1 * s1, 0.0]])
+        return rotations, origins
+
+    def joint_jacobians(self, q, joints) -> dict:
+        """RobotModel.joint_jacobians in closed form (both joints turn about z)."""
+        l1 = self.link_lengths[0]
+        c1, s1 = math.cos(float(q[0])), math.sin(float(q[0]))
+        result = {}
+        for joint in joints:
+            jacobian = np.zeros((6, 2))
+            origin = np.zeros(3)
+            if joint >= 1:
+                jacobian[5, :joint] = 1.0
+            if joint == 2:
+                origin[:2] = l1 * c1, l1 * s1
+                jacobian[0, 0], jacobian[1, 0] = -l1 * s1, l1 * c1
+            result[joint] = (origin, jacobian)
+        return result
+
+    def inverse_kinematics(self, goal, seeds, lower, upper,
+                           iterations: int = IK_ITERATIONS) -> np.ndarray:
+        """RobotModel.inverse_kinematics solved in closed form (planar_inverse_kinematics):
+        the elbow nearer to the first seed of those the box cuts least (iterations unused)."""
+        l1, l2 = self.link_lengths
+        return np.array(planar_inverse_kinematics(
+            float(goal[0]), float(goal[1]), float(seeds[0][0]), float(seeds[0][1]), l1, l2,
+            lower, upper))
+
+
+def folded_reach(l1: float, l2: float, limits: JointLimits) -> float:
+    """The base-to-tip distance (m) of a planar 2-link arm folded to joint 2's nearer limit
+    (|l1 - l2| where joint 2 may fold fully)."""
+    fold = min(abs(limits.lower[1]), abs(limits.upper[1]), math.pi)
+    return math.sqrt(max(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(fold), 0.0))
+
+
+def planar_inverse_kinematics(x1: float, x2: float, near1: float, near2: float, l1: float,
+                              l2: float, lower, upper) -> tuple[float, float]:
+    """Joint angles (rad) of a planar 2-link arm that put the tip at (x1, x2) m or nearest to
+    it, clamped into the box lower, upper (2,) rad; of the two elbows, the one the box cuts
+    least, then the one nearer to (near1, near2) rad. A NaN in gives NaN out."""
+    r2 = x1 * x1 + x2 * x2
+    c2 = min(max((r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2), -1.0), 1.0)
+    best_cost, best1, best2 = math.inf, 0.0, 0.0
+    for elbow in (1.0, -1.0):
+        q2 = elbow * math.acos(c2)
+        q1 = math.remainder(
+            math.atan2(x2, x1) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2)),
+            2.0 * math.pi)  # in [-pi, pi]: the nearest writing to a box centred on 0
+        k1 = min(max(q1, lower[0]), upper[0])
+        k2 = min(max(q2, lower[1]), upper[1])
+        # A solution the box cuts short misses the point: the one that reaches first.
+        cost = (CLAMP_COST * ((k1 - q1) ** 2 + (k2 - q2) ** 2)
+                + (k1 - near1) ** 2 + (k2 - near2) ** 2)
+        if elbow == 1.0 or cost < best_cost:  # (the first kept: a NaN stays a NaN)
+            best_cost, best1, best2 = cost, k1, k2
+    return best1, best2
 
 
 def _scara_link(name: str, mass: float, centre_of_mass: float, inertia: float) -> str:
@@ -623,6 +750,24 @@ class PinocchioModel(RobotModel):
     def forward_dynamics(self, q, dq, tau) -> np.ndarray:
         """ddq (n,) = M^-1 (tau - C dq - F dq - g) by pinocchio's ABA; inputs unchecked."""
         return self._pin.aba(self.model, self.data, q, dq, tau - self.damping * dq)
+
+    def joint_frames(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """RobotModel.joint_frames through pinocchio (its joint order; 0 the universe)."""
+        self._pin.forwardKinematics(self.model, self.data, q)
+        # One homogeneous matrix per joint: each attribute access through pinocchio's
+        # bindings costs about 1 us.
+        frames = np.array([placement.homogeneous for placement in self.data.oMi])
+        return frames[:, :3, :3], frames[:, :3, 3]
+
+    def joint_jacobians(self, q, joints) -> dict:
+        """RobotModel.joint_jacobians in one pinocchio pass (computeJointJacobians, then each
+        joint's LOCAL_WORLD_ALIGNED Jacobian: the joint origin's velocity and the angular
+        velocity in base axes)."""
+        pin, model, data = self._pin, self.model, self.data
+        pin.computeJointJacobians(model, data, q)
+        frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        return {joint: (data.oMi[joint].translation.copy(),
+                        pin.getJointJacobian(model, data, joint, frame)) for joint in joints}
 
     def tool_position_unchecked(self, q) -> np.ndarray:
         """tool_position() for a q the caller has checked ((n,) finite floats)."""

@@ -278,6 +278,56 @@ def test_reach_bounds_the_tool_distance_from_the_shoulder(panda):
     assert np.linalg.norm(stretched) == pytest.approx(ScaraModel().reach, abs=1e-12)
 
 
+def test_the_scaras_folded_reach_is_the_hole_round_its_base():
+    scara = ScaraModel()
+    assert scara.folded_reach == pytest.approx(0.2223, abs=1e-4)
+    rng = np.random.default_rng(SEED)
+    poses = rng.uniform(scara.limits.lower, scara.limits.upper, (5000, 2))
+    nearest = min(np.linalg.norm(scara.tool_position(q)) for q in poses)
+    assert scara.folded_reach <= nearest <= scara.folded_reach + 0.01
+
+
+@pytest.mark.parametrize('name', ['scara', 'generic_scara', 'panda'])
+def test_inverse_kinematics_reaches_what_the_box_allows_nearest_the_seed(name, panda):
+    """Goals the box reaches are reached (within 1 cm: the reach-round's goal counts as
+    reached at 3 cm; 5.4 mm the worst here, a pose near the Panda's base), within the box;
+    the SCARA's closed form takes, of its two elbows, the one nearer to the seed."""
+    model = {'scara': ScaraModel(), 'panda': panda,
+             'generic_scara': PinocchioModel(scara_urdf(ScaraParameters()), 'tip')}[name]
+    axes = model.task_axes
+    lower, upper = model.limits.lower + 0.05, model.limits.upper - 0.05
+    rng = np.random.default_rng(SEED)
+    for _ in range(20):
+        pose = rng.uniform(lower, upper)
+        goal = model.tool_position(pose)[:axes]
+        seed = np.clip(pose + rng.normal(scale=0.3, size=model.dof), lower, upper)
+        q = model.inverse_kinematics(goal, np.array([seed, model.home]), lower, upper)
+        assert np.all((q >= lower) & (q <= upper))
+        assert np.linalg.norm(model.tool_position(q)[:axes] - goal) <= 0.01
+        if name == 'scara' and abs(pose[1]) > 0.3:
+            np.testing.assert_allclose(q, pose, atol=1e-9)  # the seed's elbow, exactly
+    if name != 'scara':
+        return  # (the reach-round asks the numerical solve for goals within reach only)
+    # Out of reach: the closed form stretches the arm towards it.
+    towards = np.array([1.0, 1.0, 0.0])[:axes] / np.sqrt(2.0)
+    far = model.inverse_kinematics(model.shoulder[:axes] + 2.0 * towards,
+                                   np.array([model.home]), lower, upper)
+    direction = model.tool_position(far)[:axes] - model.shoulder[:axes]
+    assert direction @ towards / np.linalg.norm(direction) == pytest.approx(1.0)
+    assert np.linalg.norm(direction) == pytest.approx(model.reach)
+
+
+def test_the_scaras_inverse_kinematics_takes_the_elbow_the_box_allows():
+    scara = ScaraModel()
+    lower, upper = scara.limits.lower, np.array([scara.limits.upper[0], 0.5])
+    pose = np.array([0.3, -1.2])  # the only elbow within the box's joint 2 <= 0.5
+    goal = scara.tool_position(pose)[:2]
+    q = scara.inverse_kinematics(goal, np.array([[0.0, 1.2]]), lower, upper)
+    np.testing.assert_allclose(q, pose, atol=1e-9)
+    assert np.all(np.isnan(scara.inverse_kinematics(
+        np.array([np.nan, 0.2]), np.array([[0.0, 1.0]]), lower, upper)))
+
+
 def test_panda_theta_box_is_the_documented_one(panda):
     """Masses >= 1 % of the URDF's, diagonal inertias and friction >= 0, the rest free."""
     names = panda.parameter_names

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hri_core.robot_model import RobotModel, ScaraModel
+from hri_core.robot_model import RobotModel
 from hri_core.validation import planar_vector, point_vector, positive, spatial_vector
 
 HAND_PROFILES = ('hold', 'approach', 'retreat', 'back_and_forth', 'circle', 'waypoints')
@@ -306,8 +306,9 @@ def demonstration_goal(mode: str, start, reference, stop_distance: float,
 
 
 def demonstration_dimension(arm: RobotModel) -> int:
-    """2 for the planar SCARA (its tool moves in the plane z = 0), 3 for any other arm."""
-    return 2 if isinstance(arm, ScaraModel) else 3
+    """The arm's task axes: 2 for a planar arm (the SCARA: its tool moves in the plane z =
+    0), 3 for any other."""
+    return arm.task_axes
 
 
 def check_reach(arm: RobotModel, point, what: str) -> None:

@@ -35,10 +35,9 @@ pair with the least distance. Equal to coal's capsule distances (unit test, 1e-9
 v_point = J dq (m/s) for a point (3,) m moving with the capsule's link: pinocchio's joint
 Jacobian at the joint (the model's `joint_jacobians`: pinocchio's LOCAL_WORLD_ALIGNED one, the
 SCARA's in closed form) with the point's offset from the joint, J_v - [p - o]x J_w. Zero for a
-capsule on the base. `RobotBody.normal_rows(q, capsules,
-points, normals)` gives n^T J (m, n) for m points at once, what a barrier on the distances
-needs: every joint's Jacobian once (for a URDF arm one pinocchio pass), then
-J_v^T n + J_w^T ((p - o) x n) per point.
+capsule on the base. `RobotBody.normal_rows(q, capsules, points, normals)` gives n^T J (m, n)
+for m points at once, what a barrier on the distances needs: every joint's Jacobian once (for
+a URDF arm one pinocchio pass), then J_v^T n + J_w^T ((p - o) x n) per point.
 
 **The chain** (`RobotBody.chain`, a `Chain`): the arm's joints as placements and axes, from
 which hri_core.capsule_kernels places the capsules and forms a point's Jacobian row in compiled

@@ -469,6 +469,13 @@ class RobotBody:
         """The capsules in the base frame at joint positions q (n,) rad (checked: finite and
         within the joint limits; unchecked: the caller's finite (n,) floats, the 1 kHz path)."""
         q = self.model.joint_position(q, 'q') if checked else np.asarray(q, dtype=float)
+        if self.chain is not None:  # compiled on the chain: 3-4 us against 13-18 us
+            from hri_core import capsule_kernels
+
+            rotations, origins = capsule_kernels.chain_frames(q, *self.chain)
+            a, axis = capsule_kernels.placed_capsules(rotations, origins, self._joints,
+                                                      self.local_a, self.local_b)
+            return Capsules(self.names, a, a + axis, self.radius)
         rotations, origins = self.model.joint_frames(q)
         rotations, origins = rotations[self._joints], origins[self._joints]
         a = np.einsum('kij,kj->ki', rotations, self.local_a) + origins

@@ -756,7 +756,8 @@ class PinocchioModel(RobotModel):
         self._pin.forwardKinematics(self.model, self.data, q)
         # One homogeneous matrix per joint: each attribute access through pinocchio's
         # bindings costs about 1 us.
-        frames = np.array([placement.homogeneous for placement in self.data.oMi])
+        placements = self.data.oMi
+        frames = np.array([placements[j].homogeneous for j in range(self.model.njoints)])
         return frames[:, :3, :3], frames[:, :3, 3]
 
     def joint_jacobians(self, q, joints) -> dict:

@@ -220,9 +220,9 @@ def test_normal_rows_are_the_point_jacobians_along_the_normals(robot, panda):
 
 @pytest.mark.parametrize('robot', ['panda', 'scara'])
 def test_the_chain_places_the_capsules_and_forms_the_rows_as_pinocchio(robot, panda):
-    """The compiled chain (capsule_kernels) on random configurations within the limits gives
-    RobotBody.capsules' ends and normal_rows' rows (pinocchio's, the SCARA's analytic) to
-    1e-12."""
+    """The compiled chain (capsule_kernels, which RobotBody.capsules runs on) on random
+    configurations within the limits gives the capsules' ends from the model's joint frames
+    and normal_rows' rows (pinocchio's, the SCARA's closed form) to 1e-12."""
     model, body = panda if robot == 'panda' else (robot_model('scara'),
                                                   robot_body(robot_model('scara')))
     rng = np.random.default_rng(12)
@@ -232,9 +232,13 @@ def test_the_chain_places_the_capsules_and_forms_the_rows_as_pinocchio(robot, pa
         rotations, origins = capsule_kernels.chain_frames(q, *body.chain)
         a, axis = capsule_kernels.placed_capsules(rotations, origins, joints, body.local_a,
                                                   body.local_b)
-        expected = body.capsules(q)
-        np.testing.assert_allclose(a, expected.a, atol=1e-12)
-        np.testing.assert_allclose(axis, expected.axis, atol=1e-12)
+        # The model's own frames (pinocchio's, the SCARA's closed form) are the oracle.
+        frames, places = model.joint_frames(q)
+        expected_a = np.einsum('kij,kj->ki', frames[joints], body.local_a) + places[joints]
+        expected_b = np.einsum('kij,kj->ki', frames[joints], body.local_b) + places[joints]
+        np.testing.assert_allclose(a, expected_a, atol=1e-12)
+        np.testing.assert_allclose(axis, expected_b - expected_a, atol=1e-12)
+        np.testing.assert_allclose(body.capsules(q).b, expected_b, atol=1e-12)
         points = rng.normal(size=(joints.size, 3))
         normals = rng.normal(size=(joints.size, 3))
         normals /= np.linalg.norm(normals, axis=1)[:, None]

@@ -362,9 +362,9 @@ class ReachRound:
     GOAL_MARGIN band inside the limits. It is solved on engaging from the arm's joints, from its
     home pose swung to the goal's azimuth about the first joint (for a vertical first axis, the
     Panda's: a far side reached by turning round) and from the arm's joints so swung, the
-    nearest that reaches (1.3 ms for the Panda's hand behind its base, 2.6 ms for one out of
-    reach, once); then refreshed every IK_PERIOD s from the arm's joints and from the last q*
-    (IK_REFRESH iterations each), the nearest to the arm that reaches (the SCARA: the elbow
+    nearest that reaches (0.9-1.1 ms for the Panda's hand behind its base, 0.26 ms for one
+    out of reach, once); then refreshed every IK_PERIOD s from the arm's joints and from the
+    last q* (IK_REFRESH iterations each), the nearest to the arm that reaches (the SCARA: the elbow
     nearer to the arm's), so that the numerical solve stays off most control cycles. While
     sigma ramps down, q* keeps following the goal; it is forgotten once sigma rests.
 
@@ -422,8 +422,9 @@ class ReachRound:
         self._resting = True  # sigma is 0 with no ramp to evaluate
         self._full = False  # sigma is 1 with no ramp to evaluate
         self._filtered = None  # (q_in, q_f, dq_f), arrays (n,)
-        self._joint_goal = None  # (time solved, q* (n,), whether q* is clear of the limits)
-        self._branch = 0.0  # det J at q* (an arm with as many joints as task axes)
+        # (time solved, q* (n,), whether q* is clear of the limits, det J at q* (an arm with
+        # as many joints as task axes; else 0))
+        self._joint_goal = None
 
     @property
     def engaged(self) -> bool:
@@ -518,7 +519,7 @@ class ReachRound:
         if abs(float(target[0]) - float(q[0])) >= self.STRAIGHT_TURN:
             return False
         det = _det(jac)
-        return det * self._branch > 0.0 and det * det >= self._undamped2
+        return det * self._joint_goal[3] > 0.0 and det * det >= self._undamped2
 
     def _solve(self, goal, q, x) -> np.ndarray:
         """q* for `goal` (k,) m from the seeds of the class docstring; q (n,) the arm's
@@ -546,7 +547,7 @@ class ReachRound:
             return self._joint_goal[1]
         clear = all(low <= v <= high for v, low, high in zip(
             target.tolist(), *self._clear_box, strict=True))
-        self._joint_goal = (now, target, clear)
-        if self._square:
-            self._branch = _det(self._model.task_kinematics(target, self._still)[1])
+        branch = (_det(self._model.task_kinematics(target, self._still)[1]) if self._square
+                  else 0.0)
+        self._joint_goal = (now, target, clear, branch)
         return target

@@ -269,20 +269,20 @@ class RobotModel(ABC):
         `iterations` steps; of the results, the one that reaches the goal best (CLAMP_COST per
         m^2 of miss), then the one nearest to the first seed. Inputs unchecked (the
         controller's reach-round)."""
-        axes = self.task_axes
-        damping = IK_DAMPING ** 2 * np.eye(axes)
+        damping = IK_DAMPING ** 2 * np.eye(self.task_axes)
+        still = np.zeros(self.dof)
         best = None
         first = seeds[0]
         for seed in seeds:
             q = np.clip(seed, lower, upper)
-            for _ in range(iterations):
-                miss = goal - self.tool_position(q)[:axes]
-                if float(miss @ miss) < IK_TOLERANCE ** 2:
+            for step in range(iterations + 1):
+                # One kinematics call per pose: its miss decides, and its J takes the step.
+                x, jac, _ = self.task_kinematics(q, still)
+                miss = goal - x
+                if step == iterations or float(miss @ miss) < IK_TOLERANCE ** 2:
                     break
-                jac = self.tool_jacobian(q)[:axes]
                 q = np.clip(q + jac.T @ np.linalg.solve(jac @ jac.T + damping, miss),
                             lower, upper)
-            miss = goal - self.tool_position(q)[:axes]
             cost = CLAMP_COST * float(miss @ miss) + float((q - first) @ (q - first))
             if best is None or cost < best[0]:
                 best = (cost, q)

@@ -47,7 +47,7 @@ TAKES = REPO_ROOT / 'data' / 'human-motion'
 # m: where auto_place puts the hand path (scripts/demo.py's for the Panda, hand_sim's default
 # for the SCARA), and the hand's dimensions on /target.
 REACH = {'panda': ([0.30, 0.75], 3), 'scara': ([0.222, 0.65], 2)}
-RUN = 14.0  # s after the first joint state
+RUN = 10.0  # s after the first joint state
 SETTLE = 3.0  # s: the arm comes from its home pose and the task fades in
 SAMPLE = 0.01  # s between the samples judged
 BODY_MAX_AGE = 0.05  # s: an older /human/body is no body at that time (a lost frame)

@@ -6,8 +6,9 @@ the test publishes /target at 100 Hz and /ee_position at 250 Hz from a thread of
 stamped with the system clock as hand_sim and scara_sim stamp theirs. No 1 kHz loop runs:
 the thresholds are the issue's: a hand reaching in at 0.5 m/s switches to avoid before the
 separation falls below avoid's d1; a hand resting on a zone boundary with +-5 mm of noise
-fires nothing for 10 s; a lost hand fires its event once; /hri/separation agrees with the
-ISO/TS 15066 formula on its own published speeds within 1 mm.
+fires nothing for 3 s (test_event_rules holds the rules to 10 s of every kind of noise); a
+lost hand fires its event once; /hri/separation agrees with the ISO/TS 15066 formula on its
+own published speeds within 1 mm.
 """
 
 import math
@@ -161,9 +162,11 @@ def test_a_hand_reaching_in_at_half_a_metre_a_second_switches_to_avoid_before_d1
     assert max(m.human_speed for m in separation) == pytest.approx(0.5, abs=0.05)
 
 
-def test_a_hand_resting_on_a_zone_boundary_with_5_mm_noise_fires_nothing_for_10_s(
-        nodes, probe, tmp_path):
+def test_a_hand_resting_on_a_zone_boundary_with_5_mm_noise_fires_nothing(nodes, probe, tmp_path):
+    # 3 s through the node: its timing and wiring. The rules themselves hold 10 s of every
+    # kind of noise in test_event_rules, on a simulated clock.
     boundary = 0.3  # m
+    rest_time = 3.0  # s
     rules = DEFAULTS['rules'] + yaml.safe_dump({
         'near': {'kind': 'zone_entered', 'task': 'avoid', 'distance': boundary},
         'away': {'kind': 'zone_left', 'task': 'follow', 'distance': boundary}})
@@ -172,15 +175,15 @@ def test_a_hand_resting_on_a_zone_boundary_with_5_mm_noise_fires_nothing_for_10_
     task_state(probe, 'follow')  # the default approach rule is armed
     detector = start_detector(nodes, tmp_path, rules)
     rng = np.random.default_rng(35)
-    noise = rng.uniform(-0.005, 0.005, size=(int(10.5 * HAND_RATE) + 10, 2))
+    noise = rng.uniform(-0.005, 0.005, size=(int((rest_time + 0.5) * HAND_RATE) + 10, 2))
     rest = TOOL + [boundary, 0.0]
-    Script(probe, lambda t: rest + noise[int(t * HAND_RATE)], lambda t: TOOL, 10.5).start() \
-        .join()
+    Script(probe, lambda t: rest + noise[int(t * HAND_RATE)], lambda t: TOOL,
+           rest_time + 0.5).start().join()
     time.sleep(0.3)
     seen = np.array([m.separation for m in separation])
     print(f'resting hand: {seen.size} separations in [{seen.min():.4f}, {seen.max():.4f}] m, '
           f'human speed up to {max(abs(m.human_speed) for m in separation):.3f} m/s')
-    assert seen.size >= 10.0 * 50 * 0.8 and seen.min() < boundary < seen.max()
+    assert seen.size >= rest_time * 50 * 0.8 and seen.min() < boundary < seen.max()
     assert events == [], detector.log()
 
 

@@ -293,9 +293,9 @@ def test_a_lost_hand_fades_the_task_out_and_in_again(nodes, probe):
 
 
 def test_hand_sim_replays_a_take_at_its_pace_in_the_base_frame(nodes, probe):
-    # Hammering at half speed: frames 20 ms apart on the replay's clock; the cameras lost
-    # the hand in frames 202-400 (but 276): nothing is published for them.
-    take, scale = TAKES / 'CollaborativeHammering_1.csv', 2.0
+    # Hammering slowed down by a quarter: frames 12.5 ms apart on the replay's clock; the
+    # cameras lost the hand in frames 202-400 (but 276): nothing is published for them.
+    take, scale = TAKES / 'CollaborativeHammering_1.csv', 1.25
     placement = Placement((0.1, -0.2, -0.5), 0.7)
     motion = read_vicon_csv(take, placement=placement, time_scale=scale)
     targets = RawListener(probe, topics.TARGET.name, PointStamped, topics.TARGET.qos)
@@ -310,7 +310,8 @@ def test_hand_sim_replays_a_take_at_its_pace_in_the_base_frame(nodes, probe):
                        for i in (0, -1))
         return stamp_seconds(last.header.stamp) - stamp_seconds(first.header.stamp)
 
-    assert wait_for(lambda: replayed() > 8.5, 30.0), hand.log()
+    # Past frame 400 (5 s on the replay's clock).
+    assert wait_for(lambda: replayed() > 5.3, 30.0), hand.log()
     messages = [deserialize_message(data, PointStamped) for _, data, _ in targets.arrivals]
     points = np.array([(m.point.x, m.point.y, m.point.z) for m in messages])
     # The probe may have matched after the first frames: which frame the first one heard is

@@ -291,7 +291,7 @@ def test_bag_play_is_recorded_again_message_for_message(nodes, ros_domain, tmp_p
     # has everything (with 5 s, a recorder slowed down beside the unit tests had 3883 of 12246
     # when play ended, and the rest went with it).
     play = ros2(ros_domain, 'bag', 'play', FOLLOW_BAG, '--rate', '2', '--topics', *topics,
-                '--delay', '2', '--wait-for-all-acked', '30000',
+                '--delay', '1', '--wait-for-all-acked', '30000',
                 '--qos-profile-overrides-path', str(overrides), timeout=90.0)
     assert (play.returncode, play.stdout, play.stderr) == (0, '', '')
     with Reader(FOLLOW_BAG) as reader:

@@ -15,15 +15,21 @@ import os
 from pathlib import Path
 
 import pytest
-from hypothesis import settings
 
 PACKAGE_SOURCES = Path(__file__).resolve().parent / 'ros2_ws' / 'src'
 # The markers that say a test starts ROS processes (one implies the others).
 TOPIC_MARKERS = ('topic', 'integration', 'exclusive')
+# scripts/test.sh's topic-level phases (HRI_TEST_SCOPE, pytest_ignore_collect below).
+TOPIC_SCOPE = os.environ.get('HRI_TEST_SCOPE') in ('topic', 'integration')
 
-settings.register_profile('repository', derandomize=True, database=None, deadline=None,
-                          print_blob=True)
-settings.load_profile('repository')
+# Only where property tests are collected: hypothesis's import took 1.2 s of CPU in each of
+# the topic-level phases' pytest processes, which hold none.
+if not TOPIC_SCOPE:
+    from hypothesis import settings
+
+    settings.register_profile('repository', derandomize=True, database=None, deadline=None,
+                              print_blob=True)
+    settings.load_profile('repository')
 
 
 def pytest_configure(config) -> None:
@@ -46,8 +52,7 @@ def pytest_ignore_collect(collection_path: Path, config) -> bool | None:
     topic-level phases) the packages' unit tests are not collected: they hold no topic-level
     test, and collecting them (their imports: scipy, hypothesis and all) took each pytest
     process about 4 s of CPU."""
-    if os.environ.get('HRI_TEST_SCOPE') in ('topic', 'integration') and \
-            collection_path.is_relative_to(PACKAGE_SOURCES):
+    if TOPIC_SCOPE and collection_path.is_relative_to(PACKAGE_SOURCES):
         return True
     return None
 

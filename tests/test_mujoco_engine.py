@@ -29,7 +29,7 @@ from hri_core import topics
 from hri_core.bodies import human_capsules
 from hri_core.robot_model import generic_model, robot_model
 from hri_core.task_file import load_task_file
-from tests.fault_tools import effort_change_per_step, from_the_first_command
+from tests.fault_tools import RawListener, effort_change_per_step, from_the_first_command
 from tests.test_panda_loop import (
     HAND_OFFSET,
     MAX_STEP,
@@ -109,15 +109,20 @@ def test_a_forearm_standing_into_the_scara_gives_mujocos_contacts_until_pushed_c
     is within 10 % of the one MuJoCo gives, in a twin of the simulated arm built here, for
     the same step: the state the step started from (the /joint_states before it), the
     torque it applied (its own /joint_states effort) and the forearm where it stood."""
-    contacts = probe.collect(topics.CONTACTS.name, topics.CONTACTS.type, topics.CONTACTS.qos)
-    states = probe.collect(topics.JOINT_STATES.name, topics.JOINT_STATES.type,
-                           topics.JOINT_STATES.qos)
+    # Taken in bulk, 1000 deep: the push clear lasts a few 1 kHz steps, and the probe's
+    # executor, stalled beside the other tests, let a 10-deep history overwrite every message
+    # with a force (one fresh-clone run received only the zero-force contacts after them).
+    contacts = RawListener(probe, topics.CONTACTS.name, topics.CONTACTS.type)
+    states = RawListener(probe, topics.JOINT_STATES.name, topics.JOINT_STATES.type)
     sim = nodes('scara_sim', 'arm_sim', params=SCARA_MUJOCO)
     assert sim.wait_for_line('simulating scara', START_TIMEOUT), sim.log()
     body = probe.publisher(topics.HUMAN_BODY.name, topics.HUMAN_BODY.type,
                            topics.HUMAN_BODY.qos)
     release = probe.publisher(topics.EFFORT_COMMANDS.name, Float64MultiArray,
                               topics.EFFORT_COMMANDS.qos)
+    # The forearm only once the contacts can be heard: the sim and the probe matched.
+    assert wait_for(lambda: probe.node.count_publishers(topics.CONTACTS.name) > 0
+                    and body.get_subscription_count() > 0, START_TIMEOUT), sim.log()
     x, y = 0.2, 0.05 + 0.066 - 0.01  # m: the forearm's axis, 1 cm into link 1
     names, ends = ['r_elbow', 'r_wrist'], [(x, y, -0.3), (x, y, 0.5)]
     msg = topics.HUMAN_BODY.type(names=names, points=[Point(x=a, y=b, z=c) for a, b, c in ends])
@@ -129,10 +134,10 @@ def test_a_forearm_standing_into_the_scara_gives_mujocos_contacts_until_pushed_c
         release.publish(Float64MultiArray(data=[0.0, 0.0]))
         return False
 
-    wait_for(lambda: publish() or (contacts and not contacts[-1].normal_forces), 10.0,
+    wait_for(lambda: publish() or (contacts and not contacts.last().normal_forces), 10.0,
              period=0.05)
     time.sleep(0.1)  # the last joint states
-    received = list(contacts)
+    received = contacts.messages()
     assert received, sim.log()
     touching = [m for m in received if m.normal_forces]
     assert touching and not received[-1].normal_forces, [len(m.normal_forces) for m in received]
@@ -147,7 +152,7 @@ def test_a_forearm_standing_into_the_scara_gives_mujocos_contacts_until_pushed_c
     assert peak > 0.0
     twin = scara_twin()
     twin.set_body(human_capsules(names, ends))
-    compared = steps_and_states_before(touching, list(states))
+    compared = steps_and_states_before(touching, states.messages())
     assert len(compared) >= len(touching) // 2, (len(compared), len(touching))
     worst = 0.0
     for message, state, before in compared:

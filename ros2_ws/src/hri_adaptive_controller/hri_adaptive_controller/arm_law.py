@@ -1482,18 +1482,3 @@ class ArmController(TaskDrives):
         zero = np.zeros(self.model.dof)
         return ArmOutput(zero, zero.copy(), zero.copy(), zero.copy(), zero.copy(), None, None,
                          0.0, self._theta.copy(), False, True, reason)
-
-
-def rk4_step(model: RobotModel, q, dq, tau, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(q, qdot) after dt (s) under the constant torque tau (n,): one classical Runge-Kutta
-    step of the model's forward dynamics (RobotModel.forward_dynamics; for tests and pure
-    closed loops)."""
-    def derivative(position, velocity):
-        return velocity, model.forward_dynamics(position, velocity, tau)
-
-    k1q, k1v = derivative(q, dq)
-    k2q, k2v = derivative(q + 0.5 * dt * k1q, dq + 0.5 * dt * k1v)
-    k3q, k3v = derivative(q + 0.5 * dt * k2q, dq + 0.5 * dt * k2v)
-    k4q, k4v = derivative(q + dt * k3q, dq + dt * k3v)
-    return (q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q),
-            dq + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))

@@ -4,7 +4,7 @@ Each control period dt (s) the loop takes the events due, evaluates a(E, t) (eve
 eq. 13), samples the target trajectory, computes the torque of eq. 16 (arm_law.ArmController),
 limits its rate (effort_rate, gains.max_effort_rate, as the controller node), advances
 theta_hat by eq. 19 unless the limit changed the torque (as the node), and integrates the true
-arm (arm_law.rk4_step of the RobotModel's forward dynamics, eq. 15, torque held over the
+arm (RobotModel.rk4_step of the model's forward dynamics, eq. 15, torque held over the
 step). The arm is any RobotModel: the SCARA (the default), the Panda or a URDF arm; the
 controller knows a nominal model and starts from a wrong estimate where asked. It is what the
 unit tests and the benchmarks run; the ROS nodes run the same library against topics.
@@ -37,7 +37,6 @@ from hri_adaptive_controller.arm_law import (
     ArmGains,
     HandState,
     default_gains,
-    rk4_step,
 )
 from hri_adaptive_controller.effort_rate import EffortRateLimiter
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
@@ -198,7 +197,7 @@ class LoopConditions:
     none), which the law keeps every robot capsule clear of when robot_body
     (hri_core.bodies.RobotBody of the model) is given; the smallest robot-person distance is
     recorded either way (SimulationResult.body_distance). plant: another engine integrating
-    the arm in place of arm_law.rk4_step and the stops (None: those): an object with
+    the arm in place of RobotModel.rk4_step and the stops (None: those): an object with
     ArmSimulator's `step(mode, command, wrench)` contract (q, dq and the applied torque as
     tuples after one step of dt) and its `q`, `dq` as the start (q0, dq0 then unused), e.g.
     scara_sim's MujocoArmSimulator; with a body and the plant's `touches_bodies`, each new
@@ -388,7 +387,7 @@ class _Run:
         if c.plant is not None:
             self.q, self.dq = self._plant_step(t, applied)
             return
-        q_next, dq_next = rk4_step(self.arm, q, dq, applied, dt)
+        q_next, dq_next = self.arm.rk4_step(q, dq, applied, dt)
         if not (np.all(np.isfinite(q_next)) and np.all(np.isfinite(dq_next))):
             raise ValueError(f'the arm\'s state became non-finite at t = {t:.3f} s')
         if c.stops:  # the simulators' inelastic stop (simulation.clamp_to_joint_limits)

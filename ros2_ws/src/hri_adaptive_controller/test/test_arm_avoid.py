@@ -10,7 +10,6 @@ from hri_adaptive_controller.arm_law import (
     ActiveTask,
     ArmController,
     HandState,
-    rk4_step,
 )
 from hri_adaptive_controller.controller_node import rest_position_from
 from hri_adaptive_controller.event_weight import quintic_smoothstep
@@ -69,7 +68,7 @@ def run(nominal, hand, task, duration, seed, gains=PANDA_GAINS, rest=None, monit
                                                            np.full(nominal.dof, FRICTION)))
             record['exact'].append(out.damping == 0.0 and out.near == 0.0
                                    and not out.torque_limited)
-        q, dq = rk4_step(true, q, dq, out.tau, DT)
+        q, dq = true.rk4_step(q, dq, out.tau, DT)
     return {key: np.array(value) for key, value in record.items()}
 
 

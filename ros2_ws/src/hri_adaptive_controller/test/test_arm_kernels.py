@@ -20,7 +20,6 @@ from hri_adaptive_controller.arm_law import (
     body_barrier,
     default_arm_ks,
     default_gains,
-    rk4_step,
 )
 from hri_adaptive_controller.task_variable import SECH_LIMIT, damped_pseudo_inverse, speed_cap
 from hri_core.bodies import human_capsules, panda_package_dirs, robot_body
@@ -258,7 +257,7 @@ def test_a_closed_loop_follows_the_same_path_compiled(panda, arm, hand_at):
         outs = [law.step(q, dq, hand, task, DT) for law, (q, dq) in zip(laws, states, strict=True)]
         assert_same(*outs)
         blended, near = blended + (outs[0].blend > 0.0), near + (outs[0].near > 0.0)
-        states = [rk4_step(model, q, dq, out.tau, DT)
+        states = [model.rk4_step(q, dq, out.tau, DT)
                   for (q, dq), out in zip(states, outs, strict=True)]
         assert math.isfinite(outs[0].distance)
     close(states[0][0], states[1][0], 'q after 1.5 s')
@@ -282,7 +281,7 @@ def test_a_three_joint_arm_has_no_null_space_and_the_same_path(tmp_path):
         outs = [law.step(q, dq, hand, task, DT) for law, (q, dq) in zip(laws, states,
                                                                          strict=True)]
         assert_same(*outs)
-        states = [rk4_step(model, q, dq, out.tau, DT)
+        states = [model.rk4_step(q, dq, out.tau, DT)
                   for (q, dq), out in zip(states, outs, strict=True)]
     close(states[0][0], states[1][0], 'q after 1.5 s')
     assert outs[0].distance < 0.1  # it followed the hand (0.21 m away at the start)

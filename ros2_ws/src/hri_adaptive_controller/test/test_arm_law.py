@@ -21,7 +21,6 @@ from hri_adaptive_controller.arm_law import (
     HandState,
     default_arm_ks,
     default_gains,
-    rk4_step,
     task_term,
 )
 from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_target
@@ -79,7 +78,7 @@ def run(nominal, seed, duration, monitor=False):
         record['speed'].append(float(np.linalg.norm(nominal.tool_jacobian(q) @ dq)))
         if monitor:
             record['V'].append(controller.lyapunov(out, q, task, true))
-        q, dq = rk4_step(true, q, dq, out.tau, DT)
+        q, dq = true.rk4_step(q, dq, out.tau, DT)
     return {key: np.array(value) for key, value in record.items()}, controller
 
 
@@ -280,7 +279,7 @@ def test_avoid_backs_away_from_a_hand_reaching_in_along_z(panda):
             steps.append(np.abs(out.tau - previous).max())
         previous = out.tau
         distances.append(out.distance)
-        q, dq = rk4_step(true, q, dq, out.tau, DT)
+        q, dq = true.rk4_step(q, dq, out.tau, DT)
     # The hand came within the retreat's reach (task_variable.retreat_term), and the arm
     # backed away as fast as it came.
     assert min(distances) < avoid.d1 + RETREAT_REACH
@@ -390,7 +389,7 @@ def test_a_joint_started_in_its_limit_band_is_pushed_out(panda):
         assert np.all(np.abs(out.tau) <= panda.limits.effort)
         nears.append(out.near)
         distances.append(out.distance)
-        q, dq = rk4_step(true, q, dq, out.tau, DT)
+        q, dq = true.rk4_step(q, dq, out.tau, DT)
     assert nears[0] > 0.0 and nears[-1] == 0.0
     assert panda.limits.upper[3] - q[3] > PANDA_GAINS.limit_band
     assert max(distances) <= FOLLOW.d2
@@ -426,7 +425,7 @@ def test_a_urdf_arm_without_gains_of_its_own_follows_a_still_hand(urdf):
         assert not out.fault, out.fault_reason
         assert np.all(np.abs(out.tau) <= model.limits.effort + 1e-9)
         distances.append(out.distance)
-        q, dq = rk4_step(model, q, dq, out.tau, DT)
+        q, dq = model.rk4_step(q, dq, out.tau, DT)
     entered = int(np.argmax(np.array(distances) <= FOLLOW.d2))
     assert distances[entered] <= FOLLOW.d2 and entered * DT <= 3.0, min(distances)
     assert max(distances[entered:]) <= FOLLOW.d2 + 0.005

@@ -19,7 +19,6 @@ from hri_adaptive_controller.arm_law import (
     ArmController,
     HandState,
     predicted_lyapunov_rate,
-    rk4_step,
 )
 from hri_adaptive_controller.closed_loop import minimum_jerk_target
 from hri_core.dynamics import ScaraParameters, dynamic_parameters
@@ -58,7 +57,7 @@ def pure_loop(shape, start, end, duration, hand_speed=HAND_SPEED):
         rows.append((controller.lyapunov(out, q, task, ARM),
                      controller.lyapunov_rate(out, task, friction), out.distance, exact,
                      float(np.linalg.norm(xdot_d))))
-        q, dq = rk4_step(ARM, q, dq, out.tau, DT)
+        q, dq = ARM.rk4_step(q, dq, out.tau, DT)
     return np.array(rows, dtype=float).T
 
 

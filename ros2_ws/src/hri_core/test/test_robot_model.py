@@ -18,6 +18,7 @@ from hri_core.robot_model import (
     ROBOT_NAMES,
     ROBOTS,
     PinocchioModel,
+    RobotModel,
     ScaraModel,
     robot_model,
     scara_urdf,
@@ -355,3 +356,17 @@ def test_without_example_robot_data_the_panda_is_one_line(monkeypatch):
     monkeypatch.setenv('AMENT_PREFIX_PATH', '/nonexistent')
     with pytest.raises(ValueError, match='robot panda needs the example-robot-data package'):
         robot_model('panda')
+
+
+def test_the_scaras_float_rk4_step_is_the_models_to_the_bit():
+    # ScaraModel.rk4_step takes scara_sim's float step for speed; it must be the same step.
+    rng = np.random.default_rng(SEED)
+    model = ScaraModel()
+    for _ in range(STATE_COUNT):
+        q = rng.uniform(model.limits.lower, model.limits.upper)
+        dq, tau = rng.uniform(-MAX_SPEED, MAX_SPEED, 2), rng.uniform(-20.0, 20.0, 2)
+        fast, generic = model.rk4_step(q, dq, tau, 1e-3), RobotModel.rk4_step(model, q, dq,
+                                                                               tau, 1e-3)
+        for mine, theirs in zip(fast, generic, strict=True):
+            assert mine.shape == theirs.shape == (2,)
+            assert np.array_equal(mine, theirs)

@@ -452,7 +452,6 @@ class ScaraModel(RobotModel):
                                                   self._constants)
         return np.array((q1, q2)), np.array((v1, v2))
 
-
     def joint_frames(self, q) -> tuple[np.ndarray, np.ndarray]:
         """RobotModel.joint_frames: the base, joint 1 at the base turned by q1, joint 2 at the
         elbow turned by q1 + q2, both about z."""

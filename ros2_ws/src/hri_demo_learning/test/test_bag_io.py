@@ -13,6 +13,7 @@ from hri_core.dynamics import forward_kinematics
 from hri_demo_learning.bag_io import (
     BagError,
     BagWriter,
+    PayloadTable,
     jazzy_typestore,
     read_bag,
     read_demonstration,
@@ -485,11 +486,30 @@ def test_mcap_walk_reads_what_rosbags_reads(bag):
         assert [bytes(p) for p in kept] == payloads, topic
 
 
-def test_mcap_walk_reads_zstd_chunks_through_rosbags(tmp_path):
+def test_mcap_walk_reads_zstd_chunks_as_rosbags_reads_them(tmp_path):
     bag = tmp_path / 'zstd'
     write_demo_bag(bag, count=500, flush_every=100, compression='zstd')
     contents = read_bag(bag, raw_types={JOINT_STATE, POINT_STAMPED})
     reference = rosbags_messages(bag)
     for topic, (stamps, payloads) in reference.items():
+        # The walk's table of payloads, not rosbags' list of them.
+        assert isinstance(contents.topics[topic].raw, PayloadTable), topic
         assert contents.topics[topic].timestamps_ns == stamps
         assert [bytes(p) for p in contents.topics[topic].raw] == payloads
+
+
+def test_a_zstd_chunk_that_does_not_inflate_to_its_size_is_refused_in_one_line(tmp_path):
+    bag = tmp_path / 'zstd'
+    write_demo_bag(bag, count=500, flush_every=100, compression='zstd')
+    mcap = bag / 'zstd.mcap'
+    with mcap.open('rb') as stream:
+        first = make_reader(stream).get_summary().chunk_indexes[0]
+    data = bytearray(mcap.read_bytes())
+    # The chunk record's uncompressed size: after its opcode, length, start and end time.
+    size_at = first.chunk_start_offset + 9 + 16
+    size = int.from_bytes(data[size_at:size_at + 8], 'little')
+    data[size_at:size_at + 8] = (size + 1).to_bytes(8, 'little')
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(BagError, match='is truncated or corrupt: .*does not inflate') as error:
+        read_bag(bag)
+    assert '\n' not in str(error.value)

@@ -13,6 +13,7 @@ d1 - 3 cm. Nothing is tuned per take. To keep the unit suite quick each take is 
 its first CROP s (8-21 s recorded), each (take, task) a test of its own.
 """
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -46,12 +47,19 @@ def task(name: str) -> TaskShape:
     return record.shape
 
 
-def replay(path: Path, name: str):
-    """(metrics, result) of the take at `path` with the task `name`."""
+@functools.cache
+def placed_take(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The take at `path` placed within reach and cropped: (times (N,) s, hand (N, 3) m),
+    once per take for its follow and avoid cases."""
     placement = choose_placement(read_vicon_csv(path).positions, REACH)
     motion = read_vicon_csv(path, placement=placement)
     keep = motion.times <= CROP
-    times, positions = motion.times[keep], motion.positions[keep]
+    return motion.times[keep], motion.positions[keep]
+
+
+def replay(path: Path, name: str):
+    """(metrics, result) of the take at `path` with the task `name`."""
+    times, positions = placed_take(path)
     shape = task(name)
     result = simulate({name: shape}, [(0.0, name)], recorded_target(times, positions),
                       float(times[-1]), LoopConditions(arm=ARM, monitor=False,

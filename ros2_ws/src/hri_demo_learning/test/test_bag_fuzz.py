@@ -98,7 +98,7 @@ def _alarm(_signum, _frame):
     raise CaseTimeoutError
 
 
-# 200 bags of up to 10 s each; 57 s at SCHED_IDLE beside the loop tests (scripts/test.sh).
+# 200 bags of up to 10 s each: 6 s in all, alone on this machine.
 @pytest.mark.first
 @pytest.mark.timeout(600)
 def test_mutated_bags_are_learned_or_refused_in_one_line(tmp_path):

@@ -89,7 +89,12 @@ from hri_adaptive_controller.separation_cap import SeparationCap
 from hri_adaptive_controller.signal_hold import TaskWeightHold
 from hri_adaptive_controller.target_filter import FilteredHand, TargetFilterSettings
 from hri_adaptive_controller.task_variable import CAP_BAND
-from hri_core.bodies import RobotBody, body_point_velocities, human_capsules
+from hri_core.bodies import (
+    RobotBody,
+    body_point_velocities,
+    human_capsules,
+    seen_body_points,
+)
 from hri_core.potential import TaskShape
 from hri_core.separation import ProtectiveSeparation
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
@@ -447,10 +452,12 @@ class ControlCycle:
         received at `now`, stamped `stamp` (s; None: now): their capsules
         (hri_core.bodies.human_capsules), moving at the velocities from the body before (its
         stamp's difference; still after a gap longer than body_timeout), are what the law
-        keeps clear of until body_timeout s without a body. False (the body dropped, a
-        throttled warning) for a bad message."""
+        keeps clear of until body_timeout s without a body. A non-finite point counts as lost
+        (a throttled warning names it) and the rest of the body is kept. False (the body
+        dropped, a throttled warning) for a bad message."""
         stamp = now if stamp is None else stamp
         try:
+            names, points, lost = seen_body_points(names, points)
             before, then = self._human_points
             seconds = stamp - then if stamp - then <= self.settings.body_timeout else 0.0
             velocities = body_point_velocities(names, points, before, seconds)
@@ -458,8 +465,9 @@ class ControlCycle:
         except ValueError as error:
             self._warn('body', f'body dropped: {error}')
             return False
-        self._human_points = (dict(zip(names, np.asarray(points, dtype=float).reshape(-1, 3),
-                                       strict=True)), stamp)
+        if lost:
+            self._warn('body_lost', f'body points not finite, taken as lost: {", ".join(lost)}')
+        self._human_points = (dict(zip(names, points, strict=True)), stamp)
         if self._human_time is not None and now - self._human_time > self.settings.body_timeout:
             self._info('the body is back: keeping clear of it again')
         self._human_time = now

@@ -45,7 +45,7 @@ from sensor_msgs.msg import JointState
 from hri_adaptive_controller.event_rules import EventDetector, RuleError, load_rules
 from hri_adaptive_controller.separation_monitor import BodySeparation, SeparationMonitor
 from hri_core import topics
-from hri_core.bodies import panda_package_dirs, robot_body
+from hri_core.bodies import panda_package_dirs, robot_body, seen_body_points
 from hri_core.cdr import LayoutReader, point3_layout, point_stamped_layout, read_stamp
 from hri_core.node_common import (
     ParameterSpec,
@@ -239,11 +239,16 @@ class EventDetectorNode(Node):
         for data, _ in take_raw(self._body_sub):
             try:
                 msg = deserialize_message(data, topics.HUMAN_BODY.type)
-                points = [(p.x, p.y, p.z) for p in msg.points]
+                names, points, lost = seen_body_points(
+                    msg.names, [(p.x, p.y, p.z) for p in msg.points])
                 stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-                self._body.body(list(msg.names), points, stamp, now)
+                self._body.body(names, points, stamp, now)
             except Exception as error:  # noqa: BLE001 the deserialiser's or ours (ValueError)
                 self._warn('body_bad', f'human body dropped: {error}')
+                continue
+            if lost:
+                self._warn('body_lost', f'human body points not finite, taken as lost: '
+                           f'{", ".join(lost)}')
         latest = None
         for data, _ in take_raw(self._joint_sub):
             latest = data

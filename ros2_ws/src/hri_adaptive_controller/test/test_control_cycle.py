@@ -609,4 +609,22 @@ def test_a_body_moves_at_the_speed_of_its_stamped_frames_and_a_gap_leaves_it_sti
                       stamp=50.03 + timeout)
     assert np.linalg.norm(cycle._body_at(T0 + 0.05 + timeout).velocity_a) == \
         pytest.approx(3.0)
-    assert not cycle.body(T0 + 0.06 + timeout, ['head'], [(float('nan'), 0.0, 1.0)])
+    assert not cycle.body(T0 + 0.06 + timeout, ['head', 'head'], [(1.0, 0.0, 1.0)] * 2)
+
+
+def test_a_body_point_sent_as_nan_is_lost_and_the_rest_of_the_body_kept(scara):
+    """A tracker that marks an occluded joint with NaN: the torso's capsule stays (the message
+    is not dropped), the head's is gone, a warning names it; the head back in the next frame
+    comes still, not at a speed from the NaN."""
+    rig = Rig(scara)
+    cycle = rig.cycle
+    names = ['head', 'torso', 'body']
+    standing = [(1.0, 0.0, 1.6), (1.0, 0.0, 1.3), (1.0, 0.0, 0.9)]
+    assert cycle.body(T0, names, standing, stamp=50.0)
+    assert cycle.body(T0 + 0.01, names, [(float('nan'), 0.0, 1.6), *standing[1:]], stamp=50.01)
+    assert cycle._body_at(T0 + 0.01).names == ('torso',)
+    assert texts(rig.notes, WARNING)[-1] == 'body points not finite, taken as lost: head'
+    assert cycle.body(T0 + 0.02, names, standing, stamp=50.02)
+    human = cycle._body_at(T0 + 0.02)
+    assert human.names == ('head', 'torso')
+    np.testing.assert_array_equal(human.velocity_a, np.zeros((2, 3)))

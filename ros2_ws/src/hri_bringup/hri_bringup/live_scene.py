@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hri_core.bodies import Capsules, capsule_distances, human_capsules
+from hri_core.bodies import Capsules, capsule_distances, human_capsules, seen_body_points
 from hri_core.dynamics import forward_kinematics
 from hri_core.robot_model import KNOWN_TOOL_FRAMES, ROBOT_NAMES, PinocchioModel
 
@@ -348,9 +348,10 @@ def capsules_entity(entity_id: str, capsules: Capsules | None, colour: Rgba) -> 
 
 def person_capsules(names, points) -> Capsules | None:
     """The person's capsules from REP-155 body point names (K,) and points (K, 3) m
-    (/human/body); None without a body, or for one the capsules refuse."""
+    (/human/body); None without a body, or for one the capsules refuse. Non-finite points
+    are lost ones (seen_body_points): the rest is drawn."""
     try:
-        capsules = human_capsules(tuple(names), np.asarray(points, dtype=float).reshape(-1, 3))
+        capsules = human_capsules(*seen_body_points(names, points)[:2])
     except ValueError:
         return None
     return capsules if len(capsules) else None

@@ -147,11 +147,31 @@ def body_point_velocities(names, points, before: dict, seconds: float) -> np.nda
     return velocities
 
 
+def seen_body_points(names, points) -> tuple[tuple, np.ndarray, tuple]:
+    """A body message's points split into those seen and those lost: (names (K',), points
+    (K', 3) m) of the finite ones and the names (tuple) of the others. A tracker may mark a
+    joint it lost with NaN where REP-155's publisher leaves it out: such a point counts as
+    lost, and the rest of the body stays (dropping the whole message would leave the person
+    unguarded for as long as one joint stays occluded). ValueError (one line) where the
+    names and points do not pair up."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    names = tuple(names)
+    if len(names) != len(points):
+        raise ValueError(f'{len(names)} names for {len(points)} points')
+    finite = np.all(np.isfinite(points), axis=1)
+    if finite.all():
+        return names, points, ()
+    return (tuple(name for name, seen in zip(names, finite, strict=True) if seen),
+            points[finite],
+            tuple(name for name, seen in zip(names, finite, strict=True) if not seen))
+
+
 def human_capsules(names, points, radii=None, velocities=None) -> Capsules:
     """The person's capsules (HUMAN_CAPSULES) from REP-155 names (K,) and points (K, 3) m;
     radii: {part: m} overriding HUMAN_RADII; velocities (K, 3) m/s of the points (None:
     still), the capsules' ends move with them. A capsule with a point missing is left out.
-    ValueError (one line) for non-finite points, repeated names or a bad radius."""
+    ValueError (one line) for non-finite points (a message's lost ones are left out first:
+    seen_body_points), repeated names or a bad radius."""
     radii = {**HUMAN_RADII, **(radii or {})}
     for part, value in radii.items():
         if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):

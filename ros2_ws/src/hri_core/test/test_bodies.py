@@ -17,6 +17,7 @@ from hri_core.bodies import (
     panda_package_dirs,
     pinocchio_chain,
     robot_body,
+    seen_body_points,
 )
 from hri_core.human_body import BODY_POINTS, standing_body
 from hri_core.robot_model import robot_model
@@ -305,6 +306,19 @@ def test_the_persons_capsules_leave_out_what_is_missing():
 def test_bad_body_points_are_one_line(names, points, reason):
     with pytest.raises(ValueError, match=reason):
         human_capsules(names, points)
+
+
+def test_a_body_points_nan_are_lost_points_and_the_rest_is_kept():
+    names = ['head', 'torso', 'body', 'r_wrist']
+    points = [[1.0, 0.0, 1.6], [1.0, 0.0, 1.3], [1.0, 0.0, 0.9], [math.nan, 0.5, 1.0]]
+    seen, kept, lost = seen_body_points(names, points)
+    assert (seen, lost) == (('head', 'torso', 'body'), ('r_wrist',))
+    np.testing.assert_array_equal(kept, np.array(points[:3]))
+    assert human_capsules(seen, kept).names == ('head', 'torso')
+    everything = seen_body_points(names[:3], points[:3])
+    assert everything[0] == tuple(names[:3]) and everything[2] == ()
+    with pytest.raises(ValueError, match='4 names for 3 points'):
+        seen_body_points(names, points[:3])
 
 
 def test_fastest_speed_is_the_fastest_capsule_end():

@@ -56,7 +56,7 @@ import numpy as np
 from geometry_msgs.msg import Point, WrenchStamped
 
 from hri_core import topics
-from hri_core.bodies import human_capsules
+from hri_core.bodies import human_capsules, seen_body_points
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -209,13 +209,16 @@ class ArmSim(SteppedSimNode):
         try:
             if frame not in ('', self._frame):
                 raise ValueError(f'frame {frame!r} is not {self._frame!r}')
-            if len(msg.names) != len(msg.points):
-                raise ValueError(f'{len(msg.names)} names for {len(msg.points)} points')
-            capsules = human_capsules(msg.names, [(p.x, p.y, p.z) for p in msg.points])
+            names, points, lost = seen_body_points(msg.names,
+                                                   [(p.x, p.y, p.z) for p in msg.points])
+            capsules = human_capsules(names, points)
         except ValueError as error:
             self.get_logger().warning(f'rejected /human/body: {error}',
                                       throttle_duration_sec=WARN_THROTTLE)
             return
+        if lost:
+            self.get_logger().warning(f'/human/body points not finite, taken as lost: '
+                                      f'{", ".join(lost)}', throttle_duration_sec=WARN_THROTTLE)
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         last, self._last_body_stamp = self._last_body_stamp, stamp
         over = 0.0 if last is None else min(max(stamp - last, 0.0), LONGEST_BODY_BLEND)

@@ -11,7 +11,8 @@ head 0.434 m. `HUMAN_CAPSULES` lists the ten: the head a sphere round `head`, th
 `body` to `torso`, a shoulder from `torso` to each shoulder and the upper arm from there to the
 elbow (upper-arm radius), the forearm from elbow to wrist, the hand a sphere round the wrist
 (the Vicon hand segment's origin). A capsule one of whose points is missing in a message is
-left out.
+left out, but for the torso (`TRUNK_SPHERE`): with one of `body` and `torso` seen, a sphere of
+the torso's radius round it.
 
 **The robot** (`robot_body`): one capsule per link, fitted once at start. A URDF arm's from its
 collision geometry, loaded through pinocchio with coal (meshes as coal BVH models, boxes,
@@ -71,6 +72,11 @@ HUMAN_CAPSULES = (
     ('l_hand', 'l_wrist', 'l_wrist', 'hand'),
     ('r_hand', 'r_wrist', 'r_wrist', 'hand'),
 )
+# The capsule that becomes a sphere round its one point seen when the other is missing: the
+# trunk is what the clearance may never lose (its bar is on head, torso and hip), and a table
+# or the robot hides the hips from a tracker more often than any other part. An arm's capsule
+# with a point missing is left out: its other end may be anywhere within the segment's length.
+TRUNK_SPHERE = 'torso'
 SCARA_LINK_RADIUS = 0.05  # m, the SCARA's links (no collision geometry of its own)
 MAX_BODY_SPEED = 3.0  # m/s: a body point's speed between two frames is capped here (a glitch)
 _TINY = 1e-300  # a divisor floor: degenerate segments (spheres) never divide by zero
@@ -169,7 +175,8 @@ def seen_body_points(names, points) -> tuple[tuple, np.ndarray, tuple]:
 def human_capsules(names, points, radii=None, velocities=None) -> Capsules:
     """The person's capsules (HUMAN_CAPSULES) from REP-155 names (K,) and points (K, 3) m;
     radii: {part: m} overriding HUMAN_RADII; velocities (K, 3) m/s of the points (None:
-    still), the capsules' ends move with them. A capsule with a point missing is left out.
+    still), the capsules' ends move with them. A capsule with a point missing is left out
+    (the torso's: a sphere round the point seen, TRUNK_SPHERE).
     ValueError (one line) for non-finite points (a message's lost ones are left out first:
     seen_body_points), repeated names or a bad radius."""
     radii = {**HUMAN_RADII, **(radii or {})}
@@ -185,8 +192,13 @@ def human_capsules(names, points, radii=None, velocities=None) -> Capsules:
     if not np.all(np.isfinite(points)):
         raise ValueError('body points must be finite')
     where = dict(zip(names, points, strict=True))
-    kept = [(name, start, end, radii[part])
-            for name, start, end, part in HUMAN_CAPSULES if start in where and end in where]
+    kept = []
+    for name, start, end, part in HUMAN_CAPSULES:
+        if start not in where or end not in where:
+            if name != TRUNK_SPHERE or (start not in where and end not in where):
+                continue
+            start = end = start if start in where else end
+        kept.append((name, start, end, radii[part]))
     if not kept:
         return Capsules((), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     moving = None

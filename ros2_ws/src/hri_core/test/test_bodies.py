@@ -308,6 +308,20 @@ def test_bad_body_points_are_one_line(names, points, reason):
         human_capsules(names, points)
 
 
+def test_the_torso_with_one_of_its_points_lost_is_a_sphere_round_the_other():
+    # As in PickPlaceCloseHuman_2 (74 frames with one of hip and collar lost) and TossTheCan_0
+    # (12): the trunk is kept, where an arm's capsule with a point lost is left out.
+    collar, hip = [1.0, 0.0, 1.3], [1.0, 0.0, 0.9]
+    for names, points, centre in ((['torso'], [collar], collar), (['body'], [hip], hip)):
+        trunk = human_capsules(names, points)
+        assert trunk.names == ('torso',)
+        np.testing.assert_array_equal(trunk.a, [centre])
+        np.testing.assert_array_equal(trunk.b, [centre])
+        np.testing.assert_allclose(trunk.radius, [0.217])
+    assert human_capsules(['head'], [[1.0, 0.0, 1.6]]).names == ('head',)
+    assert human_capsules(['r_elbow'], [[1.0, 0.2, 1.1]]).names == ()
+
+
 def test_a_body_points_nan_are_lost_points_and_the_rest_is_kept():
     names = ['head', 'torso', 'body', 'r_wrist']
     points = [[1.0, 0.0, 1.6], [1.0, 0.0, 1.3], [1.0, 0.0, 0.9], [math.nan, 0.5, 1.0]]

@@ -56,9 +56,10 @@ def expected(points, names=BODY_POINTS):
 class Publisher:
     """/joint_states, /human/body (while `body_until` s, and until `body_stop()` is true once;
     `names` kept each frame; with `nan_lost` every other frame sends the others too, as NaN,
-    as a tracker may mark the joints it lost) and /target + /ee_position from a thread at RATE
-    for `duration` s, or until `until()` is true (then `duration` is the most: a loaded machine
-    slows the detector, not the check); `sent`: each body message's (stamp s, t s, points)."""
+    as a tracker may mark the joints it lost, and a point named 'neck') and /target +
+    /ee_position from a thread at RATE for `duration` s, or until `until()` is true (then
+    `duration` is the most: a loaded machine slows the detector, not the check); `sent`: each
+    body message's (stamp s, t s, points)."""
 
     def __init__(self, probe, duration, velocity=STILL, body_until=math.inf,
                  names=BODY_POINTS, until=None, body_stop=None, nan_lost=False):
@@ -106,6 +107,8 @@ class Publisher:
                 if self._nan_lost and len(self.sent) % 2:
                     names, sent = list(BODY_POINTS), body_at(t, self._velocity)
                     sent[[k for k in range(len(BODY_POINTS)) if k not in keep]] = math.nan
+                    # And a point under a name that is no REP-155 one: ignored, named.
+                    names, sent = [*names, 'neck'], np.vstack([sent, sent[:1]])
                 msg = HumanBody(names=names, points=[Point(x=float(x), y=float(y), z=float(z))
                                                      for x, y, z in sent])
                 msg.header.stamp = now
@@ -202,5 +205,6 @@ def test_missing_or_nan_segments_and_a_stale_body(nodes, probe, tmp_path):
     log = detector.log()
     assert log.count('human body stale') == 1, log
     assert 'human body points not finite, taken as lost: r_elbow, r_wrist' in log, log
+    assert 'human body points ignored: neck (not REP-155 body point names)' in log, log
     assert 'human body dropped' not in log, log
     assert 'Traceback' not in log

@@ -453,11 +453,12 @@ class ControlCycle:
         (hri_core.bodies.human_capsules), moving at the velocities from the body before (its
         stamp's difference; still after a gap longer than body_timeout), are what the law
         keeps clear of until body_timeout s without a body. A non-finite point counts as lost
-        (a throttled warning names it) and the rest of the body is kept. False (the body
-        dropped, a throttled warning) for a bad message."""
+        and a name that is no REP-155 body point is ignored (a throttled warning names each),
+        the rest of the body kept. False (the body dropped, a throttled warning) for a bad
+        message."""
         stamp = now if stamp is None else stamp
         try:
-            names, points, lost = seen_body_points(names, points)
+            names, points, lost, unknown = seen_body_points(names, points)
             before, then = self._human_points
             seconds = stamp - then if stamp - then <= self.settings.body_timeout else 0.0
             velocities = body_point_velocities(names, points, before, seconds)
@@ -467,6 +468,9 @@ class ControlCycle:
             return False
         if lost:
             self._warn('body_lost', f'body points not finite, taken as lost: {", ".join(lost)}')
+        if unknown:
+            self._warn('body_unknown', f'body points ignored: {", ".join(unknown)} (not '
+                       'REP-155 names: head, torso, l_/r_shoulder, l_/r_elbow, l_/r_wrist, body)')
         self._human_points = (dict(zip(names, points, strict=True)), stamp)
         if self._human_time is not None and now - self._human_time > self.settings.body_timeout:
             self._info('the body is back: keeping clear of it again')

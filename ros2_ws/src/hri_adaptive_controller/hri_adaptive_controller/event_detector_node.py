@@ -239,16 +239,18 @@ class EventDetectorNode(Node):
         for data, _ in take_raw(self._body_sub):
             try:
                 msg = deserialize_message(data, topics.HUMAN_BODY.type)
-                names, points, lost = seen_body_points(
-                    msg.names, [(p.x, p.y, p.z) for p in msg.points])
+                seen = seen_body_points(msg.names, [(p.x, p.y, p.z) for p in msg.points])
                 stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-                self._body.body(names, points, stamp, now)
+                self._body.body(seen.names, seen.points, stamp, now)
             except Exception as error:  # noqa: BLE001 the deserialiser's or ours (ValueError)
                 self._warn('body_bad', f'human body dropped: {error}')
                 continue
-            if lost:
+            if seen.lost:
                 self._warn('body_lost', f'human body points not finite, taken as lost: '
-                           f'{", ".join(lost)}')
+                           f'{", ".join(seen.lost)}')
+            if seen.unknown:
+                self._warn('body_unknown', f'human body points ignored: '
+                           f'{", ".join(seen.unknown)} (not REP-155 body point names)')
         latest = None
         for data, _ in take_raw(self._joint_sub):
             latest = data

@@ -615,7 +615,7 @@ def test_a_body_moves_at_the_speed_of_its_stamped_frames_and_a_gap_leaves_it_sti
 def test_a_body_point_sent_as_nan_is_lost_and_the_rest_of_the_body_kept(scara):
     """A tracker that marks an occluded joint with NaN: the torso's capsule stays (the message
     is not dropped), the head's is gone, a warning names it; the head back in the next frame
-    comes still, not at a speed from the NaN."""
+    comes still, not at a speed from the NaN. A name it does not know is named too."""
     rig = Rig(scara)
     cycle = rig.cycle
     names = ['head', 'torso', 'body']
@@ -628,3 +628,7 @@ def test_a_body_point_sent_as_nan_is_lost_and_the_rest_of_the_body_kept(scara):
     human = cycle._body_at(T0 + 0.02)
     assert human.names == ('head', 'torso')
     np.testing.assert_array_equal(human.velocity_a, np.zeros((2, 3)))
+    # A name that is no REP-155 point: named in a warning, the rest kept.
+    assert cycle.body(T0 + 0.03, ['Head', *names[1:]], standing, stamp=50.03)
+    assert cycle._body_at(T0 + 0.03).names == ('torso',)
+    assert texts(rig.notes, WARNING)[-1].startswith('body points ignored: Head (not REP-155')

@@ -72,6 +72,7 @@ HUMAN_CAPSULES = (
     ('l_hand', 'l_wrist', 'l_wrist', 'hand'),
     ('r_hand', 'r_wrist', 'r_wrist', 'hand'),
 )
+_BODY_POINT_NAMES = frozenset(point for capsule in HUMAN_CAPSULES for point in capsule[1:3])
 # The capsule that becomes a sphere round its one point seen when the other is missing: the
 # trunk is what the clearance may never lose (its bar is on head, torso and hip), and a table
 # or the robot hides the hips from a tracker more often than any other part. An arm's capsule
@@ -153,23 +154,38 @@ def body_point_velocities(names, points, before: dict, seconds: float) -> np.nda
     return velocities
 
 
-def seen_body_points(names, points) -> tuple[tuple, np.ndarray, tuple]:
-    """A body message's points split into those seen and those lost: (names (K',), points
-    (K', 3) m) of the finite ones and the names (tuple) of the others. A tracker may mark a
-    joint it lost with NaN where REP-155's publisher leaves it out: such a point counts as
-    lost, and the rest of the body stays (dropping the whole message would leave the person
-    unguarded for as long as one joint stays occluded). ValueError (one line) where the
-    names and points do not pair up."""
+class SeenBody(NamedTuple):
+    """A body message's points sorted (seen_body_points): names (K,) and points (K, 3) m of
+    the ones the capsules can use; lost: the names whose point is not finite; unknown: the
+    names that are no point of HUMAN_CAPSULES (ignored)."""
+    names: tuple
+    points: np.ndarray
+    lost: tuple
+    unknown: tuple
+
+
+def seen_body_points(names, points) -> SeenBody:
+    """A body message's points sorted into those the capsules use and those lost or unknown
+    (SeenBody). A tracker may mark a joint it lost with NaN where REP-155's publisher leaves
+    it out: such a point counts as lost, and the rest of the body stays (dropping the whole
+    message would leave the person unguarded for as long as one joint stays occluded). A
+    name that is no REP-155 point of the body model ('Head', 'head_1') is set apart for the
+    caller to name in a warning rather than ignored in silence. ValueError (one line) where
+    the names and points do not pair up."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     names = tuple(names)
     if len(names) != len(points):
         raise ValueError(f'{len(names)} names for {len(points)} points')
     finite = np.all(np.isfinite(points), axis=1)
-    if finite.all():
-        return names, points, ()
-    return (tuple(name for name, seen in zip(names, finite, strict=True) if seen),
-            points[finite],
-            tuple(name for name, seen in zip(names, finite, strict=True) if not seen))
+    known = np.array([name in _BODY_POINT_NAMES for name in names], dtype=bool)
+    if finite.all() and known.all():
+        return SeenBody(names, points, (), ())
+    used = finite & known
+    return SeenBody(tuple(name for name, keep in zip(names, used, strict=True) if keep),
+                    points[used],
+                    tuple(name for name, ok, kind in zip(names, finite, known, strict=True)
+                          if kind and not ok),
+                    tuple(name for name, kind in zip(names, known, strict=True) if not kind))
 
 
 def human_capsules(names, points, radii=None, velocities=None) -> Capsules:

@@ -325,12 +325,16 @@ def test_the_torso_with_one_of_its_points_lost_is_a_sphere_round_the_other():
 def test_a_body_points_nan_are_lost_points_and_the_rest_is_kept():
     names = ['head', 'torso', 'body', 'r_wrist']
     points = [[1.0, 0.0, 1.6], [1.0, 0.0, 1.3], [1.0, 0.0, 0.9], [math.nan, 0.5, 1.0]]
-    seen, kept, lost = seen_body_points(names, points)
-    assert (seen, lost) == (('head', 'torso', 'body'), ('r_wrist',))
+    seen, kept, lost, unknown = seen_body_points(names, points)
+    assert (seen, lost, unknown) == (('head', 'torso', 'body'), ('r_wrist',), ())
     np.testing.assert_array_equal(kept, np.array(points[:3]))
     assert human_capsules(seen, kept).names == ('head', 'torso')
     everything = seen_body_points(names[:3], points[:3])
-    assert everything[0] == tuple(names[:3]) and everything[2] == ()
+    assert everything.names == tuple(names[:3]) and everything.lost == ()
+    # Names that are no REP-155 body point: set apart to be named, not silently dropped.
+    other = seen_body_points(['Head', 'torso', 'head_1'], [[1.0, 0, 1.6], [1.0, 0, 1.3],
+                                                           [math.nan, 0, 0]])
+    assert (other.names, other.lost, other.unknown) == (('torso',), (), ('Head', 'head_1'))
     with pytest.raises(ValueError, match='4 names for 3 points'):
         seen_body_points(names, points[:3])
 

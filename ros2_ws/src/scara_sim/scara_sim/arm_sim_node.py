@@ -209,16 +209,17 @@ class ArmSim(SteppedSimNode):
         try:
             if frame not in ('', self._frame):
                 raise ValueError(f'frame {frame!r} is not {self._frame!r}')
-            names, points, lost = seen_body_points(msg.names,
-                                                   [(p.x, p.y, p.z) for p in msg.points])
-            capsules = human_capsules(names, points)
+            seen = seen_body_points(msg.names, [(p.x, p.y, p.z) for p in msg.points])
+            capsules = human_capsules(seen.names, seen.points)
         except ValueError as error:
             self.get_logger().warning(f'rejected /human/body: {error}',
                                       throttle_duration_sec=WARN_THROTTLE)
             return
-        if lost:
-            self.get_logger().warning(f'/human/body points not finite, taken as lost: '
-                                      f'{", ".join(lost)}', throttle_duration_sec=WARN_THROTTLE)
+        if seen.lost or seen.unknown:
+            self.get_logger().warning(
+                f'/human/body points lost (not finite): {", ".join(seen.lost) or "none"}; '
+                f'ignored (not REP-155 names): {", ".join(seen.unknown) or "none"}',
+                throttle_duration_sec=WARN_THROTTLE)
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         last, self._last_body_stamp = self._last_body_stamp, stamp
         over = 0.0 if last is None else min(max(stamp - last, 0.0), LONGEST_BODY_BLEND)

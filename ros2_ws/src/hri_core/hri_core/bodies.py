@@ -192,9 +192,9 @@ def human_capsules(names, points, radii=None, velocities=None) -> Capsules:
     """The person's capsules (HUMAN_CAPSULES) from REP-155 names (K,) and points (K, 3) m;
     radii: {part: m} overriding HUMAN_RADII; velocities (K, 3) m/s of the points (None:
     still), the capsules' ends move with them. A capsule with a point missing is left out
-    (the torso's: a sphere round the point seen, TRUNK_SPHERE).
-    ValueError (one line) for non-finite points (a message's lost ones are left out first:
-    seen_body_points), repeated names or a bad radius."""
+    (the torso's: a sphere round the point seen, TRUNK_SPHERE). ValueError (one line) for
+    non-finite points (a message's lost ones are left out first: seen_body_points), repeated
+    names or a bad radius."""
     radii = {**HUMAN_RADII, **(radii or {})}
     for part, value in radii.items():
         if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):

@@ -86,9 +86,15 @@ short) or the region lies beyond the reach (for a planar arm also: the straight 
 crosses the hole round its base), joint_limits.ReachRound's blend brings in the joint
 motion u towards an inverse-kinematics pose with sigma (a C2 ramp, slewed goal filter and
 capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
-so is the posture pull of the null space (the barrier's push is not). The blend stands down
-while the person's barrier holds the arm (its gate above REACH_ROUND_BODY_GATE): its pose
-does not know the person, and held against the barrier it kept sigma at 1 for good.
+so is the posture pull of the null space (the barrier's push is not). On an arm without a
+null space (the SCARA) the blend stands down while the person's barrier holds the arm (its
+gate above REACH_ROUND_BODY_GATE): its pose does not know the person, and held against the
+barrier it kept sigma at 1 for good. A redundant arm's pose keeps every robot-person pair
+IK_CLEARANCE_MARGIN beyond the clearance (joint_limits.clearance_inverse_kinematics, the
+pairs from the compiled barrier): there the person's barrier holding the arm short of a far
+goal engages the blend as a joint's barrier does, its joint motion slowed with the gate
+(PERSON_ROUND_SPEED), and it stands down only while its pose could not be cleared
+(GOAL_SHORTFALL). The damper and the barrier's torque stay whole either way.
 No ROS import.
 """
 
@@ -128,7 +134,22 @@ from hri_core.potential import TaskShape
 from hri_core.robot_model import RobotModel
 
 REACH_ROUND_BODY_GATE = 0.1
-"""The person's barrier gate (BodyBarrier.gate) above which the reach-round stands down."""
+"""The person's barrier gate (BodyBarrier.gate) above which the reach-round stands down (an
+arm without a null space, the SCARA) or engages (a redundant arm, as a joint's barrier
+engages it: module docstring)."""
+IK_CLEARANCE_MARGIN = 0.03
+"""m: a redundant arm's reach-round pose keeps every robot-person pair this far beyond the
+clearance (joint_limits.clearance_inverse_kinematics), inside the barrier's band but off its
+damper's stop."""
+GOAL_SHORTFALL = 0.06
+"""m: a redundant arm's reach-round stands down, as the SCARA's, while the person's barrier
+holds the arm and its last pose lies this far inside IK_CLEARANCE_MARGIN beyond the
+clearance (within the clearance less 3 cm: a pose the solve could not clear)."""
+PERSON_ROUND_SPEED = 0.25
+"""The share of the reach-round's slew and joint speed (ReachRoundSettings) left with the
+person's barrier gate at 1 (1 - (1 - this) gate): at 1 rad/s a joint the Panda's gripper,
+swinging to a new pose, reached 0.013 m from a torso in HumanRobotHandover_0 before the
+damper and the barrier stopped it."""
 FEED_FORWARD_RATIO = 2.0
 """The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
 HAND_RATE = 40.0
@@ -1143,9 +1164,10 @@ class ArmController(TaskDrives):
             # g_ref: the barriers' gradient as the reference takes it (the person's capped).
             body, g_ref, g_ref_rate = NO_BODY, g_b, g_b_rate
             fade = self._body_fade(human, dt)
+            exempt = None
             if fade > 0.0:
-                body = self.whole_body_barrier(q, dq, human, self._exempt(drive, avoid, human),
-                                               fade)
+                exempt = self._exempt(drive, avoid, human)
+                body = self.whole_body_barrier(q, dq, human, exempt, fade)
                 if body.gradient is not None:
                     gradient, rate = body.gradient, body.rate
                     if near > 0.0:
@@ -1167,12 +1189,25 @@ class ArmController(TaskDrives):
                     # hand drawn back to the chest at 0.5 m/s would cancel its 0.5 m/s push.
                     keep, keep_rate = 1.0 - body.gate, -body.gate_rate
                     ff, ff_rate = keep * ff, keep * ff_rate + keep_rate * ff
-            # The reach-round's pose ignores the person: while the person's barrier holds the
-            # arm, the blend would pull into the barrier for good (sigma 1, the task's force
-            # 0), so it stands down and the task's descent slides the arm round the person.
-            region = (None if drive is None or avoid or body.gate > REACH_ROUND_BODY_GATE
+            # The SCARA's reach-round pose ignores the person: while the person's barrier
+            # holds the arm, the blend would pull into the barrier for good (sigma 1, the
+            # task's force 0), so it stands down and the task's descent slides the arm round
+            # the person. A redundant arm's pose keeps the person's clearance (keep_off): its
+            # blend engages where the person's barrier holds the arm short of a far goal, as
+            # a joint's barrier does (the learned task's pull near the hand, about 1 N, left
+            # the Panda resting in the bands 0.17-0.47 m short), slower the nearer the
+            # person, and stands down while its pose is not clear (GOAL_SHORTFALL).
+            knows_person = self._null_space and fade > 0.0
+            self._reach.keep_off = self._keep_off(human, exempt) if knows_person else None
+            round_person = knows_person and self._reach.goal_shortfall <= GOAL_SHORTFALL
+            self._reach.speed_scale = (1.0 - (1.0 - PERSON_ROUND_SPEED) * body.gate
+                                       if knows_person else 1.0)
+            held = body.gate > REACH_ROUND_BODY_GATE
+            region = (None if drive is None or avoid or (held and not round_person)
                       else (drive.shape.d1, drive.shape.d2))
-            blend = self._reach.update(q, dq, x, jac, hand.position, region, near, dt)
+            blend = self._reach.update(q, dq, x, jac, hand.position, region,
+                                       max(near, body.gate) if held and round_person else near,
+                                       dt)
             scale = 1.0
             if blend is not None:
                 # eq. 14 blended with the joint motion a u, weighted as the task's pull.
@@ -1320,6 +1355,23 @@ class ArmController(TaskDrives):
         if self._body_time >= settings.fade_in:
             return 1.0
         return quintic_smoothstep(self._body_time / settings.fade_in)[0]
+
+    def _keep_off(self, human: Capsules, exempt):
+        """The reach-round's keep_off for the person `human` (exempt as _exempt gives it):
+        q (n,) rad -> (rows n^T J_p (m, n) m/rad, shortfall (m,) m) of the pairs within the
+        approach damper's reach (clearance + influence), shortfall = clearance +
+        IK_CLEARANCE_MARGIN - distance (their surfaces', the tracked arm's at its surface as
+        in the barrier), or None without such a pair."""
+        wanted = self._gains.body.clearance + IK_CLEARANCE_MARGIN
+        still = self._zero_joints
+
+        def keep_off(q):
+            pairs = self.whole_body_barrier(q, still, human, exempt)
+            if pairs.rows is None:
+                return None
+            return pairs.rows, wanted - pairs.gaps
+
+        return keep_off
 
     def _exempt(self, drive, avoid: bool, human: Capsules):
         """(the tracked hand's capsules, the rest of its arm's) where the task's region

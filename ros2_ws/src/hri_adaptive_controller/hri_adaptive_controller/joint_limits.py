@@ -56,7 +56,10 @@ joint-space straight line stays in the convex box, away from every stop). The ta
 is weighted (1 - sigma) with its Q in V; the joint motion needs no force of its own (V's
 s-term converges s, and qdot = qdot_r then moves q to q_f). While sigma ramps, V
 gains sigma-rate terms like eq. 22's (da/dt) Q, bounded and over a finite time.
-Avoid tasks (open outward) never reach round: they move away from the hand.
+Avoid tasks (open outward) never reach round: they move away from the hand. Beside a person
+(ReachRound.keep_off, set by the caller) q* also keeps every robot-person pair out of the
+person's clearance (clearance_inverse_kinematics: the pairs as a second damped least-squares
+task), and the caller may slow the joint motion (ReachRound.speed_scale).
 
 Joint speed limit
 -----------------
@@ -95,6 +98,20 @@ an arm holding q* is not pushed off it (with half a band the Panda, behind its b
 CLEAR_BANDS = 0.5
 """The reach-round hands back at the goal only with its joint goal this many bands inside its
 box (ReachRound)."""
+IK_CLEARANCE_WEIGHT = 10.0
+"""The clearance rows' weight against the goal's in clearance_inverse_kinematics (1: a metre
+of shortfall costs as a metre of miss)."""
+IK_SETTLED = 1e-4
+"""rad: a clearance_inverse_kinematics step this short ends its seed's iterations (a pose
+the clearance holds short of its goal)."""
+IK_TRAVEL_COST = 10.0
+"""Per rad^2 of a clearance_inverse_kinematics result's distance from the first seed (the
+arm's joints), against CLAMP_COST per m^2 of its miss and shortfall: a turn round the base
+(about 10 rad^2) is taken for 0.3 m nearer the goal, not 0.1 m (at 1 the Panda beside
+HumanRobotHandover_0, turned by 91 deg, swung away round its base from a hand 0.35 m off)."""
+IK_STEP = 0.2
+"""rad: the largest joint step of one clearance_inverse_kinematics iteration (a pair's
+normal turns as the links move: a longer step overshoots)."""
 
 FEED_SPEED = 0.05
 """rad/s: the feed-forward gate's speed scale (the gate acts fully above it)."""
@@ -325,6 +342,66 @@ def joint_motion(goal, has_goal, q_in, filtered, rate, q, dq, dt, slew, filter_r
     return q_in_out, filtered_out, rate_out, u, du
 
 
+def clearance_inverse_kinematics(model, goal, seeds, lower, upper, iterations: int,
+                                 keep_off) -> np.ndarray:
+    """Joints (n,) rad that bring the tool point nearest `goal` (k,) m on the task axes while
+    every robot-person pair keeps its clearance, within the box [lower, upper] (n,) rad:
+    RobotModel.inverse_kinematics' damped least squares with the person's pairs as a second,
+    weighted task. keep_off(q) -> (rows (m, n) m/rad, shortfall (m,) m) or None: each close
+    pair's row n^T J_p (the speed of the robot's closest point towards the person per unit
+    joint speed: the pair's distance changes at -R_k dq) and how far the pair lies inside
+    the distance wanted (> 0: inside). Each step solves
+
+        min |J dq - miss|^2 + W^2 sum_k (R_k dq + shortfall_k)^2 + lambda^2 |dq|^2
+
+    over the pairs inside (shortfall_k > 0; W = IK_CLEARANCE_WEIGHT, lambda the model's
+    IK_DAMPING: R_k dq = -shortfall_k moves pair k out by its shortfall), its length capped
+    at IK_STEP, and clamps into the box; a seed stops after `iterations` steps, at the goal
+    (IK_TOLERANCE) with every pair out, or at a step below IK_SETTLED. Of the seeds' results
+    (rows of `seeds`, (s, n) rad) the one of least CLAMP_COST (miss^2 + W^2 sum
+    shortfall^2) + IK_TRAVEL_COST |q - seeds[0]|^2. Why: a pose from the goal alone drove
+    the Panda's links into a person holding out their hand, so the reach-round stood down
+    while the person's barrier held the arm, and the learned task's pull near the hand
+    (about 1 N) rested in the barrier's bands 0.17-0.47 m short (docs/design.md)."""
+    from hri_core.robot_model import CLAMP_COST, IK_DAMPING, IK_TOLERANCE
+
+    damping = IK_DAMPING ** 2 * np.eye(model.dof)
+    still = np.zeros(model.dof)
+    weight2 = IK_CLEARANCE_WEIGHT ** 2
+    best, first = None, seeds[0]
+    for seed in seeds:
+        q = np.clip(seed, lower, upper)
+        for step in range(iterations + 1):
+            x, jac, _ = model.task_kinematics(q, still)
+            miss = goal - x
+            pairs = keep_off(q)
+            inside = 0.0
+            normal = jac.T @ jac + damping
+            pull = jac.T @ miss
+            if pairs is not None:
+                rows, shortfall = pairs
+                held = shortfall > 0.0
+                if held.any():
+                    rows, shortfall = rows[held], shortfall[held]
+                    inside = float(shortfall @ shortfall)
+                    normal += weight2 * (rows.T @ rows)
+                    pull -= weight2 * (rows.T @ shortfall)
+            if step == iterations or (inside == 0.0 and float(miss @ miss) < IK_TOLERANCE ** 2):
+                break
+            dq = np.linalg.solve(normal, pull)
+            length = float(np.sqrt(dq @ dq))
+            if length < IK_SETTLED:
+                break
+            if length > IK_STEP:
+                dq *= IK_STEP / length
+            q = np.clip(q + dq, lower, upper)
+        cost = CLAMP_COST * (float(miss @ miss) + weight2 * inside) + IK_TRAVEL_COST * float(
+            (q - first) @ (q - first))
+        if best is None or cost < best[0]:
+            best = (cost, q)
+    return best[1]
+
+
 def _det(square: np.ndarray) -> float:
     """det of a 2 x 2 or 3 x 3 matrix (a square task Jacobian)."""
     if square.shape == (2, 2):
@@ -384,6 +461,7 @@ class ReachRound:
     STRAIGHT_TURN = 1.0  # rad of the first joint the straight descent is trusted with
     IK_PERIOD = 0.02  # s between refreshes of the joint goal
     IK_REFRESH = 5  # iterations of each refresh, from the arm's joints and the last joint goal
+    IK_ITERATIONS = 20  # iterations of a clearance-aware solve on engaging, from each seed
 
     def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
                  reach: float, damping_threshold: float, compiled: bool = False):
@@ -407,6 +485,12 @@ class ReachRound:
         arm = model.tool_position(home)[:2] - model.shoulder[:2]
         self._home, self._home_azimuth = home, math.atan2(arm[1], arm[0])
         self.settings = settings
+        # keep_off(q) -> (rows, shortfall) or None: the person's pairs the joint goal keeps
+        # clear (clearance_inverse_kinematics); None: the goal alone (the caller sets it).
+        self.keep_off = None
+        # (0, 1]: the share of the settings' slew and max_speed the joint motion uses (the
+        # caller lowers it near a person).
+        self.speed_scale = 1.0
         self._motion, self._goal = joint_motion, reach_goal
         if compiled:  # imported here: arm_kernels imports this module
             from hri_adaptive_controller import arm_kernels
@@ -425,6 +509,9 @@ class ReachRound:
         # (time solved, q* (n,), whether q* is clear of the limits, det J at q* (an arm with
         # as many joints as task axes; else 0))
         self._joint_goal = None
+        # m: how far the joint goal's nearest pair lies inside keep_off's distance (0: clear
+        # or no keep_off), as of the last solve.
+        self.goal_shortfall = 0.0
 
     @property
     def engaged(self) -> bool:
@@ -461,9 +548,10 @@ class ReachRound:
             self._filtered = (q.copy(), q.copy(), np.zeros(q.size))
         has_goal = joint_goal is not None
         goal = joint_goal() if has_goal else self._filtered[0]
+        scale = self.speed_scale
         q_in, filtered, rate, u, du = self._motion(
-            goal, has_goal, *self._filtered, q, dq, dt, settings.slew, settings.filter_rate,
-            settings.gain, settings.max_speed)
+            goal, has_goal, *self._filtered, q, dq, dt, scale * settings.slew,
+            settings.filter_rate, settings.gain, scale * settings.max_speed)
         self._filtered = (q_in, filtered, rate)
         return sigma, sigma_rate, u, du
 
@@ -481,6 +569,7 @@ class ReachRound:
             blend = self._blend(False, None, q, dq, dt)
             if blend is None:
                 self._joint_goal = None  # the next engagement solves afresh
+                self.goal_shortfall = 0.0
             return blend
         d1, d2 = region
         hole = self._inner > 0.0
@@ -509,6 +598,7 @@ class ReachRound:
         blend = self._blend(wanted, joint_goal, q, dq, dt)
         if blend is None:
             self._joint_goal = None
+            self.goal_shortfall = 0.0
         return blend
 
     def _straight(self, q, jac, target, near: float) -> bool:
@@ -530,8 +620,11 @@ class ReachRound:
         swung_home[0] = math.remainder(home[0] + azimuth - self._home_azimuth, 2.0 * math.pi)
         swung_arm[0] += math.remainder(azimuth - math.atan2(x[1] - c2, x[0] - c1),
                                        2.0 * math.pi)
-        return self._model.inverse_kinematics(goal, np.array([q, swung_home, swung_arm]),
-                                              *self._box)
+        seeds = np.array([q, swung_home, swung_arm])
+        if self.keep_off is not None:
+            return clearance_inverse_kinematics(self._model, goal, seeds, *self._box,
+                                                self.IK_ITERATIONS, self.keep_off)
+        return self._model.inverse_kinematics(goal, seeds, *self._box)
 
     def _refresh(self, goal, q, x) -> np.ndarray:
         """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s; with it
@@ -541,12 +634,17 @@ class ReachRound:
         if self._joint_goal is None:
             target = self._solve(goal, q, x)
         elif now - self._joint_goal[0] >= self.IK_PERIOD:
-            target = self._model.inverse_kinematics(goal, np.array([q, self._joint_goal[1]]),
-                                                    *self._box, self.IK_REFRESH)
+            seeds = np.array([q, self._joint_goal[1]])
+            target = (self._model.inverse_kinematics(goal, seeds, *self._box, self.IK_REFRESH)
+                      if self.keep_off is None else clearance_inverse_kinematics(
+                          self._model, goal, seeds, *self._box, self.IK_REFRESH,
+                          self.keep_off))
         else:
             return self._joint_goal[1]
         clear = all(low <= v <= high for v, low, high in zip(
             target.tolist(), *self._clear_box, strict=True))
+        pairs = None if self.keep_off is None else self.keep_off(target)
+        self.goal_shortfall = 0.0 if pairs is None else max(float(pairs[1].max()), 0.0)
         branch = (_det(self._model.task_kinematics(target, self._still)[1]) if self._square
                   else 0.0)
         self._joint_goal = (now, target, clear, branch)

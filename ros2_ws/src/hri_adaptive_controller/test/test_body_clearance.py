@@ -10,11 +10,16 @@ import numpy as np
 import pytest
 
 from hri_adaptive_controller.arm_law import (
+    IK_CLEARANCE_MARGIN,
     ArmController,
     ClearanceSettings,
     body_barrier,
 )
 from hri_adaptive_controller.closed_loop import LoopConditions, simulate, still_body, still_target
+from hri_adaptive_controller.joint_limits import (
+    ReachRoundSettings,
+    clearance_inverse_kinematics,
+)
 from hri_core.bodies import (
     HUMAN_RADII,
     body_point_velocities,
@@ -167,22 +172,44 @@ def test_the_upper_arm_in_follow_is_kept_at_its_surface_not_the_clearance(robot)
     assert avoid.gradient is not None and 0.0 < avoid.gate < 1.0
 
 
-def test_a_stronger_posture_push_swings_the_pandas_elbow_off_the_persons_arm():
+def test_the_clearance_aware_pose_reaches_the_held_out_hand_with_every_link_clear():
+    """The person beside the Panda holds out their right hand: the goal's pose alone
+    (RobotModel.inverse_kinematics from home) reaches it with a link 0.01 m off a human
+    capsule; clearance_inverse_kinematics, the person's pairs (ArmController._keep_off) as a
+    second task, reaches it within 5 mm with every pair IK_CLEARANCE_MARGIN beyond the
+    clearance (the tracked arm's at its surface, as the barrier holds it)."""
+    model, body = scene('panda', 'aside')[:2]
+    hand = np.array([0.4, 0.25, 0.3])
+    person = human_capsules(BODY_POINTS, standing_body([0.3, 0.6], -math.pi / 2, -0.2, hand))
+    law = ArmController(model, body=body)
+    keep_off = law._keep_off(person, law._exempt(law.drive(FOLLOW), False, person))
+    lower, upper = model.limits.lower + 0.15, model.limits.upper - 0.15
+    seeds = np.array([model.home])
+    plain = model.inverse_kinematics(hand, seeds, lower, upper)
+    assert np.linalg.norm(model.tool_position(plain) - hand) < 1e-3
+    assert keep_off(plain)[1].max() > IK_CLEARANCE_MARGIN + 0.05  # within the clearance
+    clear = clearance_inverse_kinematics(model, hand, seeds, lower, upper, 20, keep_off)
+    assert np.linalg.norm(model.tool_position(clear) - hand) < 5e-3
+    assert keep_off(clear)[1].max() <= 1e-3
+    assert np.all((clear >= lower) & (clear <= upper))
+
+
+def test_the_reach_rounds_clearance_aware_pose_swings_the_pandas_elbow_off_the_persons_arm():
     """A person standing beside the Panda holds out their right hand, 0.4 m from the base:
     reaching it with the home pose's elbow brings link5 into the band of the person's upper
     arm and shoulder, whose push (about 1 N) balances follow's pull near the hand (the
-    approach floor, Kp 0.1 m/s): with the default posture push (5 N over 0.10 m) the tool
-    stops 0.18 m short. The posture push is the person's barrier through the null space;
-    20 N over 0.40 m (posture_force, posture_influence) swings the elbow off them and the tool
-    reaches the hand, the trunk kept clear either way."""
+    approach floor, Kp 0.1 m/s): without the reach-round the tool stops 0.18 m short. The
+    reach-round's joint goal keeps every pair its clearance (clearance_inverse_kinematics), so
+    it engages where the person's barrier holds the arm and swings the elbow off the person:
+    the tool reaches the hand, the trunk kept clear either way."""
     model, body = scene('panda', 'aside')[:2]
     hand = np.array([0.4, 0.25, 0.3])
     points = standing_body([0.3, 0.6], -math.pi / 2, -0.2, hand)
     trunk = human_capsules(list(TRUNK), points[[BODY_POINTS.index(name) for name in TRUNK]])
     distances = {}
-    for name, settings in (('default', SETTINGS), ('strong', ClearanceSettings(
-            posture_force=20.0, posture_influence=0.40))):
-        gains = dataclasses.replace(ArmController(model).gains, body=settings)
+    for name, reach_round in (('default', ReachRoundSettings()),
+                              ('no reach-round', ReachRoundSettings(enabled=False))):
+        gains = dataclasses.replace(ArmController(model).gains, reach_round=reach_round)
         result = simulate({'follow': FOLLOW}, [], still_target(hand), 5.0,
                           LoopConditions(arm=model, gains=gains, initial_task='follow',
                                          monitor=False, body=still_body(BODY_POINTS, points),
@@ -192,7 +219,7 @@ def test_a_stronger_posture_push_swings_the_pandas_elbow_off_the_persons_arm():
         least = min(capsule_distances(body.capsules(q, checked=False), trunk).distance.min()
                     for q in result.q[::10])
         assert least >= SETTINGS.clearance - 0.03, (name, least)
-    assert distances['strong'] <= 0.06 and distances['default'] >= 0.15, distances
+    assert distances['default'] <= 0.06 and distances['no reach-round'] >= 0.15, distances
 
 
 @pytest.mark.parametrize('robot, place, hand', [
@@ -201,17 +228,19 @@ def test_a_stronger_posture_push_swings_the_pandas_elbow_off_the_persons_arm():
 ])
 def test_a_hand_out_of_reach_behind_the_person_does_not_pull_the_arm_through_them(
         robot, place, hand):
-    """Follow a hand beyond the reach with the person's trunk in between: the reach-round's
-    pose (which does not know the person) would pull the arm into the barrier for good (sigma
-    1, the task's force off); on the Panda it pulled the arm 0.13 m into the torso. It stands
-    down while the person's barrier holds the arm."""
+    """Follow a hand beyond the reach with the person's trunk in between: a reach-round pose
+    that does not know the person would pull the arm into the barrier for good (sigma 1, the
+    task's force off); on the Panda it pulled the arm 0.13 m into the torso. The SCARA's
+    stands down while the person's barrier holds the arm; the Panda's keeps the clearance
+    (clearance_inverse_kinematics) and may stay on."""
     model, body, _, _ = scene(robot, 'chest')
     points = standing_body(place, math.pi, -0.2 if robot == 'panda' else 0.0, hand)
     trunk = points[[BODY_POINTS.index(name) for name in TRUNK]]
     result = simulate({'follow': FOLLOW}, [], still_target(np.array(hand)[:model.task_axes]),
                       4.0, LoopConditions(arm=model, initial_task='follow', monitor=False,
                                           body=still_body(TRUNK, trunk), robot_body=body))
-    assert np.mean(result.blend[result.time >= 3.0]) < 0.05, robot
+    if robot == 'scara':
+        assert np.mean(result.blend[result.time >= 3.0]) < 0.05, robot
     assert np.min(result.body_distance) >= SETTINGS.clearance - 0.03, (
         robot, float(np.min(result.body_distance)))
     assert not result.fault.any()
@@ -311,12 +340,13 @@ def test_the_approach_damper_holds_the_clearance_where_the_barrier_alone_gives_w
     went through the clearance into the torso (SCARA 0.011 m, Panda 0.036 m off it); the
     approach damper alone (body_damper: the reference's approach along each close pair's
     row held at stop_rate (d - (clearance - stop_depth))) keeps it off clearance - 3 cm,
-    with the torque's per-cycle change within the rate limit."""
+    with the torque's per-cycle change within the rate limit. (The reach-round is off: the
+    Panda's, whose pose keeps the clearance, held it off without the damper.)"""
     model, body, trunk, hand = scene(robot, 'chest')
 
     def follow(stop_rate):
         gains = dataclasses.replace(ArmController(model).gains, body=ClearanceSettings(
-            force=0.2, stop_rate=stop_rate))
+            force=0.2, stop_rate=stop_rate), reach_round=ReachRoundSettings(enabled=False))
         return simulate({'follow': FOLLOW}, [], still_target(hand[:model.task_axes]), 4.0,
                         LoopConditions(arm=model, gains=gains, initial_task='follow',
                                        theta_hat0=0.8 * model.theta, monitor=False,

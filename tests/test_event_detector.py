@@ -41,11 +41,12 @@ class Script:
     (`tool(t)`) from t = 0 for `duration` s in a thread; `hand_sent` and `tool_sent` hold each
     message's stamp (s) and position."""
 
-    def __init__(self, probe, hand, tool, duration: float):
+    def __init__(self, probe, hand, tool, duration: float, hand_frame=lambda t: 'base'):
         self._hand_pub = probe.publisher(topics.TARGET.name, PointStamped, topics.TARGET.qos)
         self._tool_pub = probe.publisher(topics.EE_POSITION.name, PointStamped,
                                          topics.EE_POSITION.qos)
         self._probe, self._hand, self._tool, self._duration = probe, hand, tool, duration
+        self._hand_frame = hand_frame
         self.hand_sent: list[tuple[float, np.ndarray]] = []
         self.tool_sent: list[tuple[float, np.ndarray]] = []
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -60,7 +61,8 @@ class Script:
         self._thread.join(self._duration + 10.0)
         assert not self._thread.is_alive()
 
-    def _publish(self, publisher, path, start: float) -> tuple[float, np.ndarray | None]:
+    def _publish(self, publisher, path, start: float,
+                 frame=lambda t: 'base') -> tuple[float, np.ndarray | None]:
         """Publish where `path` is now, stamped now: the stamp is the time the position is
         taken at (a position of one instant stamped a few ms later reads as a velocity
         spike when the thread catches up after a stall)."""
@@ -70,7 +72,7 @@ class Script:
         if point is not None:
             msg = PointStamped()
             msg.header.stamp = now
-            msg.header.frame_id = 'base'
+            msg.header.frame_id = frame(stamp - start)
             msg.point.x, msg.point.y = float(point[0]), float(point[1])
             msg.point.z = float(point[2]) if len(point) > 2 else 0.0
             publisher.publish(msg)
@@ -86,7 +88,8 @@ class Script:
                     self.tool_sent.append((stamp, np.asarray(point, dtype=float)))
                 next_tool += 1.0 / TOOL_RATE
             if t >= next_hand:
-                stamp, point = self._publish(self._hand_pub, self._hand, start)
+                stamp, point = self._publish(self._hand_pub, self._hand, start,
+                                             self._hand_frame)
                 if point is not None:
                     self.hand_sent.append((stamp, np.asarray(point, dtype=float)))
                 next_hand += 1.0 / HAND_RATE
@@ -309,25 +312,34 @@ def test_a_bad_rule_ends_the_detector_with_one_line(nodes, tmp_path):
     assert 'Traceback' not in log
 
 
-def test_non_finite_positions_are_dropped_with_a_warning(nodes, probe, tmp_path):
+def test_non_finite_positions_and_other_frames_are_dropped_with_a_warning(
+        nodes, probe, tmp_path):
     separation = probe.collect(topics.SEPARATION.name, SeparationState, topics.SEPARATION.qos)
     detector = start_detector(nodes, tmp_path)
-    # Every tenth hand and tool position is NaN or infinite.
+    # Every tenth hand and tool position is NaN or infinite; every tenth hand, five after,
+    # is 0.1 m from the tool in a camera's frame, which the detector does not transform.
     bad = (math.nan, math.inf)
 
     def hand(t):
+        if int(t * 100) % 10 == 5:
+            return TOOL + [0.0, -0.1]
         return (bad[int(t * 100) % 2], 0.0) if int(t * 100) % 10 == 0 else TOOL + [0.0, -0.3]
+
+    def hand_frame(t):
+        return 'camera' if int(t * 100) % 10 == 5 else 'base'
 
     def tool(t):
         return (0.0, bad[int(t * 250) % 2]) if int(t * 250) % 10 == 0 else TOOL
 
-    Script(probe, hand, tool, 2.0).start().join()
+    Script(probe, hand, tool, 2.0, hand_frame).start().join()
     time.sleep(0.2)
     assert len(separation) >= 2.0 * 50 * 0.7
     assert all(m.separation == pytest.approx(0.3, abs=1e-6) and math.isfinite(m.human_speed)
-               and math.isfinite(m.protective_distance) for m in separation)
+               and math.isfinite(m.protective_distance) and m.header.frame_id == 'base'
+               for m in separation)
     log = detector.log()
     assert 'target dropped: non-finite position' in log, log
     assert 'ee_position dropped: non-finite position' in log, log
-    assert log.count('dropped') <= 2 * 3, log  # throttled: once a second each
+    assert "target dropped: frame 'camera' is not base_frame 'base'" in log, log
+    assert log.count('dropped') <= 3 * 3, log  # throttled: once a second each
     assert detector.alive()

@@ -139,7 +139,9 @@ class CycleSettings:
     """The cycle's settings (the controller's parameters of the same names; the law's gains,
     max_effort_rate and max_task_speed among them, come with the law). rest_position: an avoid
     task's fixed rest on the task axes (m; None: where the tool was when the task became
-    active); separation: S_p's constants for the pull cap (None: no cap)."""
+    active); separation: S_p's constants for the pull cap (None: no cap); base_frame: the
+    frame of the hand and the body (a message in another frame is dropped; '' is taken as
+    this one)."""
 
     rate_hz: float
     state_rate_hz: float
@@ -158,6 +160,7 @@ class CycleSettings:
     rest_position: tuple[float, ...] | None = None
     separation: ProtectiveSeparation | None = None
     body_timeout: float = 0.5
+    base_frame: str = 'base'
 
     @classmethod
     def from_values(cls, values: Mapping, rest_position: tuple[float, ...] | None = None,
@@ -176,7 +179,8 @@ class CycleSettings:
                    target_max_acceleration=values['target_max_acceleration'],
                    target_filter_time=values['target_filter_time'],
                    target_timeout=values['target_timeout'],
-                   rest_position=rest_position, separation=separation)
+                   rest_position=rest_position, separation=separation,
+                   base_frame=values['base_frame'])
 
     @property
     def period(self) -> float:
@@ -385,9 +389,22 @@ class ControlCycle:
         output = self._step(now, dt)
         return self._command(output, stamp, dt)
 
-    def target(self, now: float, position: tuple, stamp: float) -> bool:
+    def _in_base_frame(self, frame: str, what: str) -> bool:
+        """Whether a `what` message's frame is the base frame (or unset); else a throttled
+        warning: the controller transforms nothing, so a point in another frame would be
+        followed or kept clear of at the wrong place."""
+        if frame in ('', self.settings.base_frame):
+            return True
+        self._warn(f'{what}_frame', f'{what} dropped: frame {frame!r} is not base_frame '
+                   f'{self.settings.base_frame!r}')
+        return False
+
+    def target(self, now: float, position: tuple, stamp: float, frame: str = '') -> bool:
         """A hand position on the task axes ((x, y) for a planar arm, else (x, y, z); m)
-        stamped `stamp` s, received at `now` (judged by its stamp): whether it was taken."""
+        in `frame` stamped `stamp` s, received at `now` (judged by its stamp): whether it was
+        taken."""
+        if not self._in_base_frame(frame, 'target'):
+            return False
         if not math.isfinite(sum(position)):
             self._warn('target_non_finite', 'target dropped: non-finite position')
             return False
@@ -447,15 +464,19 @@ class ControlCycle:
             self._link.request(LINK, now)
         return True
 
-    def body(self, now: float, names, points, stamp: float | None = None) -> bool:
-        """The person's body points (REP-155 names (K,), points (K, 3) m in the base frame)
-        received at `now`, stamped `stamp` (s; None: now): their capsules
+    def body(self, now: float, names, points, stamp: float | None = None,
+             frame: str = '') -> bool:
+        """The person's body points (REP-155 names (K,), points (K, 3) m in `frame`, which
+        must be the base frame) received at `now`, stamped `stamp` (s; None: now): their
+        capsules
         (hri_core.bodies.human_capsules), moving at the velocities from the body before (its
         stamp's difference; still after a gap longer than body_timeout), are what the law
         keeps clear of until body_timeout s without a body. A non-finite point counts as lost
         and a name that is no REP-155 body point is ignored (a throttled warning names each),
         the rest of the body kept. False (the body dropped, a throttled warning) for a bad
         message."""
+        if not self._in_base_frame(frame, 'body'):
+            return False
         stamp = now if stamp is None else stamp
         try:
             names, points, lost, unknown = seen_body_points(names, points)

@@ -69,6 +69,7 @@ from hri_core.cdr import (
     joint_state_layout,
     point3_layout,
     point_stamped_layout,
+    read_frame,
     read_stamp,
 )
 from hri_core.node_common import (
@@ -182,7 +183,7 @@ class Controller(Node):
     def _on_body(self, msg) -> None:
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         self._cycle.body(time.monotonic(), msg.names, [(p.x, p.y, p.z) for p in msg.points],
-                         stamp if stamp > 0.0 else None)
+                         stamp if stamp > 0.0 else None, msg.header.frame_id)
 
     def _on_robot_description(self, msg: String) -> None:
         """One line when the published arm lacks a joint the controller drives."""
@@ -271,10 +272,10 @@ class Controller(Node):
             if msg is not None:
                 point = msg.point
                 self._cycle.target(time.monotonic(), (point.x, point.y, point.z)[:self._axes],
-                                   stamp_seconds(msg.header.stamp))
+                                   stamp_seconds(msg.header.stamp), msg.header.frame_id)
             return
         sec, nanosec = read_stamp(data)
-        self._cycle.target(time.monotonic(), values, sec + 1e-9 * nanosec)
+        self._cycle.target(time.monotonic(), values, sec + 1e-9 * nanosec, read_frame(data))
 
     def _on_task_state(self, msg: TaskState) -> None:
         task = msg.task

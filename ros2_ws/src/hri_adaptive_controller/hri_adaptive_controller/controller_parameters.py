@@ -25,6 +25,9 @@ PARAMETERS = {
                                read_only=True),
     'tool_frame': ParameterSpec(str, 'URDF link or frame of the tool point ("": the robot\'s '
                                 'own; required with urdf_file)', read_only=True),
+    'base_frame': ParameterSpec(str, 'frame of /target and /human/body (the arm\'s base); a '
+                                'message in another frame is dropped ("" on a message: '
+                                'taken as this frame)', read_only=True),
     'home_position': ParameterSpec(
         list, 'the joint posture the null space of a redundant arm pulls towards (rad, one '
         "per joint, within the limits); unset: the robot's home (the Panda's ready pose; a "

@@ -46,7 +46,7 @@ from hri_adaptive_controller.event_rules import EventDetector, RuleError, load_r
 from hri_adaptive_controller.separation_monitor import BodySeparation, SeparationMonitor
 from hri_core import topics
 from hri_core.bodies import panda_package_dirs, robot_body, seen_body_points
-from hri_core.cdr import LayoutReader, point3_layout, point_stamped_layout, read_stamp
+from hri_core.cdr import LayoutReader, point3_layout, point_stamped_layout, read_frame, read_stamp
 from hri_core.node_common import (
     ParameterSpec,
     StartupError,
@@ -103,6 +103,9 @@ PARAMETERS = {
     'body_timeout': ParameterSpec(float, 'a /human/body older than this is stale: the '
                                   'separation falls back to the tool and the hand (s)',
                                   low=0.01, high=10.0, read_only=True),
+    'base_frame': ParameterSpec(str, 'frame of /target, /ee_position and /human/body, and of '
+                                '/hri/separation; a message in another frame is dropped '
+                                '("" on a message: taken as this frame)', read_only=True),
     'body_padding': ParameterSpec(float, 'added to every fitted robot capsule radius (m)',
                                   low=0.0, high=0.5, read_only=True),
 }
@@ -137,7 +140,7 @@ class EventDetectorNode(Node):
             self._joint_index = None
         self._body_state = 'none'  # none (never had one), fresh, stale
         self._current_task: str | None = None
-        self._frame = ''
+        self._frame = values['base_frame']
         self._tool_reader = LayoutReader(point_stamped_layout if self._dimension == 2
                                          else point3_layout)
         self._last_warning: dict[str, float] = {}
@@ -189,6 +192,15 @@ class EventDetectorNode(Node):
             self._last_warning[kind] = now
             self.get_logger().warning(text)
 
+    def _in_base_frame(self, frame: str, what: str) -> bool:
+        """Whether a `what` message's frame is base_frame (or unset); else a throttled
+        warning: the detector transforms nothing."""
+        if frame in ('', self._frame):
+            return True
+        self._warn(f'{what}_frame', f'{what} dropped: frame {frame!r} is not base_frame '
+                   f'{self._frame!r}')
+        return False
+
     def _on_task_state(self, msg: TaskState) -> None:
         """The current task: where the event_manager is heading ('' = no task). While it
         fades out, that is the pending task ('' when the switch is to no task)."""
@@ -207,10 +219,11 @@ class EventDetectorNode(Node):
                 self._warn('hand_cdr', f'target dropped: unreadable ({error})')
                 continue
             point = (msg.point.x, msg.point.y, msg.point.z)[:self._dimension]
+            if not self._in_base_frame(msg.header.frame_id, 'target'):
+                continue
             if not all(math.isfinite(v) for v in point):
                 self._warn('hand_non_finite', 'target dropped: non-finite position')
                 continue
-            self._frame = msg.header.frame_id
             stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             self._monitor.hand(point, stamp, now)
             self._counts['hand'] += 1
@@ -226,9 +239,13 @@ class EventDetectorNode(Node):
                     continue
                 values = (msg.point.x, msg.point.y, msg.point.z)[:self._dimension]
                 stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+                frame = msg.header.frame_id
             else:
                 sec, nanosec = read_stamp(data)
                 stamp = sec + 1e-9 * nanosec
+                frame = read_frame(data)
+            if not self._in_base_frame(frame, 'ee_position'):
+                continue
             if not all(math.isfinite(v) for v in values):
                 self._warn('tool_non_finite', 'ee_position dropped: non-finite position')
                 continue
@@ -239,6 +256,8 @@ class EventDetectorNode(Node):
         for data, _ in take_raw(self._body_sub):
             try:
                 msg = deserialize_message(data, topics.HUMAN_BODY.type)
+                if not self._in_base_frame(msg.header.frame_id, 'human body'):
+                    continue
                 seen = seen_body_points(msg.names, [(p.x, p.y, p.z) for p in msg.points])
                 stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
                 self._body.body(seen.names, seen.points, stamp, now)

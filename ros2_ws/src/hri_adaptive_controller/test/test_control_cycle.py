@@ -632,3 +632,23 @@ def test_a_body_point_sent_as_nan_is_lost_and_the_rest_of_the_body_kept(scara):
     assert cycle.body(T0 + 0.03, ['Head', *names[1:]], standing, stamp=50.03)
     assert cycle._body_at(T0 + 0.03).names == ('torso',)
     assert texts(rig.notes, WARNING)[-1].startswith('body points ignored: Head (not REP-155')
+
+
+def test_a_hand_or_body_in_another_frame_is_dropped_with_its_frame_named(scara):
+    """The controller transforms nothing: a /target or /human/body in a frame other than
+    base_frame would be followed or kept clear of at the wrong place, so it is dropped with
+    a warning naming both frames; an unset frame is taken as the base frame."""
+    rig = Rig(scara, base_frame='world')
+    cycle = rig.cycle
+    assert not cycle.target(T0, (0.4, 0.3), 50.0, 'camera')
+    assert texts(rig.notes, WARNING)[-1] == \
+        "target dropped: frame 'camera' is not base_frame 'world'"
+    assert cycle.target(T0, (0.4, 0.3), 50.0, 'world')
+    assert cycle.target(T0 + 0.01, (0.4, 0.3), 50.01, '')
+    standing = [(1.0, 0.0, 1.3), (1.0, 0.0, 0.9)]
+    assert not cycle.body(T0, ['torso', 'body'], standing, 50.0, 'base')
+    assert texts(rig.notes, WARNING)[-1] == \
+        "body dropped: frame 'base' is not base_frame 'world'"
+    assert cycle._body_at(T0) is None
+    assert cycle.body(T0, ['torso', 'body'], standing, 50.0, 'world')
+    assert cycle._body_at(T0).names == ('torso',)

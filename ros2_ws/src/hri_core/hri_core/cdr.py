@@ -115,6 +115,12 @@ def read_stamp(data: bytes) -> tuple[int, int]:
     return STAMP.unpack_from(data, STAMP_OFFSET)
 
 
+def read_frame(data: bytes) -> str:
+    """The frame_id of a message that starts with a std_msgs/Header (checked by a layout)."""
+    length = int.from_bytes(data[12:16], 'little')
+    return bytes(data[16:15 + length]).decode('utf-8', errors='replace')
+
+
 def _u32(data: bytes, at: int) -> int:
     if at + 4 > len(data):
         raise IndexError('message too short')

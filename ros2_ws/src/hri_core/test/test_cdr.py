@@ -28,6 +28,7 @@ from hri_core.cdr import (
     joint_state_template,
     point_stamped_layout,
     point_stamped_template,
+    read_frame,
     read_stamp,
     read_values,
 )
@@ -113,6 +114,7 @@ def test_a_joint_state_layout_reads_the_wanted_values_of_any_name_order(data, fr
     index = [joint_names.index(joint) for joint in JOINTS]
     assert read_values(raw, layout) == tuple(run[i] for run in runs for i in index)
     assert read_stamp(raw) == stamp
+    assert read_frame(raw) == frame_id
     # Another message with the same names and lengths shares the layout.
     other = serialize_message(joint_state(joint_names, *(run[::-1] for run in runs),
                                           frame_id=frame_id))

@@ -363,6 +363,21 @@ def clearance_inverse_kinematics(model, goal, seeds, lower, upper, iterations: i
     the Panda's links into a person holding out their hand, so the reach-round stood down
     while the person's barrier held the arm, and the learned task's pull near the hand
     (about 1 N) rested in the barrier's bands 0.17-0.47 m short (docs/design.md)."""
+    solve = clearance_inverse_kinematics_steps(model, goal, seeds, lower, upper, iterations,
+                                               keep_off)
+    while True:
+        try:
+            next(solve)
+        except StopIteration as done:
+            return done.value
+
+
+def clearance_inverse_kinematics_steps(model, goal, seeds, lower, upper, iterations: int,
+                                       keep_off):
+    """clearance_inverse_kinematics one iteration at a time: a generator that yields (None)
+    after each damped least-squares step and returns the joints (its StopIteration's value),
+    the same arithmetic to the bit. The reach-round's refresh advances it once per control
+    cycle, so that no cycle carries a whole solve (ReachRound.IK_STEPS_PER_CYCLE)."""
     from hri_core.robot_model import CLAMP_COST, IK_DAMPING, IK_TOLERANCE
 
     damping = IK_DAMPING ** 2 * np.eye(model.dof)
@@ -395,6 +410,7 @@ def clearance_inverse_kinematics(model, goal, seeds, lower, upper, iterations: i
             if length > IK_STEP:
                 dq *= IK_STEP / length
             q = np.clip(q + dq, lower, upper)
+            yield
         cost = CLAMP_COST * (float(miss @ miss) + weight2 * inside) + IK_TRAVEL_COST * float(
             (q - first) @ (q - first))
         if best is None or cost < best[0]:
@@ -442,8 +458,10 @@ class ReachRound:
     nearest that reaches (0.9-1.1 ms for the Panda's hand behind its base, 0.26 ms for one
     out of reach, once); then refreshed every IK_PERIOD s from the arm's joints and from the
     last q* (IK_REFRESH iterations each), the nearest to the arm that reaches (the SCARA: the elbow
-    nearer to the arm's), so that the numerical solve stays off most control cycles. While
-    sigma ramps down, q* keeps following the goal; it is forgotten once sigma rests.
+    nearer to the arm's), so that the numerical solve stays off most control cycles; a
+    clearance-aware refresh (keep_off set) runs IK_STEPS_PER_CYCLE of its iterations a cycle,
+    the last q* kept until it ends. While sigma ramps down, q* keeps following the goal; it is
+    forgotten once sigma rests.
 
     model: a RobotModel; lower, upper (n,) rad; band (rad): the barrier's; reach (m): the
     attained reach round the shoulder; damping_threshold w0 (m^k): J+ is undamped where
@@ -462,6 +480,11 @@ class ReachRound:
     IK_PERIOD = 0.02  # s between refreshes of the joint goal
     IK_REFRESH = 5  # iterations of each refresh, from the arm's joints and the last joint goal
     IK_ITERATIONS = 20  # iterations of a clearance-aware solve on engaging, from each seed
+    # Iterations of a clearance-aware refresh per control cycle: the refresh (up to 12
+    # iterations, about 0.5 ms for the Panda beside a person) spread over the cycles after
+    # its IK_PERIOD, so that no cycle carries it whole (it made every twentieth cycle's
+    # command 0.45-0.7 ms late).
+    IK_STEPS_PER_CYCLE = 2
 
     def __init__(self, settings: ReachRoundSettings, model, lower, upper, band: float,
                  reach: float, damping_threshold: float, compiled: bool = False):
@@ -512,6 +535,8 @@ class ReachRound:
         # m: how far the joint goal's nearest pair lies inside keep_off's distance (0: clear
         # or no keep_off), as of the last solve.
         self.goal_shortfall = 0.0
+        # A clearance-aware refresh under way: (time started, its generator), or None.
+        self._pending = None
 
     @property
     def engaged(self) -> bool:
@@ -627,18 +652,28 @@ class ReachRound:
         return self._model.inverse_kinematics(goal, seeds, *self._box)
 
     def _refresh(self, goal, q, x) -> np.ndarray:
-        """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s; with it
-        whether it lies CLEAR_BANDS band inside its box and, for an arm with as many joints
-        as task axes, det J there (its branch)."""
-        now = self._time
+        """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s (a
+        clearance-aware refresh over the cycles it takes, from its start); with it whether
+        it lies CLEAR_BANDS band inside its box and, for an arm with as many joints as task
+        axes, det J there (its branch)."""
+        now = solved = self._time
         if self._joint_goal is None:
+            self._pending = None
             target = self._solve(goal, q, x)
-        elif now - self._joint_goal[0] >= self.IK_PERIOD:
-            seeds = np.array([q, self._joint_goal[1]])
-            target = (self._model.inverse_kinematics(goal, seeds, *self._box, self.IK_REFRESH)
-                      if self.keep_off is None else clearance_inverse_kinematics(
-                          self._model, goal, seeds, *self._box, self.IK_REFRESH,
-                          self.keep_off))
+        elif self._pending is not None or now - self._joint_goal[0] >= self.IK_PERIOD:
+            if self._pending is None:
+                seeds = np.array([q, self._joint_goal[1]])
+                if self.keep_off is None:
+                    target = self._model.inverse_kinematics(goal, seeds, *self._box,
+                                                            self.IK_REFRESH)
+                else:
+                    self._pending = (now, clearance_inverse_kinematics_steps(
+                        self._model, goal, seeds, *self._box, self.IK_REFRESH,
+                        self.keep_off))
+            if self._pending is not None:
+                solved, target = self._pending[0], self._advance()
+                if target is None:
+                    return self._joint_goal[1]
         else:
             return self._joint_goal[1]
         clear = all(low <= v <= high for v, low, high in zip(
@@ -647,5 +682,17 @@ class ReachRound:
         self.goal_shortfall = 0.0 if pairs is None else max(float(pairs[1].max()), 0.0)
         branch = (_det(self._model.task_kinematics(target, self._still)[1]) if self._square
                   else 0.0)
-        self._joint_goal = (now, target, clear, branch)
+        self._joint_goal = (solved, target, clear, branch)
         return target
+
+    def _advance(self):
+        """The refresh under way advanced by IK_STEPS_PER_CYCLE iterations: its joints (n,)
+        once done (the refresh then over), else None."""
+        solve = self._pending[1]
+        for _ in range(self.IK_STEPS_PER_CYCLE):
+            try:
+                next(solve)
+            except StopIteration as done:
+                self._pending = None
+                return done.value
+        return None

@@ -376,8 +376,9 @@ def clearance_inverse_kinematics_steps(model, goal, seeds, lower, upper, iterati
                                        keep_off):
     """clearance_inverse_kinematics one iteration at a time: a generator that yields (None)
     after each damped least-squares step and returns the joints (its StopIteration's value),
-    the same arithmetic to the bit. The reach-round's refresh advances it once per control
-    cycle, so that no cycle carries a whole solve (ReachRound.IK_STEPS_PER_CYCLE)."""
+    the same arithmetic to the bit. The reach-round's refresh advances it
+    ReachRound.IK_STEPS_PER_CYCLE steps a control cycle, so that no cycle carries a whole
+    solve."""
     from hri_core.robot_model import CLAMP_COST, IK_DAMPING, IK_TOLERANCE
 
     damping = IK_DAMPING ** 2 * np.eye(model.dof)

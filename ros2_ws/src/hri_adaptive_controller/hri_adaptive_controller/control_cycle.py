@@ -98,6 +98,7 @@ from hri_core.bodies import (
 from hri_core.potential import TaskShape
 from hri_core.separation import ProtectiveSeparation
 from hri_core.stamp_gate import DROPPED, RESTARTED, StampGate
+from hri_core.validation import check_frame
 
 LATE_FACTOR = 1.5  # a command later than 1.5 periods after its joint state is a deadline miss
 WATCHDOG_CHECKS = 4  # watchdog checks per joint_state_timeout
@@ -393,11 +394,12 @@ class ControlCycle:
         """Whether a `what` message's frame is the base frame (or unset); else a throttled
         warning: the controller transforms nothing, so a point in another frame would be
         followed or kept clear of at the wrong place."""
-        if frame in ('', self.settings.base_frame):
-            return True
-        self._warn(f'{what}_frame', f'{what} dropped: frame {frame!r} is not base_frame '
-                   f'{self.settings.base_frame!r}')
-        return False
+        try:
+            check_frame(frame, self.settings.base_frame)
+        except ValueError as error:
+            self._warn(f'{what}_frame', f'{what} dropped: {error}')
+            return False
+        return True
 
     def target(self, now: float, position: tuple, stamp: float, frame: str = '') -> bool:
         """A hand position on the task axes ((x, y) for a planar arm, else (x, y, z); m)

@@ -57,6 +57,7 @@ from hri_core.node_common import (
 )
 from hri_core.robot_model import ROBOT_NAMES, robot_model
 from hri_core.separation import ProtectiveSeparation
+from hri_core.validation import check_frame
 
 PACKAGE = 'hri_adaptive_controller'
 NODE_NAME = 'event_detector'
@@ -195,11 +196,12 @@ class EventDetectorNode(Node):
     def _in_base_frame(self, frame: str, what: str) -> bool:
         """Whether a `what` message's frame is base_frame (or unset); else a throttled
         warning: the detector transforms nothing."""
-        if frame in ('', self._frame):
-            return True
-        self._warn(f'{what}_frame', f'{what} dropped: frame {frame!r} is not base_frame '
-                   f'{self._frame!r}')
-        return False
+        try:
+            check_frame(frame, self._frame)
+        except ValueError as error:
+            self._warn(f'{what}_frame', f'{what} dropped: {error}')
+            return False
+        return True
 
     def _on_task_state(self, msg: TaskState) -> None:
         """The current task: where the event_manager is heading ('' = no task). While it

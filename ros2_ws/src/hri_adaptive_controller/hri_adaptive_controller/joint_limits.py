@@ -658,25 +658,23 @@ class ReachRound:
         it lies CLEAR_BANDS band inside its box and, for an arm with as many joints as task
         axes, det J there (its branch)."""
         now = solved = self._time
-        if self._joint_goal is None:
+        last = self._joint_goal
+        if last is None:
             self._pending = None
             target = self._solve(goal, q, x)
-        elif self._pending is not None or now - self._joint_goal[0] >= self.IK_PERIOD:
-            if self._pending is None:
-                seeds = np.array([q, self._joint_goal[1]])
-                if self.keep_off is None:
-                    target = self._model.inverse_kinematics(goal, seeds, *self._box,
-                                                            self.IK_REFRESH)
-                else:
-                    self._pending = (now, clearance_inverse_kinematics_steps(
-                        self._model, goal, seeds, *self._box, self.IK_REFRESH,
-                        self.keep_off))
-            if self._pending is not None:
-                solved, target = self._pending[0], self._advance()
-                if target is None:
-                    return self._joint_goal[1]
+        elif self._pending is None and now - last[0] < self.IK_PERIOD:
+            return last[1]
+        elif self._pending is None and self.keep_off is None:
+            target = self._model.inverse_kinematics(goal, np.array([q, last[1]]), *self._box,
+                                                    self.IK_REFRESH)
         else:
-            return self._joint_goal[1]
+            if self._pending is None:
+                self._pending = (now, clearance_inverse_kinematics_steps(
+                    self._model, goal, np.array([q, last[1]]), *self._box, self.IK_REFRESH,
+                    self.keep_off))
+            solved, target = self._pending[0], self._advance()
+            if target is None:
+                return last[1]
         clear = all(low <= v <= high for v, low, high in zip(
             target.tolist(), *self._clear_box, strict=True))
         pairs = None if self.keep_off is None else self.keep_off(target)

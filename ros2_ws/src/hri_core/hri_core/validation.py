@@ -67,3 +67,11 @@ def point_vector(value, name: str, unit: str = '') -> np.ndarray:
         raise ValueError(f'{name} must be 2 or 3 finite values [x, y(, z)]{where}, got '
                          f'{np.ravel(value)}')
     return array
+
+
+def check_frame(frame: str, base_frame: str) -> None:
+    """ValueError unless a message's header frame `frame` is `base_frame` or unset (''): the
+    project's nodes transform nothing, so a point in another frame would be used at the wrong
+    place; an empty frame_id is taken as the base frame (a bare publisher)."""
+    if frame not in ('', base_frame):
+        raise ValueError(f'frame {frame!r} is not base_frame {base_frame!r}')

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hri_core.validation import spatial_points, spatial_vector
+from hri_core.validation import check_frame, spatial_points, spatial_vector
 
 
 def test_spatial_vector_takes_three_finite_values():
@@ -24,3 +24,12 @@ def test_spatial_points_put_planar_points_in_the_plane_z_0():
         spatial_points(np.ones((4, 4)), 'positions')
     with pytest.raises(ValueError, match=r'positions must be finite \(m\)'):
         spatial_points(np.full((2, 3), np.inf), 'positions', 'm')
+
+
+def test_a_frame_is_the_base_frame_or_unset():
+    check_frame('base', 'base')
+    check_frame('', 'base')  # a bare publisher's: taken as the base frame
+    with pytest.raises(ValueError, match="^frame 'camera' is not base_frame 'base'$"):
+        check_frame('camera', 'base')
+    with pytest.raises(ValueError, match="^frame 'base' is not base_frame 'world'$"):
+        check_frame('base', 'world')

@@ -64,6 +64,7 @@ from hri_core.node_common import (
     load_defaults,
 )
 from hri_core.robot_model import EXAMPLE_ROBOTS, generic_model
+from hri_core.validation import check_frame
 from scara_sim.arm_simulation import ArmSimulator, true_arm
 from scara_sim.sim_node_common import (
     ROBOT_PARAMETERS,
@@ -207,8 +208,7 @@ class ArmSim(SteppedSimNode):
         """A body on /human/body: its capsules, for the stepping thread to move in."""
         frame = msg.header.frame_id
         try:
-            if frame not in ('', self._frame):
-                raise ValueError(f'frame {frame!r} is not {self._frame!r}')
+            check_frame(frame, self._frame)
             seen = seen_body_points(msg.names, [(p.x, p.y, p.z) for p in msg.points])
             capsules = human_capsules(seen.names, seen.points)
         except ValueError as error:

@@ -54,6 +54,7 @@ from hri_core.node_common import (
     take_raw,
 )
 from hri_core.robot_model import ROBOT_NAMES, RobotModel, robot_model
+from hri_core.validation import check_frame
 from scara_sim.simulation import (
     FixedStepClock,
     RealTimeStepper,
@@ -272,8 +273,7 @@ class SteppedSimNode(Node):
     def _on_wrench(self, msg: WrenchStamped) -> None:
         frame = msg.header.frame_id
         try:
-            if frame not in ('', self._frame):
-                raise ValueError(f'frame {frame!r} is not {self._frame!r}')
+            check_frame(frame, self._frame)
             wrench = self.wrench_values(msg)
         except ValueError as error:
             self.get_logger().warning(f'rejected /human/wrench: {error}',

@@ -15,7 +15,11 @@ Per run:
 - tool-hand: follow's median distance (m) over the samples where the hand is seen, in reach
   and slower than the task speed (run_metrics.considered_samples), and over those of them where
   the hand is also clear of the trunk (a tool-sized ball at the hand at least `clearance`
-  from it); avoid's and follow_safe's share of those samples closer than d1 - 3 cm;
+  from it); and `median_reachable`, over the considered samples every 100 ms in which a pose
+  that keeps the law's clearances puts the tool at the hand (`clear_pose_at_hand`) once the
+  arm has had the time to come from its start at max_task_speed (the distance at the start
+  over that speed: the approach from home is not following); avoid's and follow_safe's share
+  of the considered samples closer than d1 - 3 cm;
 - the peak |effort| (N m) and the seconds the run took.
 
 `--turns N` places each take N more times, turned about the base's vertical axis by seeded
@@ -44,6 +48,7 @@ from hri_adaptive_controller.closed_loop import (
     recorded_target,
     simulate,
 )
+from hri_adaptive_controller.joint_limits import clearance_inverse_kinematics
 from hri_adaptive_controller.run_metrics import TakeCriteria, considered_samples
 from hri_core.bodies import (
     Capsules,
@@ -74,6 +79,11 @@ REACH = {'scara': ReachAnnulus(0.222, 0.65), 'panda': ReachAnnulus(0.30, 0.75)}
 MARGIN = 0.03  # m: "closer than clearance - 3 cm", and avoid's d1 - 3 cm
 SAMPLE_EVERY = 10  # steps (10 ms) between the trunk checks
 TURN_DRAWS = 50  # turns drawn per placement before giving up on one the start rule accepts
+REACHABLE_EVERY = 100  # steps (100 ms) between the reachability checks
+AT_HAND = 0.03  # m: a pose whose tool is this near the hand reaches it
+CLEAR_SLACK = 0.002  # m: and whose pairs lie at most this inside the law's wanted distance
+IK_SEEDS = 4  # random seeds of the reachability check's solve, besides the arm's and home
+IK_ITERATIONS = 60  # iterations from each seed
 
 
 def task(name: str) -> TaskShape:
@@ -88,6 +98,31 @@ def trunk_capsules(frame: np.ndarray) -> Capsules | None:
     if not kept:
         return None
     return human_capsules([BODY_POINTS[k] for k in kept], frame[kept])
+
+
+def clear_pose_at_hand(law: ArmController, shape, hand: np.ndarray, frame: np.ndarray,
+                       q: np.ndarray, rng) -> bool:
+    """Whether some pose puts the tool within AT_HAND of `hand` (k,) m while every pair
+    keeps the law's clearance (less CLEAR_SLACK) as the law counts its pairs in the task
+    `shape` (ArmController.person_keep_off, with no margin beyond the clearance) against the
+    person's seen points `frame` (K, 3) m: clearance_inverse_kinematics from the arm's joints
+    q (n,), its home and IK_SEEDS random poses (rng) in the joint box."""
+    seen = np.all(np.isfinite(frame), axis=1)
+    names = [name for name, ok in zip(BODY_POINTS, seen, strict=True) if ok]
+    keep_off = law.person_keep_off(shape, human_capsules(names, frame[seen]), margin=0.0)
+    model = law.model
+    lower, upper = law.joint_limits
+    still = np.zeros(model.dof)
+    seeds = np.vstack([q, model.home, rng.uniform(lower, upper, size=(IK_SEEDS, model.dof))])
+    for seed in seeds:
+        pose = clearance_inverse_kinematics(model, hand, seed[None], lower, upper,
+                                            IK_ITERATIONS, keep_off)
+        pairs = keep_off(pose)
+        if pairs is not None and float(pairs[1].max()) > CLEAR_SLACK:
+            continue
+        if np.linalg.norm(model.task_kinematics(pose, still)[0] - hand) <= AT_HAND:
+            return True
+    return False
 
 
 def turned(placement: Placement, turn: float) -> Placement:
@@ -173,6 +208,9 @@ def run(robot: str, body, path: Path, names, crop: float, placement: Placement,
                     else None
                 row['median_clear'] = float(np.median(distance[clear])) if clear.any() \
                     else None
+                if force > 0.0:
+                    row.update(reachable_median(model, gains, body, shape, result, seen,
+                                                considered, points[index], distance))
             else:
                 row['too_close'] = float(np.mean(distance[considered] < shape.d1 - MARGIN)) \
                     if considered.any() else None
@@ -180,9 +218,29 @@ def run(robot: str, body, path: Path, names, crop: float, placement: Placement,
     return rows
 
 
+def reachable_median(model, gains, body, shape, result, seen, considered, frames,
+                     distance) -> dict:
+    """median_reachable (module docstring; None without such a sample) and the share of the
+    checked samples it is taken over."""
+    law = ArmController(model, gains, body=body)
+    start = float(distance[np.flatnonzero(np.isfinite(distance))[0]])
+    settled = result.time >= start / gains.max_task_speed
+    rng = np.random.default_rng(0)
+    checked = [i for i in range(0, len(result.time), REACHABLE_EVERY)
+               if considered[i] and settled[i]]
+    kept = [i for i in checked
+            if clear_pose_at_hand(law, shape, seen[i], frames[i], result.q[i], rng)]
+    return {'median_reachable': float(np.median(distance[kept])) if kept else None,
+            'reachable_share': len(kept) / len(checked) if checked else 0.0}
+
+
 def text(row: dict) -> str:
+    reachable = row.get('median_reachable')
     figures = (f"median {row['median']:.3f} m, clear of the trunk "
-               f"{row['median_clear']:.3f} m" if 'median' in row and row['median'] is not None
+               f"{row['median_clear']:.3f} m, where a clear pose reaches "
+               f"{'-' if reachable is None else f'{reachable:.3f} m'} "
+               f"({row.get('reachable_share', 0.0):.0%} of the settled samples)"
+               if 'median' in row and row['median'] is not None
                and row['median_clear'] is not None else
                f"median {row.get('median')}" if 'median' in row else
                f"closer than d1 - 3 cm {row['too_close']}")

@@ -905,7 +905,7 @@ class ArmController(TaskDrives):
         kernels.adapt(np.zeros((n, p)), zeros_n, np.zeros(p), 0.0, np.zeros(p),
                       self.model.theta_lower, self.model.theta_upper)
         kernels.joint_motion(zeros_n, True, zeros_n, zeros_n, zeros_n, zeros_n, zeros_n, 1e-3,
-                             1.0, 1.0, 1.0, 1.0)
+                             1.0, 1.0, 1.0, 1.0, zeros_n)
         if self.body is not None and self.body.chain is not None:
             far = Capsules(('far',), np.full((1, 3), 1e3), np.full((1, 3), 1e3), np.ones(1))
             self.whole_body_barrier(self.model.home.astype(float), zeros_n, far, None)
@@ -1154,6 +1154,7 @@ class ArmController(TaskDrives):
             feed, feed_rate = (1.0 - a, -da) if avoid else (1.0, 0.0)
             ff, ff_rate = self._feed_forward(
                 feed * hand_velocity, feed * hand_acceleration + feed_rate * hand_velocity)
+            hand_feed = ff
             if all(low <= value <= high for value, (low, high) in zip(q.tolist(), self._inner,
                                                                        strict=True)):
                 g_b = g_b_rate = None  # outside every band (the usual case)
@@ -1205,9 +1206,11 @@ class ArmController(TaskDrives):
             held = body.gate > REACH_ROUND_BODY_GATE
             region = (None if drive is None or avoid or (held and not round_person)
                       else (drive.shape.d1, drive.shape.d2))
+            # The pose moves with the hand: the hand's velocity as fed forward (capped; not
+            # gated by the person's band, which the pose keeps clear of).
             blend = self._reach.update(q, dq, x, jac, hand.position, region,
                                        max(near, body.gate) if held and round_person else near,
-                                       dt)
+                                       dt, hand_feed, pinv)
             scale = 1.0
             if blend is not None:
                 # eq. 14 blended with the joint motion a u, weighted as the task's pull.
@@ -1356,13 +1359,13 @@ class ArmController(TaskDrives):
             return 1.0
         return quintic_smoothstep(self._body_time / settings.fade_in)[0]
 
-    def _keep_off(self, human: Capsules, exempt):
+    def _keep_off(self, human: Capsules, exempt, margin: float = IK_CLEARANCE_MARGIN):
         """The reach-round's keep_off for the person `human` (exempt as _exempt gives it):
         q (n,) rad -> (rows n^T J_p (m, n) m/rad, shortfall (m,) m) of the pairs within the
-        approach damper's reach (clearance + influence), shortfall = clearance +
-        IK_CLEARANCE_MARGIN - distance (their surfaces', the tracked arm's at its surface as
-        in the barrier), or None without such a pair."""
-        wanted = self._gains.body.clearance + IK_CLEARANCE_MARGIN
+        approach damper's reach (clearance + influence), shortfall = clearance + margin (m)
+        - distance (their surfaces', the tracked arm's at its surface as in the barrier), or
+        None without such a pair."""
+        wanted = self._gains.body.clearance + margin
         still = self._zero_joints
 
         def keep_off(q):
@@ -1372,6 +1375,15 @@ class ArmController(TaskDrives):
             return pairs.rows, wanted - pairs.gaps
 
         return keep_off
+
+    def person_keep_off(self, shape: TaskShape | None, human: Capsules, margin: float):
+        """_keep_off in the task `shape` (None: no task) for the person `human`, with the
+        task's exemption, its pairs wanted `margin` (m) beyond the clearance: "is there a pose
+        here that keeps the law's clearances" asked as the law asks it."""
+        drive = self.drive(shape)
+        avoid = drive is not None and drive.open_outward
+        return self._keep_off(human, None if drive is None or avoid
+                              else self._exempt_parts(drive, human), margin)
 
     def _exempt(self, drive, avoid: bool, human: Capsules):
         """(the tracked hand's capsules, the rest of its arm's) where the task's region

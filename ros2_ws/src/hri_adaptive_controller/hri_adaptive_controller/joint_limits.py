@@ -89,8 +89,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep_array
-from hri_adaptive_controller.task_variable import SECH_LIMIT, speed_cap
+from hri_adaptive_controller.task_variable import SECH_LIMIT, norm_cap, speed_cap
 
+GOAL_RATE_STEP = 0.01
+"""s: the reach-round's goal velocity is its change for the hand moved on this long at its
+velocity (a hand's one frame at 100 Hz; the goal is piecewise smooth in the hand)."""
+GOAL_RATE_TIME = 0.05
+"""s: the time constant of the first-order filter through which the reach-round's goal
+velocity is fed forward."""
 GOAL_MARGIN = 1.0
 """The joint goal q* is kept GOAL_MARGIN band inside the limits: the barrier is off there, so
 an arm holding q* is not pushed off it (with half a band the Panda, behind its base, ended
@@ -292,12 +298,14 @@ def reach_goal(tool, hand, d1: float, d2: float, centre, high: float, low: float
 
 
 def joint_motion(goal, has_goal, q_in, filtered, rate, q, dq, dt, slew, filter_rate, gain,
-                 max_speed):
+                 max_speed, goal_rate):
     """One step of the reach-round's joint motion (module docstring), for n joints: q_in
     slewed towards the joint goal (n,) rad at `slew` rad/s (left where it is unless
     has_goal), q_f (`filtered`, rad) and dq_f/dt (`rate`, rad/s) advanced by dt (s) through a
     critically damped second-order filter of rate `filter_rate` (1/s; semi-implicit Euler: its
-    acceleration is continuous, as q_in is, so the feed-forward of dq_f steps nothing), and
+    acceleration is continuous, as q_in is, so the feed-forward of dq_f steps nothing) whose
+    damping acts on dq_f/dt - goal_rate ((n,) rad/s: the goal's own velocity, fed forward: a
+    goal moving at goal_rate is tracked without the filter's lag of 2 / filter_rate s), and
     u = dq_f/dt - cap(gain e) (rad/s; e = q - q_f, the cap smooth in |e|: max_speed tanh) with
     its exact time derivative du/dt (rad/s^2). Arrays (n,) of floats in and out: returns
     (q_in, q_f, dq_f/dt, u, du/dt), new arrays. Plain loops, so that numba compiles the same
@@ -313,7 +321,7 @@ def joint_motion(goal, has_goal, q_in, filtered, rate, q, dq, dt, slew, filter_r
         value = q_in[i]
         if has_goal:
             value += min(max(goal[i] - value, -step), step)
-        a = stiffness * (value - filtered[i]) - damping * rate[i]
+        a = stiffness * (value - filtered[i]) + damping * (goal_rate[i] - rate[i])
         df = rate[i] + dt * a
         q_in_out[i], acc[i], rate_out[i] = value, a, df
         filtered_out[i] = filtered[i] + dt * df
@@ -515,6 +523,10 @@ class ReachRound:
         # (0, 1]: the share of the settings' slew and max_speed the joint motion uses (the
         # caller lowers it near a person).
         self.speed_scale = 1.0
+        # (n,) rad/s: the joint goal's velocity this cycle (update's hand_velocity and pinv),
+        # and the share of it fed forward into its filter (joint_motion).
+        self._goal_rate = None
+        self._fed_rate = self._still
         self._motion, self._goal = joint_motion, reach_goal
         if compiled:  # imported here: arm_kernels imports this module
             from hri_adaptive_controller import arm_kernels
@@ -572,21 +584,38 @@ class ReachRound:
             return None
         if self._filtered is None:
             self._filtered = (q.copy(), q.copy(), np.zeros(q.size))
+            self._fed_rate = self._still
         has_goal = joint_goal is not None
         goal = joint_goal() if has_goal else self._filtered[0]
         scale = self.speed_scale
+        # The goal's velocity steps where the hand crosses the shell's edge or stops: its
+        # share fed forward is filtered (first order, GOAL_RATE_TIME), so that the filter's
+        # acceleration, and so the torque, does not step (4.2 N m in one cycle unfiltered).
+        wanted = self._still
+        if has_goal and self._goal_rate is not None:
+            # Capped as the motion's correction is: J+ of the hand's velocity near a
+            # singular pose asked the Panda's joints for 2.2 rad/s, into its effort limits.
+            capped, _ = norm_cap(self._goal_rate, scale * settings.max_speed)
+            wanted = capped * self._goal_rate
+        fed = self._fed_rate
+        goal_rate = fed + (1.0 - math.exp(-dt / GOAL_RATE_TIME)) * (wanted - fed)
+        self._fed_rate = goal_rate
         q_in, filtered, rate, u, du = self._motion(
             goal, has_goal, *self._filtered, q, dq, dt, scale * settings.slew,
-            settings.filter_rate, settings.gain, scale * settings.max_speed)
+            settings.filter_rate, settings.gain, scale * settings.max_speed, goal_rate)
         self._filtered = (q_in, filtered, rate)
         return sigma, sigma_rate, u, du
 
-    def update(self, q, dq, x, jac, hand, region, near: float, dt: float):
+    def update(self, q, dq, x, jac, hand, region, near: float, dt: float,
+               hand_velocity=None, pinv=None):
         """Advance by dt (s) and return (sigma, dsigma/dt, u (n,), du/dt (n,)) or None while
         sigma rests at 0. q, dq (n,); x, hand (k,) m: the tool and the target on the task
         axes; jac (k, n): the task Jacobian at q; region (d1, d2) m of a follow task, or None
         (no task, or an avoid task: sigma fades to 0); near: the barrier's proximity
-        (barrier())."""
+        (barrier()); hand_velocity (k,) m/s and pinv (n, k), J+ at q: the goal moves with
+        the hand, and its velocity (the goal's change for the hand moved on by GOAL_RATE_STEP
+        s: none where the hand leaves the shell outwards) is fed forward through J+ to the
+        joint goal's filter (None: a still goal)."""
         settings = self.settings
         if region is None or not settings.enabled:
             if self._resting:
@@ -605,6 +634,11 @@ class ReachRound:
             return None
         goal, distance, radius, clearance = self._goal(
             x, hand, d1, d2, self._centre, self._high, self._low)
+        self._goal_rate = None
+        if hand_velocity is not None:
+            ahead = self._goal(x, hand + GOAL_RATE_STEP * hand_velocity, d1, d2, self._centre,
+                               self._high, self._low)[0]
+            self._goal_rate = pinv @ ((ahead - goal) / GOAL_RATE_STEP)
         outside = radius - d2 > self._high or radius + d2 < self._low
         blocked = hole and clearance < self._inner + self.BLOCKED_CLEARANCE
         path_clear = not hole or clearance >= self._inner + self.CLEAR_CLEARANCE

@@ -112,7 +112,8 @@ def test_the_reach_rounds_joint_motion_is_the_reference(joints):
     for scale in (1e-9, 0.01, 1.0, 1e3):  # from no joint error to one past SECH_LIMIT
         for has_goal in (True, False):
             arrays = [scale * rng.normal(size=joints) for _ in range(6)]
-            args = (arrays[0], has_goal, *arrays[1:], DT, 1.0, 8.0, 4.0, 1.0)
+            args = (arrays[0], has_goal, *arrays[1:], DT, 1.0, 8.0, 4.0, 1.0,
+                    scale * rng.normal(size=joints))
             for compiled, reference in zip(arm_kernels.joint_motion(*args),
                                             joint_limits.joint_motion(*args), strict=True):
                 np.testing.assert_allclose(compiled, reference, rtol=1e-12, atol=1e-15)

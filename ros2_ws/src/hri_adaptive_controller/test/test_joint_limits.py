@@ -23,6 +23,7 @@ from hri_adaptive_controller.joint_limits import (
     barrier,
     barrier_energy,
     gate_feed_forward,
+    joint_motion,
 )
 from hri_core.dynamics import ScaraParameters, dynamic_parameters
 from hri_core.potential import TaskShape
@@ -191,6 +192,28 @@ def test_follow_safe_reaches_its_annulus_on_the_far_side():
     settled = result.time >= 14.0
     assert np.all((result.distance[settled] >= FOLLOW_SAFE.d1 - 0.01)
                   & (result.distance[settled] <= FOLLOW_SAFE.d2 + 0.01))
+
+
+def test_a_goal_fed_its_velocity_is_tracked_without_the_filters_lag():
+    # A follow's joint goal moves with the hand. Fed forward, its velocity leaves the joint
+    # motion at the goal; without it the critically damped filter trails a ramp by
+    # 2 / filter_rate s (0.25 s at 8 1/s: 0.1 rad at 0.4 rad/s).
+    settings = ReachRoundSettings()
+    speed = np.array([0.4, -0.2])  # rad/s, within the slew
+    dt = 1e-3
+    lags = []
+    for fed in (True, False):
+        q_in = filtered = q = dq = rate = np.zeros(2)
+        for step in range(3000):  # 3 s, the arm moving as asked (dq = u)
+            goal = speed * (step + 1) * dt
+            q_in, filtered, rate, dq, _ = joint_motion(
+                goal, True, q_in, filtered, rate, q, dq, dt, settings.slew,
+                settings.filter_rate, settings.gain, settings.max_speed,
+                speed if fed else np.zeros(2))
+            q = q + dt * dq
+        lags.append(np.abs(goal - q).max())
+    assert lags[0] < 1e-3
+    assert lags[1] == pytest.approx(2.0 / settings.filter_rate * 0.4, rel=0.05)
 
 
 def test_reach_round_blend_is_off_for_avoid_tasks_and_without_a_task():

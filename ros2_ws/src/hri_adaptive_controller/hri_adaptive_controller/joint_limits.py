@@ -468,9 +468,10 @@ class ReachRound:
     out of reach, once); then refreshed every IK_PERIOD s from the arm's joints and from the
     last q* (IK_REFRESH iterations each), the nearest to the arm that reaches (the SCARA: the elbow
     nearer to the arm's), so that the numerical solve stays off most control cycles; a
-    clearance-aware refresh (keep_off set) runs IK_STEPS_PER_CYCLE of its iterations a cycle,
-    the last q* kept until it ends. While sigma ramps down, q* keeps following the goal; it is
-    forgotten once sigma rests.
+    clearance-aware solve (keep_off set), the engaging one too, runs IK_STEPS_PER_CYCLE of its
+    iterations a cycle, the last q* kept until it ends (on engaging, none: the blend holds the
+    joints where they were, about 30 cycles with sigma still near 0). While sigma ramps down,
+    q* keeps following the goal; it is forgotten once sigma rests.
 
     model: a RobotModel; lower, upper (n,) rad; band (rad): the barrier's; reach (m): the
     attained reach round the shoulder; damping_threshold w0 (m^k): J+ is undamped where
@@ -585,8 +586,10 @@ class ReachRound:
         if self._filtered is None:
             self._filtered = (q.copy(), q.copy(), np.zeros(q.size))
             self._fed_rate = self._still
-        has_goal = joint_goal is not None
-        goal = joint_goal() if has_goal else self._filtered[0]
+        goal = None if joint_goal is None else joint_goal()
+        has_goal = goal is not None  # None: no goal yet (the engaging solve under way)
+        if not has_goal:
+            goal = self._filtered[0]
         scale = self.speed_scale
         # The goal's velocity steps where the hand crosses the shell's edge or stops: its
         # share fed forward is filtered (first order, GOAL_RATE_TIME), so that the filter's
@@ -623,8 +626,7 @@ class ReachRound:
                 return None
             blend = self._blend(False, None, q, dq, dt)
             if blend is None:
-                self._joint_goal = None  # the next engagement solves afresh
-                self.goal_shortfall = 0.0
+                self._forget_goal()  # the next engagement solves afresh
             return blend
         d1, d2 = region
         hole = self._inner > 0.0
@@ -644,9 +646,12 @@ class ReachRound:
         path_clear = not hole or clearance >= self._inner + self.CLEAR_CLEARANCE
         if self._engaged:
             target = self._refresh(goal, q, x)
-            settled = distance <= 0.5 * self.FAR_GOAL and self._joint_goal[2]
+            # While the engaging solve is under way (target None) the blend stays on.
+            settled = (target is not None and distance <= 0.5 * self.FAR_GOAL
+                       and self._joint_goal[2])
             wanted = outside or blocked or not (
-                settled or (path_clear and self._straight(q, jac, target, near)))
+                settled or (target is not None and path_clear
+                            and self._straight(q, jac, target, near)))
 
             def joint_goal():
                 return target
@@ -657,9 +662,14 @@ class ReachRound:
                 return self._refresh(goal, q, x)
         blend = self._blend(wanted, joint_goal, q, dq, dt)
         if blend is None:
-            self._joint_goal = None
-            self.goal_shortfall = 0.0
+            self._forget_goal()
         return blend
+
+    def _forget_goal(self) -> None:
+        """Forget the joint goal and any solve under way: the next engagement solves afresh."""
+        self._joint_goal = None
+        self._pending = None
+        self.goal_shortfall = 0.0
 
     def _straight(self, q, jac, target, near: float) -> bool:
         """Whether the straight descent is trusted (the class docstring; the path's clearance
@@ -671,44 +681,41 @@ class ReachRound:
         det = _det(jac)
         return det * self._joint_goal[3] > 0.0 and det * det >= self._undamped2
 
-    def _solve(self, goal, q, x) -> np.ndarray:
-        """q* for `goal` (k,) m from the seeds of the class docstring; q (n,) the arm's
-        joints, x (k,) m its tool point."""
+    def _seeds(self, goal, q, x) -> np.ndarray:
+        """The engaging solve's seeds (3, n) for `goal` (k,) m (the class docstring); q (n,)
+        the arm's joints, x (k,) m its tool point."""
         (c1, c2), home = self._centre[:2].tolist(), self._home
         azimuth = math.atan2(goal[1] - c2, goal[0] - c1)
         swung_home, swung_arm = home.copy(), np.array(q, dtype=float)
         swung_home[0] = math.remainder(home[0] + azimuth - self._home_azimuth, 2.0 * math.pi)
         swung_arm[0] += math.remainder(azimuth - math.atan2(x[1] - c2, x[0] - c1),
                                        2.0 * math.pi)
-        seeds = np.array([q, swung_home, swung_arm])
-        if self.keep_off is not None:
-            return clearance_inverse_kinematics(self._model, goal, seeds, *self._box,
-                                                self.IK_ITERATIONS, self.keep_off)
-        return self._model.inverse_kinematics(goal, seeds, *self._box)
+        return np.array([q, swung_home, swung_arm])
 
-    def _refresh(self, goal, q, x) -> np.ndarray:
+    def _refresh(self, goal, q, x) -> np.ndarray | None:
         """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s (a
-        clearance-aware refresh over the cycles it takes, from its start); with it whether
-        it lies CLEAR_BANDS band inside its box and, for an arm with as many joints as task
-        axes, det J there (its branch)."""
+        clearance-aware solve, on engaging too, over the cycles it takes, from its start:
+        None until an engaging one ends); with it whether it lies CLEAR_BANDS band inside its
+        box and, for an arm with as many joints as task axes, det J there (its branch)."""
         now = solved = self._time
         last = self._joint_goal
-        if last is None:
-            self._pending = None
-            target = self._solve(goal, q, x)
-        elif self._pending is None and now - last[0] < self.IK_PERIOD:
-            return last[1]
-        elif self._pending is None and self.keep_off is None:
-            target = self._model.inverse_kinematics(goal, np.array([q, last[1]]), *self._box,
-                                                    self.IK_REFRESH)
-        else:
-            if self._pending is None:
+        target = None
+        if self._pending is None:
+            if last is not None and now - last[0] < self.IK_PERIOD:
+                return last[1]
+            seeds, iterations = ((self._seeds(goal, q, x), self.IK_ITERATIONS) if last is None
+                                 else (np.array([q, last[1]]), self.IK_REFRESH))
+            if self.keep_off is None:
+                target = (self._model.inverse_kinematics(goal, seeds, *self._box) if last is None
+                          else self._model.inverse_kinematics(goal, seeds, *self._box,
+                                                              iterations))
+            else:
                 self._pending = (now, clearance_inverse_kinematics_steps(
-                    self._model, goal, np.array([q, last[1]]), *self._box, self.IK_REFRESH,
-                    self.keep_off))
+                    self._model, goal, seeds, *self._box, iterations, self.keep_off))
+        if target is None:
             solved, target = self._pending[0], self._advance()
             if target is None:
-                return last[1]
+                return None if last is None else last[1]
         clear = all(low <= v <= high for v, low, high in zip(
             target.tolist(), *self._clear_box, strict=True))
         pairs = None if self.keep_off is None else self.keep_off(target)

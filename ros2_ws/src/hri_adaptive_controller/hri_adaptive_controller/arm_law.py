@@ -86,15 +86,15 @@ short) or the region lies beyond the reach (for a planar arm also: the straight 
 crosses the hole round its base), joint_limits.ReachRound's blend brings in the joint
 motion u towards an inverse-kinematics pose with sigma (a C2 ramp, slewed goal filter and
 capped u), weighted by a as the task's pull; the task's force is weighted 1 - sigma and
-so is the posture pull of the null space (the barrier's push is not). On an arm without a
-null space (the SCARA) the blend stands down while the person's barrier holds the arm (its
-gate above REACH_ROUND_BODY_GATE): its pose does not know the person, and held against the
-barrier it kept sigma at 1 for good. A redundant arm's pose keeps every robot-person pair
-IK_CLEARANCE_MARGIN beyond the clearance (joint_limits.clearance_inverse_kinematics, the
-pairs from the compiled barrier): there the person's barrier holding the arm short of a far
-goal engages the blend as a joint's barrier does, its joint motion slowed with the gate
-(PERSON_ROUND_SPEED), and it stands down only while its pose could not be cleared
-(GOAL_SHORTFALL). The damper and the barrier's torque stay whole either way.
+so is the posture pull of the null space (the barrier's push is not). Beside a person the
+pose keeps every robot-person pair IK_CLEARANCE_MARGIN beyond the clearance
+(joint_limits.clearance_inverse_kinematics, the pairs from the compiled barrier), on every
+arm: the person's barrier holding the arm short of a far goal engages the blend as a
+joint's barrier does (its gate above REACH_ROUND_BODY_GATE), its joint motion slowed with
+the gate (PERSON_ROUND_SPEED), and it stands down while the person's barrier holds the arm
+and its pose could not be cleared (GOAL_SHORTFALL): held against the barrier short of a
+pose in the person, sigma stayed at 1 for good. The damper and the barrier's torque stay
+whole either way.
 No ROS import.
 """
 
@@ -134,17 +134,17 @@ from hri_core.potential import TaskShape
 from hri_core.robot_model import RobotModel
 
 REACH_ROUND_BODY_GATE = 0.1
-"""The person's barrier gate (BodyBarrier.gate) above which the reach-round stands down (an
-arm without a null space, the SCARA) or engages (a redundant arm, as a joint's barrier
-engages it: module docstring)."""
+"""The person's barrier gate (BodyBarrier.gate) above which the reach-round engages (as a
+joint's barrier engages it), or stands down while its pose could not be cleared (module
+docstring)."""
 IK_CLEARANCE_MARGIN = 0.03
-"""m: a redundant arm's reach-round pose keeps every robot-person pair this far beyond the
+"""m: the reach-round's pose keeps every robot-person pair this far beyond the
 clearance (joint_limits.clearance_inverse_kinematics), inside the barrier's band but off its
 damper's stop."""
 GOAL_SHORTFALL = 0.06
-"""m: a redundant arm's reach-round stands down, as the SCARA's, while the person's barrier
-holds the arm and its last pose lies this far inside IK_CLEARANCE_MARGIN beyond the
-clearance (within the clearance less 3 cm: a pose the solve could not clear)."""
+"""m: the reach-round stands down while the person's barrier holds the arm and its last pose
+lies this far inside IK_CLEARANCE_MARGIN beyond the clearance (within the clearance less 3
+cm: a pose the solve could not clear)."""
 PERSON_ROUND_SPEED = 0.25
 """The share of the reach-round's slew and joint speed (ReachRoundSettings) left with the
 person's barrier gate at 1 (1 - (1 - this) gate): at 1 rad/s a joint the Panda's gripper,
@@ -1190,15 +1190,14 @@ class ArmController(TaskDrives):
                     # hand drawn back to the chest at 0.5 m/s would cancel its 0.5 m/s push.
                     keep, keep_rate = 1.0 - body.gate, -body.gate_rate
                     ff, ff_rate = keep * ff, keep * ff_rate + keep_rate * ff
-            # The SCARA's reach-round pose ignores the person: while the person's barrier
-            # holds the arm, the blend would pull into the barrier for good (sigma 1, the
-            # task's force 0), so it stands down and the task's descent slides the arm round
-            # the person. A redundant arm's pose keeps the person's clearance (keep_off): its
-            # blend engages where the person's barrier holds the arm short of a far goal, as
-            # a joint's barrier does (the learned task's pull near the hand, about 1 N, left
+            # The reach-round's pose keeps the person's clearance (keep_off): its blend
+            # engages where the person's barrier holds the arm short of a far goal, as a
+            # joint's barrier does (the learned task's pull near the hand, about 1 N, left
             # the Panda resting in the bands 0.17-0.47 m short), slower the nearer the
-            # person, and stands down while its pose is not clear (GOAL_SHORTFALL).
-            knows_person = self._null_space and fade > 0.0
+            # person, and stands down while its pose is not clear (GOAL_SHORTFALL): a pose
+            # that ignored the person pulled the arm into the barrier for good (sigma 1, the
+            # task's force 0).
+            knows_person = fade > 0.0
             self._reach.keep_off = self._keep_off(human, exempt) if knows_person else None
             round_person = knows_person and self._reach.goal_shortfall <= GOAL_SHORTFALL
             self._reach.speed_scale = (1.0 - (1.0 - PERSON_ROUND_SPEED) * body.gate

@@ -109,7 +109,8 @@ def clear_pose_at_hand(law: ArmController, shape, hand: np.ndarray, frame: np.nd
     q (n,), its home and IK_SEEDS random poses (rng) in the joint box."""
     seen = np.all(np.isfinite(frame), axis=1)
     names = [name for name, ok in zip(BODY_POINTS, seen, strict=True) if ok]
-    keep_off = law.person_keep_off(shape, human_capsules(names, frame[seen]), margin=0.0)
+    keep_off = (law.person_keep_off(shape, human_capsules(names, frame[seen]), margin=0.0)
+                if names else lambda pose: None)  # no point of the person seen: no pair
     model = law.model
     lower, upper = law.joint_limits
     still = np.zeros(model.dof)
@@ -222,8 +223,11 @@ def reachable_median(model, gains, body, shape, result, seen, considered, frames
                      distance) -> dict:
     """median_reachable (module docstring; None without such a sample) and the share of the
     checked samples it is taken over."""
+    seen_at = np.flatnonzero(np.isfinite(distance))
+    if seen_at.size == 0:
+        return {'median_reachable': None, 'reachable_share': 0.0}
     law = ArmController(model, gains, body=body)
-    start = float(distance[np.flatnonzero(np.isfinite(distance))[0]])
+    start = float(distance[seen_at[0]])
     settled = result.time >= start / gains.max_task_speed
     rng = np.random.default_rng(0)
     checked = [i for i in range(0, len(result.time), REACHABLE_EVERY)

@@ -240,10 +240,11 @@ def reachable_median(model, gains, body, shape, result, seen, considered, frames
 
 def text(row: dict) -> str:
     reachable = row.get('median_reachable')
+    where = ('' if 'reachable_share' not in row else
+             f", where a clear pose reaches {'-' if reachable is None else f'{reachable:.3f} m'}"
+             f" ({row['reachable_share']:.0%} of the settled samples)")
     figures = (f"median {row['median']:.3f} m, clear of the trunk "
-               f"{row['median_clear']:.3f} m, where a clear pose reaches "
-               f"{'-' if reachable is None else f'{reachable:.3f} m'} "
-               f"({row.get('reachable_share', 0.0):.0%} of the settled samples)"
+               f"{row['median_clear']:.3f} m{where}"
                if 'median' in row and row['median'] is not None
                and row['median_clear'] is not None else
                f"median {row.get('median')}" if 'median' in row else

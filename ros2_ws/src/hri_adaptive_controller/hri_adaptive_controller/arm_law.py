@@ -1381,8 +1381,7 @@ class ArmController(TaskDrives):
         here that keeps the law's clearances" asked as the law asks it."""
         drive = self.drive(shape)
         avoid = drive is not None and drive.open_outward
-        return self._keep_off(human, None if drive is None or avoid
-                              else self._exempt_parts(drive, human), margin)
+        return self._keep_off(human, self._exempt(drive, avoid, human), margin)
 
     def _exempt(self, drive, avoid: bool, human: Capsules):
         """(the tracked hand's capsules, the rest of its arm's) where the task's region

@@ -90,6 +90,8 @@ import numpy as np
 
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep_array
 from hri_adaptive_controller.task_variable import SECH_LIMIT, norm_cap, speed_cap
+from hri_core.robot_model import CLAMP_COST, IK_DAMPING, IK_TOLERANCE
+from hri_core.robot_model import IK_ITERATIONS as MODEL_IK_ITERATIONS
 
 GOAL_RATE_STEP = 0.01
 """s: the reach-round's goal velocity is its change for the hand moved on this long at its
@@ -387,8 +389,6 @@ def clearance_inverse_kinematics_steps(model, goal, seeds, lower, upper, iterati
     the same arithmetic to the bit. The reach-round's refresh advances it
     ReachRound.IK_STEPS_PER_CYCLE steps a control cycle, so that no cycle carries a whole
     solve."""
-    from hri_core.robot_model import CLAMP_COST, IK_DAMPING, IK_TOLERANCE
-
     damping = IK_DAMPING ** 2 * np.eye(model.dof)
     still = np.zeros(model.dof)
     weight2 = IK_CLEARANCE_WEIGHT ** 2
@@ -524,10 +524,6 @@ class ReachRound:
         # (0, 1]: the share of the settings' slew and max_speed the joint motion uses (the
         # caller lowers it near a person).
         self.speed_scale = 1.0
-        # (n,) rad/s: the joint goal's velocity this cycle (update's hand_velocity and pinv),
-        # and the share of it fed forward into its filter (joint_motion).
-        self._goal_rate = None
-        self._fed_rate = self._still
         self._motion, self._goal = joint_motion, reach_goal
         if compiled:  # imported here: arm_kernels imports this module
             from hri_adaptive_controller import arm_kernels
@@ -543,6 +539,9 @@ class ReachRound:
         self._resting = True  # sigma is 0 with no ramp to evaluate
         self._full = False  # sigma is 1 with no ramp to evaluate
         self._filtered = None  # (q_in, q_f, dq_f), arrays (n,)
+        # (n,) rad/s: the share of the joint goal's velocity fed forward into its filter
+        # (joint_motion), restarted with it.
+        self._fed_rate = self._still
         # (time solved, q* (n,), whether q* is clear of the limits, det J at q* (an arm with
         # as many joints as task axes; else 0))
         self._joint_goal = None
@@ -557,11 +556,12 @@ class ReachRound:
         """Whether the blend is heading to (or at) the joint-space motion."""
         return self._engaged
 
-    def _blend(self, wanted: bool, joint_goal, q, dq, dt: float):
+    def _blend(self, wanted: bool, joint_goal, q, dq, dt: float, goal_rate=None):
         """Advance by dt (s) towards `wanted` and return (sigma, dsigma/dt, u, du/dt) with u
         and du/dt arrays (n,), or None while sigma rests at 0. joint_goal: a callable giving
         the joint goal q* (an array (n,), rad), or None to hold q_in where it is; q, dq the
-        joints (arrays (n,) of floats)."""
+        joints (arrays (n,) of floats); goal_rate (n,) rad/s: the joint goal's velocity (None:
+        a still goal)."""
         settings = self.settings
         self._time += dt
         now = self._time
@@ -594,18 +594,18 @@ class ReachRound:
         # The goal's velocity steps where the hand crosses the shell's edge or stops: its
         # share fed forward is filtered (first order, GOAL_RATE_TIME), so that the filter's
         # acceleration, and so the torque, does not step (4.2 N m in one cycle unfiltered).
-        wanted = self._still
-        if has_goal and self._goal_rate is not None:
+        fed_goal_rate = self._still
+        if has_goal and goal_rate is not None:
             # Capped as the motion's correction is: J+ of the hand's velocity near a
             # singular pose asked the Panda's joints for 2.2 rad/s, into its effort limits.
-            capped, _ = norm_cap(self._goal_rate, scale * settings.max_speed)
-            wanted = capped * self._goal_rate
+            capped, _ = norm_cap(goal_rate, scale * settings.max_speed)
+            fed_goal_rate = capped * goal_rate
         fed = self._fed_rate
-        goal_rate = fed + (1.0 - math.exp(-dt / GOAL_RATE_TIME)) * (wanted - fed)
-        self._fed_rate = goal_rate
+        fed = fed + (1.0 - math.exp(-dt / GOAL_RATE_TIME)) * (fed_goal_rate - fed)
+        self._fed_rate = fed
         q_in, filtered, rate, u, du = self._motion(
             goal, has_goal, *self._filtered, q, dq, dt, scale * settings.slew,
-            settings.filter_rate, settings.gain, scale * settings.max_speed, goal_rate)
+            settings.filter_rate, settings.gain, scale * settings.max_speed, fed)
         self._filtered = (q_in, filtered, rate)
         return sigma, sigma_rate, u, du
 
@@ -636,11 +636,11 @@ class ReachRound:
             return None
         goal, distance, radius, clearance = self._goal(
             x, hand, d1, d2, self._centre, self._high, self._low)
-        self._goal_rate = None
+        goal_rate = None
         if hand_velocity is not None:
             ahead = self._goal(x, hand + GOAL_RATE_STEP * hand_velocity, d1, d2, self._centre,
                                self._high, self._low)[0]
-            self._goal_rate = pinv @ ((ahead - goal) / GOAL_RATE_STEP)
+            goal_rate = pinv @ ((ahead - goal) / GOAL_RATE_STEP)
         outside = radius - d2 > self._high or radius + d2 < self._low
         blocked = hole and clearance < self._inner + self.BLOCKED_CLEARANCE
         path_clear = not hole or clearance >= self._inner + self.CLEAR_CLEARANCE
@@ -660,7 +660,7 @@ class ReachRound:
 
             def joint_goal():
                 return self._refresh(goal, q, x)
-        blend = self._blend(wanted, joint_goal, q, dq, dt)
+        blend = self._blend(wanted, joint_goal, q, dq, dt, goal_rate)
         if blend is None:
             self._forget_goal()
         return blend
@@ -703,12 +703,14 @@ class ReachRound:
         if self._pending is None:
             if last is not None and now - last[0] < self.IK_PERIOD:
                 return last[1]
-            seeds, iterations = ((self._seeds(goal, q, x), self.IK_ITERATIONS) if last is None
-                                 else (np.array([q, last[1]]), self.IK_REFRESH))
+            if last is None:  # engaging: the plain solve takes its model's default iterations
+                seeds = self._seeds(goal, q, x)
+                iterations, plain = self.IK_ITERATIONS, MODEL_IK_ITERATIONS
+            else:
+                seeds = np.array([q, last[1]])
+                iterations = plain = self.IK_REFRESH
             if self.keep_off is None:
-                target = (self._model.inverse_kinematics(goal, seeds, *self._box) if last is None
-                          else self._model.inverse_kinematics(goal, seeds, *self._box,
-                                                              iterations))
+                target = self._model.inverse_kinematics(goal, seeds, *self._box, plain)
             else:
                 self._pending = (now, clearance_inverse_kinematics_steps(
                     self._model, goal, seeds, *self._box, iterations, self.keep_off))
@@ -726,8 +728,8 @@ class ReachRound:
         return target
 
     def _advance(self):
-        """The refresh under way advanced by IK_STEPS_PER_CYCLE iterations: its joints (n,)
-        once done (the refresh then over), else None."""
+        """The solve under way advanced by IK_STEPS_PER_CYCLE iterations: its joints (n,)
+        once done (the solve then over), else None."""
         solve = self._pending[1]
         for _ in range(self.IK_STEPS_PER_CYCLE):
             try:

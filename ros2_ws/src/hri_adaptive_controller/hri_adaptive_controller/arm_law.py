@@ -830,6 +830,7 @@ class ArmController(TaskDrives):
         self._body_joints = None if body is None else np.array(body.joint, dtype=np.int64)
         self._body_inputs = None  # the last person's arrays for the compiled barrier
         self._last_exempt = (None, None, None)  # _exempt's last (drive, person, answer)
+        self._person_task = (None, False)  # (drive, avoid) the last cycle's barrier took
         gains = default_gains(model) if gains is None else gains
         n, axes = model.dof, model.task_axes
         if n < axes:
@@ -1168,6 +1169,7 @@ class ArmController(TaskDrives):
             exempt = None
             if fade > 0.0:
                 exempt = self._exempt(drive, avoid, human)
+                self._person_task = (drive, avoid)
                 body = self.whole_body_barrier(q, dq, human, exempt, fade)
                 if body.gradient is not None:
                     gradient, rate = body.gradient, body.rate
@@ -1419,6 +1421,16 @@ class ArmController(TaskDrives):
         arm = [j for j, name in enumerate(human.names) if name in settings.tracked_arm]
         return (hand, arm) if hand or arm else None
 
+    def take_person(self, human: Capsules) -> None:
+        """Ready the person `human` (a new body message) for the cycles to come: the task's
+        exemption and the compiled barrier's arrays, as the last cycle's task has them, built
+        now, off the joint state -> command path (20-40 us of the first cycle after each
+        body message otherwise). A task changed since is built in its cycle as before."""
+        if not self._compiled or self.body is None or self.body.chain is None or not len(human):
+            return
+        exempt = self._exempt(*self._person_task, human)
+        self._body_inputs = (human, exempt, _person_arrays(human, exempt, self.body.planar))
+
     def whole_body_barrier(self, q, dq, human: Capsules, exempt=None,
                            fade: float = 1.0) -> BodyBarrier:
         """body_barrier (a BodyBarrier) of this law's body and settings at q, dq (n,) for the
@@ -1511,6 +1523,13 @@ class ArmController(TaskDrives):
             return False
         self._theta = theta_next
         return True
+
+    def finish_cycle(self) -> None:
+        """The cycle's work that its torque does not wait for, for a caller to run after
+        sending the command (after `adapt`): the reach-round's solve steps
+        (ReachRound.advance), whose joint goal the next cycles take. A caller that never
+        calls this has them run inside `command`."""
+        self._reach.advance()
 
     def _task_velocity(self, drive, weight, motion, hand, rest):
         """The task's share of v_r, -a delta_eps + a (v_rest + v_away), and its rate (eq.

@@ -467,6 +467,7 @@ class _Run:
                     out, task, self.friction, with_task=False)
                 if task is not None:
                     self.drives[i] = controller.drive(shape, k)
+        controller.finish_cycle()  # as the node, after its command
         self.command = command
         self._record(i, out, weight, x_d)
 

@@ -486,6 +486,7 @@ class ControlCycle:
             seconds = stamp - then if stamp - then <= self.settings.body_timeout else 0.0
             velocities = body_point_velocities(names, points, before, seconds)
             self._human = human_capsules(names, points, velocities=velocities)
+            self.law.take_person(self._human)
         except ValueError as error:
             self._warn('body', f'body dropped: {error}')
             return False
@@ -672,6 +673,7 @@ class ControlCycle:
         if output is not None and not self.law.adapt(applied=not self._rate_limited):
             # theta_hat stays; the next cycle's torque is computed with it as before.
             self._warn('adaptation', 'parameter update dropped: not finite')
+        self.law.finish_cycle()
         return report
 
     def _report(self, now: float, output: ArmOutput | None, command: tuple) -> CycleReport:

@@ -524,6 +524,9 @@ class ReachRound:
         # (0, 1]: the share of the settings' slew and max_speed the joint motion uses (the
         # caller lowers it near a person).
         self.speed_scale = 1.0
+        # Whether the caller runs the solves' steps after its command (`advance`): set by the
+        # first call, after which update only takes their results.
+        self._defers = False
         self._motion, self._goal = joint_motion, reach_goal
         if compiled:  # imported here: arm_kernels imports this module
             from hri_adaptive_controller import arm_kernels
@@ -548,8 +551,10 @@ class ReachRound:
         # m: how far the joint goal's nearest pair lies inside keep_off's distance (0: clear
         # or no keep_off), as of the last solve.
         self.goal_shortfall = 0.0
-        # A clearance-aware refresh under way: (time started, its generator), or None.
+        # A clearance-aware refresh under way: (time started, its generator), or None; with
+        # `advance`, its joints (n,) once it has ended, until update takes them.
         self._pending = None
+        self._done = None
 
     @property
     def engaged(self) -> bool:
@@ -668,7 +673,7 @@ class ReachRound:
     def _forget_goal(self) -> None:
         """Forget the joint goal and any solve under way: the next engagement solves afresh."""
         self._joint_goal = None
-        self._pending = None
+        self._pending = self._done = None
         self.goal_shortfall = 0.0
 
     def _straight(self, q, jac, target, near: float) -> bool:
@@ -715,7 +720,7 @@ class ReachRound:
                 self._pending = (now, clearance_inverse_kinematics_steps(
                     self._model, goal, seeds, *self._box, iterations, self.keep_off))
         if target is None:
-            solved, target = self._pending[0], self._advance()
+            solved, target = self._pending[0], self._take()
             if target is None:
                 return None if last is None else last[1]
         clear = all(low <= v <= high for v, low, high in zip(
@@ -727,14 +732,34 @@ class ReachRound:
         self._joint_goal = (solved, target, clear, branch)
         return target
 
+    def advance(self) -> None:
+        """Advance the clearance-aware solve under way by IK_STEPS_PER_CYCLE iterations, for a
+        caller that runs this after sending its command: the next update takes the joints of
+        a solve that has ended. From the first call on, update no longer advances the solves
+        itself, so that their cost (about 0.1 ms a cycle for the SCARA beside a person) stays
+        off the joint state -> command latency."""
+        self._defers = True
+        if self._pending is not None and self._done is None:
+            self._done = self._advance()
+
+    def _take(self):
+        """The joints (n,) of the solve under way once it has ended (the solve then over),
+        else None: advanced here unless the caller advances it (`advance`)."""
+        if self._defers:
+            target, self._done = self._done, None
+        else:
+            target = self._advance()
+        if target is not None:
+            self._pending = None
+        return target
+
     def _advance(self):
         """The solve under way advanced by IK_STEPS_PER_CYCLE iterations: its joints (n,)
-        once done (the solve then over), else None."""
+        once done, else None."""
         solve = self._pending[1]
         for _ in range(self.IK_STEPS_PER_CYCLE):
             try:
                 next(solve)
             except StopIteration as done:
-                self._pending = None
                 return done.value
         return None

@@ -66,6 +66,7 @@ from hri_core.cdr import (
     VELOCITY,
     LayoutReader,
     float64_array_template,
+    human_body_layout,
     joint_state_layout,
     point3_layout,
     point_stamped_layout,
@@ -149,8 +150,11 @@ class Controller(Node):
         self.create_subscription(String, topics.ROBOT_DESCRIPTION.name,
                                  self._on_robot_description, topics.ROBOT_DESCRIPTION.qos)
         if law.body is not None:  # the person's body points, kept clear of by every link
+            # Raw: a body comes with each hand position (100 Hz), and a joint state landing
+            # during its callback waits for it (20 us of rclpy's deserialiser saved).
+            self._body_reader = LayoutReader(human_body_layout)
             self.create_subscription(topics.HUMAN_BODY.type, topics.HUMAN_BODY.name,
-                                     self._on_body, topics.HUMAN_BODY.qos)
+                                     self._on_body_data, topics.HUMAN_BODY.qos, raw=True)
         if separation is not None:
             self.create_subscription(SeparationState, topics.SEPARATION.name,
                                      self._on_separation, topics.SEPARATION.qos)
@@ -180,10 +184,22 @@ class Controller(Node):
         else:
             self.get_logger().warning(note.text)
 
-    def _on_body(self, msg) -> None:
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        self._cycle.body(time.monotonic(), msg.names, [(p.x, p.y, p.z) for p in msg.points],
-                         stamp if stamp > 0.0 else None, msg.header.frame_id)
+    def _on_body_data(self, data: bytes) -> None:
+        """A HumanBody as serialized CDR: read at fixed offsets (hri_core.cdr), else through
+        rclpy's deserialiser."""
+        values = self._body_reader.read(data)
+        if values is None:
+            msg = self._deserialize(data, topics.HUMAN_BODY.type, 'body')
+            if msg is not None:
+                self._body(stamp_seconds(msg.header.stamp), msg.names,
+                           [(p.x, p.y, p.z) for p in msg.points], msg.header.frame_id)
+            return
+        sec, nanosec = read_stamp(data)
+        self._body(sec + 1e-9 * nanosec, self._body_reader.layout.names,
+                   np.reshape(values, (-1, 3)), read_frame(data))
+
+    def _body(self, stamp: float, names, points, frame: str) -> None:
+        self._cycle.body(time.monotonic(), names, points, stamp if stamp > 0.0 else None, frame)
 
     def _on_robot_description(self, msg: String) -> None:
         """One line when the published arm lacks a joint the controller drives."""

@@ -49,7 +49,7 @@ each cycle. The pinocchio path above is its reference (equal to rounding: tested
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -146,11 +146,15 @@ def body_point_velocities(names, points, before: dict, seconds: float) -> np.nda
     velocities = np.zeros_like(points)
     if not seconds > 0.0:
         return velocities
-    for k, name in enumerate(names):
-        if name in before:
-            step = (points[k] - before[name]) / seconds
-            speed = float(np.linalg.norm(step))
-            velocities[k] = step if speed <= MAX_BODY_SPEED else step * (MAX_BODY_SPEED / speed)
+    # At once (a body every 10 ms in the controller's one thread: 22 us point by point).
+    rows = [k for k, name in enumerate(names) if name in before]
+    if rows:
+        step = (points[rows] - np.array([before[names[k]] for k in rows])) / seconds
+        speed = np.sqrt(np.einsum('ij,ij->i', step, step))
+        fast = ~(speed <= MAX_BODY_SPEED)
+        if fast.any():
+            step[fast] *= (MAX_BODY_SPEED / speed[fast])[:, None]
+        velocities[rows] = step
     return velocities
 
 
@@ -195,38 +199,51 @@ def human_capsules(names, points, radii=None, velocities=None) -> Capsules:
     (the torso's: a sphere round the point seen, TRUNK_SPHERE). ValueError (one line) for
     non-finite points (a message's lost ones are left out first: seen_body_points), repeated
     names or a bad radius."""
-    radii = {**HUMAN_RADII, **(radii or {})}
-    for part, value in radii.items():
-        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
-            raise ValueError(f'radius of {part} must be a finite number >= 0 m, got {value!r}')
+    merged = HUMAN_RADII
+    if radii:
+        merged = {**HUMAN_RADII, **radii}
+        for part, value in merged.items():
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'radius of {part} must be a finite number >= 0 m, got '
+                                 f'{value!r}')
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     names = tuple(names)
     if len(names) != len(points):
         raise ValueError(f'{len(names)} names for {len(points)} points')
-    if len(set(names)) != len(names):
-        raise ValueError(f'repeated body point names: {", ".join(names)}')
+    kept, start, end, radius = _capsule_plan(names, tuple(merged.items()))
     if not np.all(np.isfinite(points)):
         raise ValueError('body points must be finite')
-    where = dict(zip(names, points, strict=True))
+    if not kept:
+        return Capsules((), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    moving = None
+    if velocities is not None:
+        moving = np.asarray(velocities, dtype=float).reshape(-1, 3)
+        if moving.shape != points.shape or not np.all(np.isfinite(moving)):
+            raise ValueError('body point velocities must be finite, one per point')
+    return Capsules(kept, points[start], points[end], radius.copy(),
+                    None if moving is None else moving[start],
+                    None if moving is None else moving[end])
+
+
+@lru_cache(maxsize=64)
+def _capsule_plan(names: tuple, radii: tuple) -> tuple:
+    """human_capsules' capsules for the point names `names` (K,) with the radii (part, m)
+    pairs: (capsule names, start and end point indices, radii (C,) m); the same for every
+    frame of a body (a body every 10 ms). ValueError for repeated names."""
+    if len(set(names)) != len(names):
+        raise ValueError(f'repeated body point names: {", ".join(names)}')
+    where = {name: k for k, name in enumerate(names)}
+    radius_of = dict(radii)
     kept = []
     for name, start, end, part in HUMAN_CAPSULES:
         if start not in where or end not in where:
             if name != TRUNK_SPHERE or (start not in where and end not in where):
                 continue
             start = end = start if start in where else end
-        kept.append((name, start, end, radii[part]))
-    if not kept:
-        return Capsules((), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-    moving = None
-    if velocities is not None:
-        velocities = np.asarray(velocities, dtype=float).reshape(-1, 3)
-        if velocities.shape != points.shape or not np.all(np.isfinite(velocities)):
-            raise ValueError('body point velocities must be finite, one per point')
-        moving = dict(zip(names, velocities, strict=True))
-    return Capsules(tuple(k[0] for k in kept), np.array([where[k[1]] for k in kept]),
-                    np.array([where[k[2]] for k in kept]), np.array([k[3] for k in kept], float),
-                    None if moving is None else np.array([moving[k[1]] for k in kept]),
-                    None if moving is None else np.array([moving[k[2]] for k in kept]))
+        kept.append((name, where[start], where[end], radius_of[part]))
+    return (tuple(k[0] for k in kept), np.array([k[1] for k in kept], dtype=np.int64),
+            np.array([k[2] for k in kept], dtype=np.int64),
+            np.array([k[3] for k in kept], dtype=float))
 
 
 class Distances:

@@ -3,7 +3,9 @@
 rclpy turns every message into a Python object and back (about 10-25 us for a JointState
 each way here), which at 1 kHz is a large part of a node's CPU. The messages of the 1 kHz
 loop keep one byte layout from one message to the next (the same joint names, frame_id and
-sequence lengths), so the nodes and the bag reader read and write them as serialized CDR:
+sequence lengths), and so does the person's body (HumanBody, 100 Hz, in the controller's one
+thread beside its cycles), so the nodes and the bag reader read and write them as serialized
+CDR:
 
 * reading: the first message of a stream gives a `CdrLayout` (a short CDR walk); every later
   message with the same length and the same bytes wherever the layout could differ
@@ -48,13 +50,15 @@ class CdrLayout:
 
     size: bytes per message; checks: byte ranges that must equal the template's for a message
     to share the layout (encoding, string and sequence lengths, joint names; never padding,
-    which a serialiser may leave unset); offsets: byte offset of each wanted float64.
+    which a serialiser may leave unset); offsets: byte offset of each wanted float64; names:
+    the message's names (a HumanBody's), the same in every message of the layout.
     """
 
     template: bytes
     size: int
     checks: tuple[tuple[int, int], ...]
     offsets: tuple[int, ...]
+    names: tuple[str, ...] = ()  # a message's string sequence, where the layout checks it
 
     def __post_init__(self):
         # The checked byte ranges of a message in one C call (0.5 us against 2 for a loop).
@@ -97,6 +101,11 @@ class LayoutReader:
     def __init__(self, find_layout: Callable[[bytes], CdrLayout | None]):
         self._find_layout = find_layout
         self._layout: CdrLayout | None = None
+
+    @property
+    def layout(self) -> CdrLayout | None:
+        """The layout of the last message read (None before one had a layout)."""
+        return self._layout
 
     def read(self, data: bytes) -> tuple[float, ...] | None:
         """The wanted values of `data`; None if it has no layout that `find_layout` knows."""
@@ -158,6 +167,48 @@ def point3_layout(data: bytes) -> CdrLayout | None:
     return dataclasses.replace(layout, offsets=(*layout.offsets, layout.offsets[-1] + 8))
 
 
+def _strings(data: bytes, position: int) -> tuple[list[str], list[tuple[int, int]], int]:
+    """A string sequence's values at `position` (its count word), the byte ranges of its count
+    and each string (its length word and characters, not the padding after it) and the offset
+    after it. IndexError if the message ends first."""
+    position = _aligned(position, 4)
+    checks, names = [(position, position + 4)], []
+    count = _u32(data, position)
+    position += 4
+    for _ in range(count):
+        position = _aligned(position, 4)
+        length = _u32(data, position)
+        names.append(bytes(data[position + 4:position + 3 + length]).decode(
+            'utf-8', errors='replace'))
+        checks.append((position, position + 4 + length))
+        position += 4 + length
+    return names, checks, position
+
+
+def human_body_layout(data: bytes) -> CdrLayout | None:
+    """The layout of an hri_interfaces/HumanBody message (header, string[] names,
+    geometry_msgs/Point[] points): every point's x, y, z wanted, point by point, and its
+    names; None if not plain little-endian CDR, not whole, or with a point for other than
+    each name."""
+    try:
+        if data[1] != CDR_LE:
+            return None
+        names, checks, position = _strings(data, _after_header(data))
+        position = _aligned(position, 4)
+        checks.append((position, position + 4))
+        count = _u32(data, position)
+        position += 4
+        if count:
+            position = _aligned(position, 8)
+    except IndexError:
+        return None
+    size = position + 24 * count
+    if size != len(data) or count != len(names):
+        return None
+    return CdrLayout(bytes(data), size, ((0, 2), _FRAME_LENGTH, *checks),
+                     tuple(position + 8 * i for i in range(3 * count)), tuple(names))
+
+
 def joint_state_layout(data: bytes, joints: Sequence[str],
                        fields: Sequence[int] = (POSITION,),
                        one_value_per_name: bool = False) -> CdrLayout | None:
@@ -171,17 +222,8 @@ def joint_state_layout(data: bytes, joints: Sequence[str],
     try:
         if data[1] != CDR_LE:
             return None
-        position = _aligned(_after_header(data), 4)
-        checks, names = [(0, 2), _FRAME_LENGTH, (position, position + 4)], []
-        count = _u32(data, position)
-        position += 4
-        for _ in range(count):
-            position = _aligned(position, 4)
-            length = _u32(data, position)
-            names.append(bytes(data[position + 4:position + 3 + length]).decode(
-                'utf-8', errors='replace'))
-            checks.append((position, position + 4 + length))  # not the padding after it
-            position += 4 + length
+        names, checks, position = _strings(data, _after_header(data))
+        checks = [(0, 2), _FRAME_LENGTH, *checks]
         sequences = []
         for _ in range(3):  # position, velocity, effort
             position = _aligned(position, 4)

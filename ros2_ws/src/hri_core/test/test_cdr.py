@@ -10,7 +10,8 @@ gives 4-8 bytes more than the fields of a message with an empty sequence (SLACK)
 import math
 
 import pytest
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import Point, PointStamped
+from hri_interfaces.msg import HumanBody
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from rclpy.serialization import deserialize_message, serialize_message
@@ -24,6 +25,7 @@ from hri_core.cdr import (
     LayoutReader,
     float64_array_layout,
     float64_array_template,
+    human_body_layout,
     joint_state_layout,
     joint_state_template,
     point_stamped_layout,
@@ -201,3 +203,43 @@ def test_a_layout_reader_follows_a_stream_whose_layout_changes():
     assert reader.read(serialize_message(joint_state(('joint1',), [7.0], [0.0], [0.0]))) is None
     assert reader.read(swapped) == (6.0, 5.0)  # the last layout found is kept
     assert len(found) == 3
+
+
+def human_body(names, points, stamp=(0, 0), frame_id='base'):
+    msg = HumanBody(names=list(names), points=[Point(x=x, y=y, z=z) for x, y, z in points])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp
+    msg.header.frame_id = frame_id
+    return msg
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=st.data(), frame_id=names, stamp=stamps,
+       body_names=st.lists(names, min_size=1, max_size=10, unique=True))
+def test_a_human_body_layout_reads_every_point_and_the_names(data, frame_id, stamp,
+                                                             body_names):
+    points = [data.draw(st.tuples(any_float, any_float, any_float)) for _ in body_names]
+    raw = serialize_message(human_body(body_names, points, stamp, frame_id))
+    reader = LayoutReader(human_body_layout)
+    assert same_floats(reader.read(raw), [v for point in points for v in point])
+    assert reader.layout.names == tuple(body_names)
+    assert read_stamp(raw) == stamp
+    assert read_frame(raw) == frame_id
+    # The next frame of the same body shares the layout; other names or a point more do not
+    # (an empty body, with the serialiser's slack bytes, goes to the deserialiser).
+    moved = [(x + 1.0, y, z) for x, y, z in points]
+    layout = reader.layout
+
+    def read(names, points):
+        return read_values(serialize_message(human_body(names, points, frame_id=frame_id)),
+                           layout)
+    assert same_floats(read(body_names, moved), [v for point in moved for v in point])
+    assert read([name + 'x' for name in body_names], points) is None
+    assert read([*body_names, '_'], [*points, (0.0, 0.0, 0.0)]) is None
+
+
+def test_a_human_body_with_a_point_for_other_than_each_name_has_no_layout():
+    raw = serialize_message(human_body(['head', 'torso'], [(1.0, 2.0, 3.0)]))
+    assert human_body_layout(raw) is None
+    whole = serialize_message(human_body(['head'], [(1.0, 2.0, 3.0)]))
+    assert human_body_layout(whole[:-8]) is None
+    assert human_body_layout(whole + bytes(8)) is None

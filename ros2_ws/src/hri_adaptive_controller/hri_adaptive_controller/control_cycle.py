@@ -673,7 +673,10 @@ class ControlCycle:
         if output is not None and not self.law.adapt(applied=not self._rate_limited):
             # theta_hat stays; the next cycle's torque is computed with it as before.
             self._warn('adaptation', 'parameter update dropped: not finite')
-        self.law.finish_cycle()
+        try:
+            self.law.finish_cycle()
+        except Exception as error:  # noqa: BLE001 the node runs on whatever the law raises
+            self._warn('internal', f'work after the command failed: {error!r}')
         return report
 
     def _report(self, now: float, output: ArmOutput | None, command: tuple) -> CycleReport:

@@ -740,7 +740,12 @@ class ReachRound:
         off the joint state -> command latency."""
         self._defers = True
         if self._pending is not None and self._done is None:
-            self._done = self._advance()
+            try:
+                self._done = self._advance()
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+                # Dropped (inside `command` it would have been a fault): the last joint goal
+                # stays and the next refresh solves afresh.
+                self._pending = None
 
     def _take(self):
         """The joints (n,) of the solve under way once it has ended (the solve then over),

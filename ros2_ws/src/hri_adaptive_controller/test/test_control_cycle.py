@@ -656,6 +656,36 @@ def test_the_work_a_command_does_not_wait_for_is_done_off_its_path(scara, monkey
         assert calls['finish'] == finished + 1
 
 
+def test_a_failure_after_the_command_is_a_warning_and_a_failed_solve_is_dropped(scara):
+    """What runs after the command (ArmController.finish_cycle) cannot stop the node: an
+    error there is a throttled warning, the next cycles run; a reach-round solve whose
+    arithmetic fails is dropped there (the last joint goal stays), as a fault would have
+    dropped it inside the command."""
+    rig = Rig(scara)
+    rig.run(0.02, Q_SCARA, hand=rig.tool(Q_SCARA) + [0.05, 0.0])
+    law = rig.cycle.law
+
+    def failing_solve():
+        for _ in range(law._reach.IK_STEPS_PER_CYCLE):
+            yield
+        raise np.linalg.LinAlgError('Singular matrix')
+
+    law._reach._pending = (0.0, failing_solve())
+    law.finish_cycle()
+    assert law._reach._pending is not None  # its first steps, not yet failed
+    law.finish_cycle()
+    assert law._reach._pending is None
+
+    def broken():
+        raise RuntimeError('broken')
+
+    law.finish_cycle = broken
+    rig.run(0.005, Q_SCARA, hand=rig.tool(Q_SCARA) + [0.05, 0.0])
+    assert texts(rig.notes, WARNING)[-1] == \
+        "work after the command failed: RuntimeError('broken')"
+    assert rig.cycle.status == 'ok' and len(rig.commands) == 25
+
+
 def test_a_body_point_sent_as_nan_is_lost_and_the_rest_of_the_body_kept(scara):
     """A tracker that marks an occluded joint with NaN: the torso's capsule stays (the message
     is not dropped), the head's is gone, a warning names it; the head back in the next frame

@@ -1528,7 +1528,8 @@ class ArmController(TaskDrives):
         """The cycle's work that its torque does not wait for, for a caller to run after
         sending the command (after `adapt`): the reach-round's solve steps
         (ReachRound.advance), whose joint goal the next cycles take. A caller that never
-        calls this has them run inside `command`."""
+        calls this has them run inside `command`; one that calls it once before its first
+        command has every solve run here."""
         self._reach.advance()
 
     def _task_velocity(self, drive, weight, motion, hand, rest):

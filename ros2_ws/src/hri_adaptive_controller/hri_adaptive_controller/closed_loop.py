@@ -315,6 +315,7 @@ class _Run:
         self.gains = gains = default_gains(model) if c.gains is None else c.gains
         self.controller = ArmController(model, gains, c.theta_hat0, compiled=c.compiled,
                                         body=c.robot_body)
+        self.controller.finish_cycle()  # its solves after each command, as the node's
         self.conditions, self.tasks, self.target = c, tasks, target
         self.hand = None if c.target_period is None else FilteredHand(dataclasses.replace(
             c.target_filter, filter_time=c.target_filter_time,

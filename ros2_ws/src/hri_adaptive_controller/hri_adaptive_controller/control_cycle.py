@@ -290,6 +290,7 @@ class ControlCycle:
         self._input_age = 0.0
         self._next_state = -math.inf  # `now` the next report is due
         self._retune_band()
+        law.finish_cycle()  # the law's solves run after the commands (`sent`) from the first
 
     # -- state the node and the tests read -----------------------------------------------
     @property
@@ -329,6 +330,7 @@ class ControlCycle:
         if given, settings whose applied_effort_cycles takes effect (the node changes no
         other setting at run time)."""
         self.law = law
+        law.finish_cycle()  # its solves after the commands, as the law it replaces
         if settings is not None:
             self.settings = settings
         self._limiter.max_rate = law.gains.max_effort_rate

@@ -427,6 +427,15 @@ def clearance_inverse_kinematics_steps(model, goal, seeds, lower, upper, iterati
     return best[1]
 
 
+def _solved_later(solve, *args):
+    """`solve(*args)` as a generator that runs it whole at its second step (its
+    StopIteration's value): a solve without steps of its own, run after the command
+    (ReachRound.advance takes IK_STEPS_PER_CYCLE >= 2 steps a cycle). The Panda's plain
+    engaging solve took 0.9-1.1 ms, a whole control period, inside the command."""
+    yield
+    return solve(*args)
+
+
 def _det(square: np.ndarray) -> float:
     """det of a 2 x 2 or 3 x 3 matrix (a square task Jacobian)."""
     if square.shape == (2, 2):
@@ -470,8 +479,10 @@ class ReachRound:
     nearer to the arm's), so that the numerical solve stays off most control cycles; a
     clearance-aware solve (keep_off set), the engaging one too, runs IK_STEPS_PER_CYCLE of its
     iterations a cycle, the last q* kept until it ends (on engaging, none: the blend holds the
-    joints where they were, about 30 cycles with sigma still near 0). While sigma ramps down,
-    q* keeps following the goal; it is forgotten once sigma rests.
+    joints where they were, about 30 cycles with sigma still near 0). For a caller that runs
+    the solves after its command (`advance`), the model's plain solve runs there too, whole,
+    its q* taken by the next cycle. While sigma ramps down, q* keeps following the goal; it
+    is forgotten once sigma rests.
 
     model: a RobotModel; lower, upper (n,) rad; band (rad): the barrier's; reach (m): the
     attained reach round the shoulder; damping_threshold w0 (m^k): J+ is undamped where
@@ -714,11 +725,14 @@ class ReachRound:
             else:
                 seeds = np.array([q, last[1]])
                 iterations = plain = self.IK_REFRESH
-            if self.keep_off is None:
-                target = self._model.inverse_kinematics(goal, seeds, *self._box, plain)
-            else:
+            if self.keep_off is not None:
                 self._pending = (now, clearance_inverse_kinematics_steps(
                     self._model, goal, seeds, *self._box, iterations, self.keep_off))
+            elif self._defers:  # the model's own solve, whole, after the command
+                self._pending = (now, _solved_later(self._model.inverse_kinematics, goal,
+                                                    seeds, *self._box, plain))
+            else:
+                target = self._model.inverse_kinematics(goal, seeds, *self._box, plain)
         if target is None:
             solved, target = self._pending[0], self._take()
             if target is None:
@@ -736,8 +750,9 @@ class ReachRound:
         """Advance the clearance-aware solve under way by IK_STEPS_PER_CYCLE iterations, for a
         caller that runs this after sending its command: the next update takes the joints of
         a solve that has ended. From the first call on, update no longer advances the solves
-        itself, so that their cost (about 0.1 ms a cycle for the SCARA beside a person) stays
-        off the joint state -> command latency."""
+        itself, and the model's plain solve (no keep_off) runs here too, so that their cost
+        (about 0.1 ms a cycle for the SCARA beside a person; 0.9-1.1 ms once for the Panda
+        engaging without one) stays off the joint state -> command latency."""
         self._defers = True
         if self._pending is not None and self._done is None:
             try:

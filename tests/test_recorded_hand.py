@@ -20,6 +20,9 @@ bad recording ends hand_sim with one line and exit code 1.
 """
 
 import math
+import os
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -230,7 +233,7 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     print(f'{sent_swaps} swap samples sent, {counted} held ({replayed.glitches} by the same '
           f'filter); distance to the used target '
           f'{min(s.distance for s in used):.4f}-{max(s.distance for s in used):.4f} m')
-    # The controller reads /target in order with a queue of 10 samples (200 ms): it sees
+    # The controller reads /target in order with a queue of 100 samples (2 s): it sees
     # every one unless its own process stalls longer, and a gap it suffered after a swap
     # holds the real hand until confirmed too, at most confirm_time's worth of samples per
     # swap (32 held of 23 swap samples, 23 replayed, in one fresh-clone run). Every sample
@@ -256,6 +259,48 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     steps = np.max(np.abs(np.diff(sent, axis=0)), axis=1)[np.any(sent[1:] != 0.0, axis=1)]
     assert len(sent) > 100 and np.max(steps) <= 1.0 + 1e-9
     assert 'target held' in controller.log() and 'Traceback' not in controller.log()
+
+
+def test_a_swap_just_after_the_controller_stalled_is_held(nodes, probe):
+    """The controller's process stopped (SIGSTOP) for 0.6 s while the hand goes on at 50 Hz,
+    the stop ending just after a marker swap begins (3 samples 1.5 m away): the samples sent
+    meanwhile wait in its /target queue (2 s deep), so the swap is judged against the hand
+    just before it and held. With a queue of 10 (0.2 s) the samples before the swap were
+    lost and the swap, the first sample after a gap a hand could have crossed, was taken
+    (7.6 s of reports 1.5 m off, the filter blending back). Six stops, started 19-24
+    samples before a swap: the swap's first sample is the oldest kept by a queue of 10."""
+    period = 60  # samples (1.2 s) between swaps
+    swap_samples = {k for k in range(period, 10_000, period) for k in (k, k + 1, k + 2)}
+    controller, _, states = start_controller(nodes, probe)
+    stand_in = StandInArm(probe)
+    far = stand_in.hand + (0.0, 1.5)
+    stand_in.hand_at = lambda k: far if k in swap_samples else stand_in.hand
+    try:
+        assert wait_for(lambda: states and states[-1].status == 'ok', 30.0), controller.log()
+        for offset in range(19, 25):  # samples before a swap at which the stop starts
+            start = ((stand_in.sent + offset) // period + 1) * period - offset
+            assert wait_for(lambda start=start: stand_in.sent >= start, 5.0, period=0.001)
+            os.kill(controller.pid, signal.SIGSTOP)
+            try:
+                time.sleep(0.6)
+            finally:
+                os.kill(controller.pid, signal.SIGCONT)
+        last = stand_in.sent
+        assert wait_for(lambda: states[-1].status == 'ok' and stand_in.sent > last + 25, 10.0)
+    finally:
+        stand_in.close()
+    # No swap followed, unless this test's own publisher, held up, left a gap before one long
+    # enough for a hand to cross (as in the test above).
+    stamps = dict(zip(stand_in.published, stand_in.stamps, strict=True))
+    order = sorted(stamps)
+    reachable = [k for previous, k in zip(order[:-1], order[1:], strict=True)
+                 if k in swap_samples and stamps[k] - stamps[previous]
+                 >= (1.5 - 0.01) / TargetFilterSettings().max_speed]
+    used = [s for s in states if s.status == 'ok']
+    followed = [s.distance for s in used
+                if abs(s.distance - np.linalg.norm(HAND_OFFSET)) >= 0.01]
+    assert not followed or reachable, (len(followed), reachable)
+    assert states[-1].target_glitches >= 3, states[-1].target_glitches
 
 
 def test_a_lost_hand_fades_the_task_out_and_in_again(nodes, probe):

@@ -28,6 +28,11 @@ from std_msgs.msg import Float64MultiArray, String
 
 # What a publisher of a measured stream offers (joint states, end-effector, hand position).
 SENSOR_STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# The tracked hand, judged sample by sample against the one before (the controller's glitch
+# filter): 2 s at 50 Hz kept for a reader held back. With 10 (0.2 s), a controller stopped for
+# 0.6 s lost the samples before a marker swap, then took the swap, the first sample after the
+# gap, as a hand that could have got there (and blended back to the real one over 6 s).
+HAND_STREAM_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 # A consumer that acts on the newest sample only (the 1 kHz controller): no backlog.
 LATEST_SAMPLE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 # Joint commands and the human's wrench: every one delivered, in order, to a reader held back
@@ -71,7 +76,7 @@ EFFORT_COMMANDS = Topic('/effort_controller/commands', Float64MultiArray, COMMAN
 VELOCITY_COMMANDS = Topic('/velocity_controller/commands', Float64MultiArray, COMMAND_QOS)
 HUMAN_WRENCH = Topic('/human/wrench', WrenchStamped, COMMAND_QOS)
 DEMO_REFERENCE = Topic('/demo/reference', PointStamped, SENSOR_STREAM_QOS)
-TARGET = Topic('/target', PointStamped, SENSOR_STREAM_QOS)
+TARGET = Topic('/target', PointStamped, HAND_STREAM_QOS)
 # The person's body as REP-155-named points (m, base frame): hand_sim, a body tracker.
 HUMAN_BODY = Topic('/human/body', HumanBody, SENSOR_STREAM_QOS)
 TASK = Topic('/hri/task', TaskParameters, LEARNED_TASKS_QOS)

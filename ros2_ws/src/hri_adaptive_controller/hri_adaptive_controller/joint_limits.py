@@ -431,7 +431,7 @@ def _solved_later(solve, *args):
     """`solve(*args)` as a generator that runs it whole at its second step (its
     StopIteration's value): a solve without steps of its own, run after the command
     (ReachRound.advance takes IK_STEPS_PER_CYCLE >= 2 steps a cycle). The Panda's plain
-    engaging solve took 0.9-1.1 ms, a whole control period, inside the command."""
+    engaging solve took 0.9-1.8 ms, a whole control period or more, inside the command."""
     yield
     return solve(*args)
 
@@ -562,8 +562,9 @@ class ReachRound:
         # m: how far the joint goal's nearest pair lies inside keep_off's distance (0: clear
         # or no keep_off), as of the last solve.
         self.goal_shortfall = 0.0
-        # A clearance-aware refresh under way: (time started, its generator), or None; with
-        # `advance`, its joints (n,) once it has ended, until update takes them.
+        # A solve under way (a clearance-aware one's steps; with `advance`, the model's own,
+        # whole): (time started, its generator), or None; with `advance`, its joints (n,)
+        # once it has ended, until update takes them.
         self._pending = None
         self._done = None
 
@@ -747,11 +748,11 @@ class ReachRound:
         return target
 
     def advance(self) -> None:
-        """Advance the clearance-aware solve under way by IK_STEPS_PER_CYCLE iterations, for a
-        caller that runs this after sending its command: the next update takes the joints of
-        a solve that has ended. From the first call on, update no longer advances the solves
+        """Advance the solve under way by IK_STEPS_PER_CYCLE iterations, for a caller that
+        runs this after sending its command: the next update takes the joints of a solve
+        that has ended. From the first call on, update no longer advances the solves
         itself, and the model's plain solve (no keep_off) runs here too, so that their cost
-        (about 0.1 ms a cycle for the SCARA beside a person; 0.9-1.1 ms once for the Panda
+        (about 0.1 ms a cycle for the SCARA beside a person; 0.9-1.8 ms once for the Panda
         engaging without one) stays off the joint state -> command latency."""
         self._defers = True
         if self._pending is not None and self._done is None:

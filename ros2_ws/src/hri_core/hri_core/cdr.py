@@ -185,6 +185,16 @@ def _strings(data: bytes, position: int) -> tuple[list[str], list[tuple[int, int
     return names, checks, position
 
 
+def _sequence(data: bytes, position: int) -> tuple[tuple[int, int], int, int]:
+    """A sequence of float64s (or of structs of them) whose count word is at `position`
+    (aligned to 4 first): the count's byte range, the count and the offset of its first
+    element (aligned to 8 where there is one). IndexError if the message ends first."""
+    position = _aligned(position, 4)
+    count = _u32(data, position)
+    start = _aligned(position + 4, 8) if count else position + 4
+    return (position, position + 4), count, start
+
+
 def human_body_layout(data: bytes) -> CdrLayout | None:
     """The layout of an hri_interfaces/HumanBody message (header, string[] names,
     geometry_msgs/Point[] points): every point's x, y, z wanted, point by point, and its
@@ -194,12 +204,8 @@ def human_body_layout(data: bytes) -> CdrLayout | None:
         if data[1] != CDR_LE:
             return None
         names, checks, position = _strings(data, _after_header(data))
-        position = _aligned(position, 4)
-        checks.append((position, position + 4))
-        count = _u32(data, position)
-        position += 4
-        if count:
-            position = _aligned(position, 8)
+        counted, count, position = _sequence(data, position)
+        checks.append(counted)
     except IndexError:
         return None
     size = position + 24 * count
@@ -226,12 +232,8 @@ def joint_state_layout(data: bytes, joints: Sequence[str],
         checks = [(0, 2), _FRAME_LENGTH, *checks]
         sequences = []
         for _ in range(3):  # position, velocity, effort
-            position = _aligned(position, 4)
-            checks.append((position, position + 4))
-            count = _u32(data, position)
-            position += 4
-            if count:
-                position = _aligned(position, 8)
+            counted, count, position = _sequence(data, position)
+            checks.append(counted)
             sequences.append((position, count))
             position += 8 * count
     except IndexError:
@@ -262,18 +264,13 @@ def float64_array_layout(data: bytes) -> CdrLayout | None:
             position += 4 + _u32(data, position)
             position = _aligned(position, 4) + 8
         # Whatever the array layout, only the number of values matters here.
-        position = _aligned(position, 4) + 4  # data_offset
-        counted = position
-        count = _u32(data, position)
-        position += 4
-        if count:
-            position = _aligned(position, 8)
+        counted, count, position = _sequence(data, _aligned(position, 4) + 4)  # data_offset
     except IndexError:
         return None
     size = position + 8 * count
     if size != len(data):
         return None
-    return CdrLayout(bytes(data), size, ((0, 2), (4, 8), (counted, counted + 4)),
+    return CdrLayout(bytes(data), size, ((0, 2), (4, 8), counted),
                      tuple(position + 8 * i for i in range(count)))
 
 

@@ -190,6 +190,21 @@ def start_controller(nodes, probe):
     return controller, manager, states
 
 
+def swaps_followed(stand_in, swap_samples, used) -> tuple[list, list]:
+    """(the distances of the ControllerStates in `used` that report a target other than the
+    stand-in's hand, which a followed swap 1.5 m away shows as; the swap samples the stand-in
+    sent after a gap of its own long enough for a hand to cross 1.5 m at the filter's
+    max_speed, which the filter rightly takes)."""
+    stamps = dict(zip(stand_in.published, stand_in.stamps, strict=True))
+    order = sorted(stamps)
+    reachable = [k for previous, k in zip(order[:-1], order[1:], strict=True)
+                 if k in swap_samples and stamps[k] - stamps[previous]
+                 >= (1.5 - 0.01) / TargetFilterSettings().max_speed]
+    followed = [s.distance for s in used
+                if abs(s.distance - np.linalg.norm(HAND_OFFSET)) >= 0.01]
+    return followed, reachable
+
+
 def test_jumps_on_target_are_held_and_counted(nodes, probe):
     # Every second a marker swap: 3 samples (60 ms) 1.5 m away; the distance the controller
     # reports is to the target it used, so a followed jump would show as ~1.5 m.
@@ -246,12 +261,7 @@ def test_jumps_on_target_are_held_and_counted(nodes, probe):
     # No swap followed, unless the stand-in, held up, left a gap before one long enough for a
     # hand to get there (the filter's speed bound: 1.5 m in 0.3 s at 5 m/s; seen once beside
     # a busy process): such a sample is a hand that may really have moved, and is taken.
-    stamps = dict(zip(stand_in.published, stand_in.stamps, strict=True))
-    order = sorted(stamps)
-    reachable = [k for previous, k in zip(order[:-1], order[1:], strict=True)
-                 if k in swap_samples and stamps[k] - stamps[previous]
-                 >= (1.5 - 0.01) / settings.max_speed]
-    followed = [s.distance for s in used if abs(s.distance - np.linalg.norm(HAND_OFFSET)) >= 0.01]
+    followed, reachable = swaps_followed(stand_in, swap_samples, used)
     assert not followed or reachable, (followed[:5], reachable)
     sent = np.array([list(m.data) for m in commands.messages()])
     # Steps into zero torque are the stale-joint-state fallback (this test's own publisher
@@ -291,14 +301,8 @@ def test_a_swap_just_after_the_controller_stalled_is_held(nodes, probe):
         stand_in.close()
     # No swap followed, unless this test's own publisher, held up, left a gap before one long
     # enough for a hand to cross (as in the test above).
-    stamps = dict(zip(stand_in.published, stand_in.stamps, strict=True))
-    order = sorted(stamps)
-    reachable = [k for previous, k in zip(order[:-1], order[1:], strict=True)
-                 if k in swap_samples and stamps[k] - stamps[previous]
-                 >= (1.5 - 0.01) / TargetFilterSettings().max_speed]
-    used = [s for s in states if s.status == 'ok']
-    followed = [s.distance for s in used
-                if abs(s.distance - np.linalg.norm(HAND_OFFSET)) >= 0.01]
+    followed, reachable = swaps_followed(stand_in, swap_samples,
+                                         [s for s in states if s.status == 'ok'])
     assert not followed or reachable, (len(followed), reachable)
     assert states[-1].target_glitches >= 3, states[-1].target_glitches
 

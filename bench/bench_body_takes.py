@@ -109,7 +109,8 @@ def clear_pose_at_hand(law: ArmController, shape, hand: np.ndarray, frame: np.nd
     q (n,), its home and IK_SEEDS random poses (rng) in the joint box."""
     seen = np.all(np.isfinite(frame), axis=1)
     names = [name for name, ok in zip(BODY_POINTS, seen, strict=True) if ok]
-    keep_off = (law.person_keep_off(shape, human_capsules(names, frame[seen]), margin=0.0)
+    keep_off = (law.person_keep_off(shape, human_capsules(names, frame[seen]), margin=0.0,
+                                    hand=hand)
                 if names else lambda pose: None)  # no point of the person seen: no pair
     model = law.model
     lower, upper = law.joint_limits

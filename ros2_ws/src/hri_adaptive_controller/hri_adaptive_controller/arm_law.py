@@ -152,6 +152,11 @@ swinging to a new pose, reached 0.013 m from a torso in HumanRobotHandover_0 bef
 damper and the barrier stopped it."""
 FEED_FORWARD_RATIO = 2.0
 """The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
+TRACKED_HAND_MARGIN = 0.05
+"""m: /target is the hand of the person's side whose tracked capsules (hand, forearm) it lies
+nearest, within this of their surface (ArmController.tracked_side): a tracker's hand point
+(the palm, a marker on the glove) some centimetres off its wrist, 10-20 ms between a /target
+and a /human/body of a hand moving at up to 3 m/s."""
 HAND_RATE = 40.0
 """1/s: the hand-velocity filter of an avoid task's retreat (lag 2 / HAND_RATE = 50 ms)."""
 # The hand-velocity filter's omega^2 (1/s^2) and 2 omega (1/s).
@@ -179,11 +184,14 @@ class ClearanceSettings:
     region reaches into the hand's clearance (a follow task whose d1, measured between the
     tool's and the hand's points, is below the clearance plus the hand's and the tool's
     capsule radii); tracked_arm: the rest of that arm, kept at its capsules' surface (not the
-    clearance) in such a task; stop_rate k (1/s, >= 0; 0: off) and stop_depth (m, >= 0): the
-    approach damper (body_damper): within clearance + influence of a pair the reference's
-    speed of the robot's point towards the person is held at or below k (d - (clearance -
-    stop_depth)) (where that is negative, a retreat of at most max_speed, faded in as the
-    force) less the person's approach speed times the pair's barrier weight share."""
+    clearance) in such a task. Both are named for the right side; the law takes the side
+    whose hand holds /target (ArmController.tracked_side: the left's names mirrored, l_ for
+    r_), and neither where no hand of the person does. stop_rate k (1/s, >= 0; 0: off) and
+    stop_depth (m, >= 0): the approach damper (body_damper): within clearance + influence of
+    a pair the reference's speed of the robot's point towards the person is held at or below
+    k (d - (clearance - stop_depth)) (where that is negative, a retreat of at most max_speed,
+    faded in as the force) less the person's approach speed times the pair's barrier weight
+    share."""
 
     clearance: float = 0.10
     # 0.10 m for a still person: 0.03 let the tool nearer the hand (follow's median on the
@@ -784,6 +792,11 @@ def body_damper(qdot_r, rows, gaps, approach, rate: float, stop: float, floor: f
     return qdot_r - multipliers @ rows, True
 
 
+def _on_side(names, side: str) -> tuple[str, ...]:
+    """Capsule names of the right side (r_...) on `side` ('r_' or 'l_'); others as they are."""
+    return tuple(side + name[2:] if name.startswith('r_') else name for name in names)
+
+
 def _exempt_key(exempt) -> tuple | None:
     """An exemption ((hand capsules), (arm capsules)) or None as a comparable value."""
     return None if exempt is None else (tuple(exempt[0]), tuple(exempt[1]))
@@ -831,6 +844,10 @@ class ArmController(TaskDrives):
         self._body_inputs = None  # the last person's arrays for the compiled barrier
         self._last_exempt = (None, None, None)  # _exempt's last (drive, person, answer)
         self._person_task = (None, False)  # (drive, avoid) the last cycle's barrier took
+        # The side ('r_' or 'l_') whose hand /target last lay on, kept while neither hand is
+        # seen (an occluded wrist does not move the exemption), and the last /target (k,) m.
+        self._tracked_side = None
+        self._hand_position = None
         gains = default_gains(model) if gains is None else gains
         n, axes = model.dof, model.task_axes
         if n < axes:
@@ -1167,6 +1184,7 @@ class ArmController(TaskDrives):
             body, g_ref, g_ref_rate = NO_BODY, g_b, g_b_rate
             fade = self._body_fade(human, dt)
             exempt = None
+            self._hand_position = hand.position
             if fade > 0.0:
                 exempt = self._exempt(drive, avoid, human)
                 self._person_task = (drive, avoid)
@@ -1377,15 +1395,17 @@ class ArmController(TaskDrives):
 
         return keep_off
 
-    def person_keep_off(self, shape: TaskShape | None, human: Capsules, margin: float):
-        """_keep_off in the task `shape` (None: no task) for the person `human`, with the
-        task's exemption, its pairs wanted `margin` (m) beyond the clearance: "is there a pose
-        here that keeps the law's clearances" asked as the law asks it."""
+    def person_keep_off(self, shape: TaskShape | None, human: Capsules, margin: float,
+                        hand=None):
+        """_keep_off in the task `shape` (None: no task) for the person `human` with the hand
+        (/target) at `hand` (k,) m (None: the last the law was given), with the task's
+        exemption, its pairs wanted `margin` (m) beyond the clearance: "is there a pose here
+        that keeps the law's clearances" asked as the law asks it."""
         drive = self.drive(shape)
         avoid = drive is not None and drive.open_outward
-        return self._keep_off(human, self._exempt(drive, avoid, human), margin)
+        return self._keep_off(human, self._exempt(drive, avoid, human, hand), margin)
 
-    def _exempt(self, drive, avoid: bool, human: Capsules):
+    def _exempt(self, drive, avoid: bool, human: Capsules, hand=None):
         """(the tracked hand's capsules, the rest of its arm's) where the task's region
         reaches into the hand's clearance (a follow task whose d1, a distance between the
         tool's and the hand's points, is below the clearance plus the tool's and the hand's
@@ -1398,7 +1418,10 @@ class ArmController(TaskDrives):
         at the tool (the Panda's link7 beside its hand; the SCARA's elbow 0.3 m from its tip,
         with the hand's 0.1 m radius), so a handover would be refused; nor the clearance from
         the upper arm, whose capsule (0.10 m radius) lies 0.12-0.17 m from the recorded hands
-        (docs/design.md)."""
+        (docs/design.md). The tracked hand is the one /target lies on (tracked_side), at
+        `hand` (k,) m, or where the law was last given it."""
+        if hand is not None:  # else the last /target the law was given (tracked_side)
+            self._hand_position = np.asarray(hand, dtype=float)
         if drive is None or avoid:
             return None
         # The same task and body message as the last cycle's give the same answer (about 10
@@ -1411,15 +1434,46 @@ class ArmController(TaskDrives):
         return exempt
 
     def _exempt_parts(self, drive, human: Capsules):
-        """_exempt's answer for a follow task's drive and the person `human`."""
+        """_exempt's answer for a follow task's drive and the person `human`: the capsules
+        of the side tracked_side gives."""
         settings = self._gains.body
-        hand = [j for j, name in enumerate(human.names) if name in settings.tracked]
+        side = self.tracked_side(human)
+        if side is None:
+            return None
+        tracked, tracked_arm = (_on_side(settings.tracked, side),
+                                _on_side(settings.tracked_arm, side))
+        hand = [j for j, name in enumerate(human.names) if name in tracked]
         hand_radius = float(human.radius[hand].max()) if hand else 0.0
         reach = settings.clearance + hand_radius + float(self.body.radius[self._tool_capsule])
         if drive.shape.d1 >= reach:
             return None
-        arm = [j for j, name in enumerate(human.names) if name in settings.tracked_arm]
+        arm = [j for j, name in enumerate(human.names) if name in tracked_arm]
         return (hand, arm) if hand or arm else None
+
+    def tracked_side(self, human: Capsules) -> str | None:
+        """The side ('r_' or 'l_') of the person `human` whose hand is the tracked one: the
+        side of the tracked capsules (ClearanceSettings.tracked, mirrored for the left) whose
+        surface lies nearest the last /target the law was given, if within
+        TRACKED_HAND_MARGIN of it; None if some are seen and none is that near (the target
+        is no hand of this person: every capsule keeps the clearance) or before any target;
+        the last side found while none is seen (an occluded wrist and forearm). Measured in
+        the task axes (a planar arm's plane)."""
+        hand = self._hand_position
+        names = self._gains.body.tracked
+        seen = [j for j, name in enumerate(human.names)
+                if name in names or name in _on_side(names, 'l_')]
+        if hand is None or not seen:
+            return self._tracked_side if hand is not None else None
+        axes = len(hand)
+        a = human.a[seen, :axes]
+        axis = human.axis[seen, :axes]
+        length2 = np.maximum(np.einsum('ij,ij->i', axis, axis), 1e-12)
+        t = np.clip(np.einsum('ij,ij->i', hand - a, axis) / length2, 0.0, 1.0)
+        surface = np.linalg.norm(a + t[:, None] * axis - hand, axis=1) - human.radius[seen]
+        nearest = int(np.argmin(surface))
+        side = human.names[seen[nearest]][:2]
+        self._tracked_side = side if surface[nearest] <= TRACKED_HAND_MARGIN else None
+        return self._tracked_side
 
     def take_person(self, human: Capsules) -> None:
         """Ready the person `human` (a new body message) for the cycles to come: the task's

@@ -81,26 +81,75 @@ def test_follow_exempts_the_hands_wrist_and_forearm_and_holds_its_upper_arm_at_i
     assert sorted(person.names[j] for j in tracked) == ['r_forearm', 'r_hand']
     upper = [j for j, n in enumerate(person.names) if n in SETTINGS.tracked_arm]
     assert [person.names[j] for j in upper] == ['r_upper_arm']
-    assert law._exempt(law.drive(FOLLOW), False, person) == (tracked, upper)
+    at = hand_at[:model.task_axes]  # /target: the person's right hand
+    assert law._exempt(law.drive(FOLLOW), False, person, at) == (tracked, upper)
     # and the rest of the person stays in the barrier: the hand's own capsules alone go.
     q, still = model.home, np.zeros(model.dof)
-    near = human_capsules(['r_wrist', 'head'], [body.capsules(q).b[-1] + [0.0, 0.0, 0.12]] * 2)
-    exempt = law._exempt(law.drive(FOLLOW), False, near)
+    point = body.capsules(q).b[-1] + [0.0, 0.0, 0.12]
+    near = human_capsules(['r_wrist', 'head'], [point] * 2)
+    exempt = law._exempt(law.drive(FOLLOW), False, near, point[:model.task_axes])
+    assert exempt is not None
     assert body_barrier(body, q, still, near, SETTINGS, exempt).pair[1] == 'head'
     assert body_barrier(body, q, still, near, SETTINGS, None).gradient is not None
-    assert law._exempt(law.drive(AVOID), True, person) is None  # avoid keeps off the hand
-    assert law._exempt(None, False, person) is None
+    assert law._exempt(law.drive(AVOID), True, person, at) is None  # avoid keeps off the hand
+    assert law._exempt(None, False, person, at) is None
     # d1 is between the tool's and the hand's points: follow_safe's 0.183 m lies within the
     # clearance plus the hand's (0.103 m) and the tool's capsule radii, so the task governs;
     # a band further out than that keeps the barrier on the hand.
     tool_radius = body.radius[body.names.index(body.tool)]
     safe = TaskShape(1, 1.576, 30.78, 0.183, 0.271)
-    assert law._exempt(law.drive(safe), False, person) == (tracked, upper)
+    assert law._exempt(law.drive(safe), False, person, at) == (tracked, upper)
     edge = SETTINGS.clearance + HUMAN_RADII['hand'] + tool_radius
     assert law._exempt(law.drive(TaskShape(1, 1.576, 30.78, edge - 1e-3, 0.5)), False,
-                       person) == (tracked, upper)
+                       person, at) == (tracked, upper)
     assert law._exempt(law.drive(TaskShape(1, 1.576, 30.78, edge + 1e-3, 0.5)), False,
-                       person) is None
+                       person, at) is None
+
+
+def sides_swapped(names) -> list[str]:
+    """REP-155 names with the person's sides swapped (l_ for r_ and back): the same pose
+    named as a person holding out the other hand."""
+    return [('l_' if name.startswith('r_') else 'r_') + name[2:]
+            if name.startswith(('r_', 'l_')) else name for name in names]
+
+
+@pytest.mark.parametrize('robot', ['scara', 'panda'])
+def test_the_tracked_hand_is_the_one_that_holds_the_target(robot):
+    model, body, _, hand_at = scene(robot, 'chest')
+    law = ArmController(model, body=body)
+    at = hand_at[:model.task_axes]
+    points = standing_body([0.7, 0.0], math.pi, 0.0, hand_at)
+    left = human_capsules(sides_swapped(BODY_POINTS), points)  # the left hand out at /target
+    exempt = law._exempt(law.drive(FOLLOW), False, left, at)
+    assert sorted(left.names[j] for j in exempt[0]) == ['l_forearm', 'l_hand']
+    assert [left.names[j] for j in exempt[1]] == ['l_upper_arm']  # the right arm keeps it all
+    # /target on no hand of this person (a scripted hand beside a tracked body): none.
+    away = at + np.array([0.0, 0.45, 0.0])[:model.task_axes]
+    assert law._exempt(law.drive(FOLLOW), False, human_capsules(sides_swapped(BODY_POINTS),
+                                                                points), away) is None
+    # Both wrists out of sight: the side the hand was last seen on stays.
+    assert law._exempt(law.drive(FOLLOW), False, left, at) is not None
+    trunk_and_arms = [name for name in sides_swapped(BODY_POINTS) if 'wrist' not in name]
+    kept = [BODY_POINTS.index(name) for name in sides_swapped(trunk_and_arms)]
+    occluded = human_capsules(trunk_and_arms, points[kept])
+    assert law.tracked_side(occluded) == 'l_'
+    assert [occluded.names[j] for j in law._exempt(law.drive(FOLLOW), False, occluded)[1]] \
+        == ['l_upper_arm']
+
+
+@pytest.mark.parametrize('robot', ['scara', 'panda'])
+def test_a_person_holding_out_the_left_hand_is_followed_as_one_holding_out_the_right(robot):
+    model, body, _, hand = scene(robot, 'aside')
+    place, height, _ = SCENES[(robot, 'aside')]
+    points = standing_body(place, math.pi, height, hand)
+    finals = []
+    for names in (BODY_POINTS, sides_swapped(BODY_POINTS)):
+        result = simulate({'follow': FOLLOW}, [], still_target(hand[:model.task_axes]), 4.0,
+                          LoopConditions(arm=model, initial_task='follow',
+                                         theta_hat0=0.8 * model.theta, monitor=False,
+                                         body=still_body(names, points), robot_body=body))
+        finals.append(float(result.distance[-1]))
+    assert max(finals) <= FOLLOW.d2, (robot, finals)  # the left's was 0.23-0.28 m before
 
 
 @pytest.mark.parametrize('robot', ['scara', 'panda'])
@@ -162,6 +211,11 @@ def test_the_upper_arm_in_follow_is_kept_at_its_surface_not_the_clearance(robot)
     end = body.capsules(q).b[tool]
     side = np.array([0.0, 1.0, 0.0])
     gap = body.radius[tool] + HUMAN_RADII['upper_arm'] + 0.12
+    # The right hand held /target before its wrist and forearm went out of sight: the side
+    # stays the tracked one.
+    wrist = end + (gap + 0.6) * side
+    assert law._exempt(law.drive(FOLLOW), False, human_capsules(['r_wrist'], [wrist]),
+                       wrist[:model.task_axes]) is not None
     arm = human_capsules(['r_shoulder', 'r_elbow'], [end + (gap + 0.3) * side, end + gap * side])
     assert arm.names == ('r_upper_arm',)
     follow = body_barrier(body, q, still, arm, SETTINGS,
@@ -182,7 +236,7 @@ def test_the_clearance_aware_pose_reaches_the_held_out_hand_with_every_link_clea
     hand = np.array([0.4, 0.25, 0.3])
     person = human_capsules(BODY_POINTS, standing_body([0.3, 0.6], -math.pi / 2, -0.2, hand))
     law = ArmController(model, body=body)
-    keep_off = law._keep_off(person, law._exempt(law.drive(FOLLOW), False, person))
+    keep_off = law._keep_off(person, law._exempt(law.drive(FOLLOW), False, person, hand))
     lower, upper = model.limits.lower + 0.15, model.limits.upper - 0.15
     seeds = np.array([model.home])
     plain = model.inverse_kinematics(hand, seeds, lower, upper)

@@ -639,10 +639,13 @@ def test_the_work_a_command_does_not_wait_for_is_done_off_its_path(scara, monkey
     q = np.array(Q_SCARA)
     for i in range(40):
         if i % 10 == 0:
-            rig.target(rig.tool(q) + [0.05, 0.0])
+            hand = rig.tool(q) + [0.05, 0.0]
+            rig.target(hand)
             rig.task()
             built = calls['arrays']
-            person = [(0.7, 0.05 * i / 10, z) for z in (1.6, 1.3, 1.4, 1.1, 0.9, 0.9)]
+            # The person's right wrist holds /target: follow exempts that hand.
+            person = [(0.7, 0.05 * i / 10, z) for z in (1.6, 1.3, 1.4, 1.1)]
+            person += [(*hand, 0.9), (0.7, 0.05 * i / 10, 0.9)]
             assert rig.cycle.body(rig.now, names, person, rig.now)
             assert calls['arrays'] == built + 1  # built as it comes
         built, finished = calls['arrays'], calls['finish']

@@ -1454,25 +1454,30 @@ class ArmController(TaskDrives):
         """The side ('r_' or 'l_') of the person `human` whose hand is the tracked one: the
         side of the tracked capsules (ClearanceSettings.tracked, mirrored for the left) whose
         surface lies nearest the last /target the law was given, if within
-        TRACKED_HAND_MARGIN of it; None if some are seen and none is that near (the target
-        is no hand of this person: every capsule keeps the clearance) or before any target;
-        the last side found while none is seen (an occluded wrist and forearm). Measured in
-        the task axes (a planar arm's plane)."""
+        TRACKED_HAND_MARGIN of it; else the last side found while that side's are out of
+        sight (an occluded wrist and forearm does not move the exemption); else None (the
+        target is no hand of this person, or none has come yet: every capsule keeps the
+        clearance). Measured in the task axes (a planar arm's plane)."""
         hand = self._hand_position
+        if hand is None:
+            return None
         names = self._gains.body.tracked
         seen = [j for j, name in enumerate(human.names)
                 if name in names or name in _on_side(names, 'l_')]
-        if hand is None or not seen:
-            return self._tracked_side if hand is not None else None
-        axes = len(hand)
-        a = human.a[seen, :axes]
-        axis = human.axis[seen, :axes]
-        length2 = np.maximum(np.einsum('ij,ij->i', axis, axis), 1e-12)
-        t = np.clip(np.einsum('ij,ij->i', hand - a, axis) / length2, 0.0, 1.0)
-        surface = np.linalg.norm(a + t[:, None] * axis - hand, axis=1) - human.radius[seen]
-        nearest = int(np.argmin(surface))
-        side = human.names[seen[nearest]][:2]
-        self._tracked_side = side if surface[nearest] <= TRACKED_HAND_MARGIN else None
+        if seen:
+            axes = len(hand)
+            a = human.a[seen, :axes]
+            axis = human.axis[seen, :axes]
+            length2 = np.maximum(np.einsum('ij,ij->i', axis, axis), 1e-12)
+            t = np.clip(np.einsum('ij,ij->i', hand - a, axis) / length2, 0.0, 1.0)
+            surface = np.linalg.norm(a + t[:, None] * axis - hand, axis=1) - human.radius[seen]
+            nearest = int(np.argmin(surface))
+            if surface[nearest] <= TRACKED_HAND_MARGIN:
+                self._tracked_side = human.names[seen[nearest]][:2]
+                return self._tracked_side
+        last = self._tracked_side
+        if last is not None and any(human.names[j].startswith(last) for j in seen):
+            self._tracked_side = None  # the last side's hand is in sight, off the target
         return self._tracked_side
 
     def take_person(self, human: Capsules) -> None:

@@ -127,9 +127,9 @@ def test_the_tracked_hand_is_the_one_that_holds_the_target(robot):
     away = at + np.array([0.0, 0.45, 0.0])[:model.task_axes]
     assert law._exempt(law.drive(FOLLOW), False, human_capsules(sides_swapped(BODY_POINTS),
                                                                 points), away) is None
-    # Both wrists out of sight: the side the hand was last seen on stays.
+    # The tracked wrist out of sight (the other hand seen): the side stays.
     assert law._exempt(law.drive(FOLLOW), False, left, at) is not None
-    trunk_and_arms = [name for name in sides_swapped(BODY_POINTS) if 'wrist' not in name]
+    trunk_and_arms = [name for name in sides_swapped(BODY_POINTS) if name != 'l_wrist']
     kept = [BODY_POINTS.index(name) for name in sides_swapped(trunk_and_arms)]
     occluded = human_capsules(trunk_and_arms, points[kept])
     assert law.tracked_side(occluded) == 'l_'

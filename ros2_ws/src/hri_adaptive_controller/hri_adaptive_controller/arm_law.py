@@ -844,8 +844,9 @@ class ArmController(TaskDrives):
         self._body_inputs = None  # the last person's arrays for the compiled barrier
         self._last_exempt = (None, None, None)  # _exempt's last (drive, person, answer)
         self._person_task = (None, False)  # (drive, avoid) the last cycle's barrier took
-        # The side ('r_' or 'l_') whose hand /target last lay on, kept while neither hand is
-        # seen (an occluded wrist does not move the exemption), and the last /target (k,) m.
+        # The side ('r_' or 'l_') whose hand /target last lay on, kept while that hand is out
+        # of sight (an occluded wrist does not move the exemption), and the last /target (k,)
+        # m (tracked_side).
         self._tracked_side = None
         self._hand_position = None
         gains = default_gains(model) if gains is None else gains
@@ -1461,9 +1462,9 @@ class ArmController(TaskDrives):
         hand = self._hand_position
         if hand is None:
             return None
-        names = self._gains.body.tracked
-        seen = [j for j, name in enumerate(human.names)
-                if name in names or name in _on_side(names, 'l_')]
+        right = self._gains.body.tracked
+        names = right + _on_side(right, 'l_')
+        seen = [j for j, name in enumerate(human.names) if name in names]
         if seen:
             axes = len(hand)
             a = human.a[seen, :axes]

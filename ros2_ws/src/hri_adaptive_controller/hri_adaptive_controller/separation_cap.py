@@ -6,7 +6,8 @@ measured separation: from each /hri/separation (separation s m, the hand speed v
 detector put into S_p: human_speed_used, so its assume_iso_speed holds here too) the arm may
 move towards the hand at most
 
-    v_lim = (s - S_p(v_h, v_r = 0)) / T_r        (as ProtectiveSeparation.arm_speed_limit)
+    v_lim = (s - STANDOFF - S_p(v_h, v_r = 0)) / T_r   (ProtectiveSeparation.arm_speed_limit
+                                                      with the STANDOFF)
 
 (0 when even a still arm is too close; T_r, T_s, B, C, Z_d, Z_r from event_detector.yaml),
 and the cap's knee (task_variable.speed_cap, whose soft band lets the speed reach
@@ -58,6 +59,11 @@ STALE_AFTER = 0.5
 """s without a /hri/separation (published at 50 Hz) after which the target knee is 0."""
 SEPARATION_PERIOD = 0.02
 """s between two /hri/separation (50 Hz): an older one is taken ahead by its extra age."""
+STANDOFF = 0.005
+"""m: the arm comes to rest this far outside S_p, not on it. On it (the limit falls to 0 as
+the separation comes down to S_p), the detector's below_protective flickered on rounding
+(S_p above the separation by 2e-16 to 7e-16 m, from a robot speed of 1e-14 m/s) in 5 of 7
+live runs of tests/test_separation_cap.py, and failed one fresh clone's."""
 
 
 def pull_speed_knee(separation: float, human_speed_used: float,
@@ -65,11 +71,12 @@ def pull_speed_knee(separation: float, human_speed_used: float,
     """The knee (m/s) of the task's speed cap towards the hand at which the arm's speed
     stays at or below the ISO/TS 15066 limit for a hand `separation` m away that S_p counts
     at `human_speed_used` m/s (v_h, >= 0): min(max_task_speed, v_lim / (1 + CAP_BAND)), 0
-    where no arm speed meets S_p. A non-finite or negative input gives 0 (the safe value)."""
+    where no arm speed keeps STANDOFF outside S_p. A non-finite or negative input gives 0 (the
+    safe value)."""
     if not (math.isfinite(separation) and separation >= 0.0
             and math.isfinite(human_speed_used) and human_speed_used >= 0.0):
         return 0.0
-    room = separation - settings.distance(human_speed_used, 0.0)
+    room = separation - STANDOFF - settings.distance(human_speed_used, 0.0)
     if room <= 0.0:
         return 0.0
     if settings.reaction_time == 0.0:

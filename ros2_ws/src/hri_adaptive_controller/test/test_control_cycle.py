@@ -25,7 +25,7 @@ from hri_adaptive_controller.control_cycle import (
     TaskInput,
 )
 from hri_adaptive_controller.event_weight import EventWeightSchedule, quintic_smoothstep
-from hri_adaptive_controller.separation_cap import pull_speed_knee
+from hri_adaptive_controller.separation_cap import STANDOFF, pull_speed_knee
 from hri_adaptive_controller.task_variable import CAP_BAND
 from hri_core.bodies import panda_package_dirs, robot_body
 from hri_core.robot_model import robot_model
@@ -474,7 +474,7 @@ def test_the_separation_cap_caps_the_pull_towards_the_hand(scara):
     before a /hri/separation, then at most (1 + CAP_BAND) times the knee S_p allows."""
     separation = ProtectiveSeparation.from_mapping(DETECTOR)
     room = 0.03 * separation.reaction_time * (1.0 + CAP_BAND)  # a knee of 0.03 m/s
-    gap = separation.distance(separation.near_speed, 0.0) + room
+    gap = separation.distance(separation.near_speed, 0.0) + STANDOFF + room
     knee = pull_speed_knee(gap, separation.near_speed, separation,
                            DEFAULTS['max_task_speed'])
     assert knee == pytest.approx(0.03)
@@ -514,7 +514,7 @@ def test_the_cap_holds_the_arm_point_nearest_the_person_from_moving_towards_it(p
     body = robot_body(panda, panda_package_dirs())
     separation = ProtectiveSeparation.from_mapping(DETECTOR)
     room = 0.03 * separation.reaction_time * (1.0 + CAP_BAND)  # a knee of 0.03 m/s
-    gap = separation.distance(separation.near_speed, 0.0) + room
+    gap = separation.distance(separation.near_speed, 0.0) + STANDOFF + room
     limit = (1.0 + CAP_BAND) * pull_speed_knee(gap, separation.near_speed, separation,
                                                DEFAULTS['max_task_speed'])
     q = tuple(panda.home + np.array([0.4, 0.3, -0.4, 0.4, 0.3, -0.3, 0.3]))

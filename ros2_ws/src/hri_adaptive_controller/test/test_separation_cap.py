@@ -14,6 +14,7 @@ from hri_adaptive_controller.separation_cap import (
     RISE_RATE,
     SEPARATION_PERIOD,
     STALE_AFTER,
+    STANDOFF,
     SeparationCap,
     pull_speed_knee,
 )
@@ -43,11 +44,14 @@ def follow_step(law, dt=1e-3):
 def test_knee_is_the_iso_limit_through_the_soft_band():
     v_h = 0.2
     still = SETTINGS.distance(v_h, 0.0)
-    separation = still + 0.01  # room for 0.1 m/s over T_r = 0.1 s
+    separation = still + STANDOFF + 0.01  # room for 0.1 m/s over T_r = 0.1 s
     knee = pull_speed_knee(separation, v_h, SETTINGS, V_MAX)
     assert knee == pytest.approx(0.1 / (1.0 + CAP_BAND))
-    # At the knee's top speed (1 + CAP_BAND) knee, S_p is the separation.
-    assert SETTINGS.distance(v_h, (1.0 + CAP_BAND) * knee) == pytest.approx(separation)
+    # At the knee's top speed (1 + CAP_BAND) knee, S_p is the separation less the standoff.
+    assert SETTINGS.distance(v_h, (1.0 + CAP_BAND) * knee) == pytest.approx(
+        separation - STANDOFF)
+    # The arm comes to rest outside S_p, not on it.
+    assert pull_speed_knee(still + STANDOFF, v_h, SETTINGS, V_MAX) == 0.0
 
 
 def test_knee_is_zero_where_a_still_arm_is_too_close_and_capped_far_away():
@@ -107,7 +111,7 @@ def test_an_old_separation_is_taken_ahead_by_its_age():
     """A detector held back: the separation heard 0.2 s ago, the arm closing at 0.1 m/s,
     counts as 0.1 m/s x 0.18 s nearer than it was (the first period is the topic's own)."""
     cap = SeparationCap(SETTINGS, V_MAX)
-    separation = SETTINGS.distance(0.0, 0.0) + 0.03
+    separation = SETTINGS.distance(0.0, 0.0) + STANDOFF + 0.03
     cap.observe(0.0, separation, 0.0, 0.1)
     fresh = pull_speed_knee(separation - LOOKAHEAD * 0.1, 0.0, SETTINGS, V_MAX)
     assert cap.target(SEPARATION_PERIOD) == pytest.approx(fresh)  # on time: as heard

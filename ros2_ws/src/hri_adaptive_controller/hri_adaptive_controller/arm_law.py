@@ -1466,12 +1466,11 @@ class ArmController(TaskDrives):
         names = right + _on_side(right, 'l_')
         seen = [j for j, name in enumerate(human.names) if name in names]
         if seen:
-            axes = len(hand)
-            a = human.a[seen, :axes]
-            axis = human.axis[seen, :axes]
-            length2 = np.maximum(np.einsum('ij,ij->i', axis, axis), 1e-12)
-            t = np.clip(np.einsum('ij,ij->i', hand - a, axis) / length2, 0.0, 1.0)
-            surface = np.linalg.norm(a + t[:, None] * axis - hand, axis=1) - human.radius[seen]
+            point = np.zeros((1, 3))
+            point[0, :len(hand)] = hand
+            # /target as a capsule of no length or radius: its distance to each surface.
+            surface = capsule_distances(Capsules(('target',), point, point, np.zeros(1)),
+                                        human, planar=len(hand) < 3).distance[0, seen]
             nearest = int(np.argmin(surface))
             if surface[nearest] <= TRACKED_HAND_MARGIN:
                 self._tracked_side = human.names[seen[nearest]][:2]

@@ -114,6 +114,7 @@ from hri_adaptive_controller.joint_limits import (
     barrier_energy,
     gate_feed_forward,
     joint_speed_limit,
+    redirected_push,
 )
 from hri_adaptive_controller.task_variable import (
     CAP_BAND,
@@ -150,6 +151,10 @@ PERSON_ROUND_SPEED = 0.25
 person's barrier gate at 1 (1 - (1 - this) gate): at 1 rad/s a joint the Panda's gripper,
 swinging to a new pose, reached 0.013 m from a torso in HumanRobotHandover_0 before the
 damper and the barrier stopped it."""
+REDIRECT_MOST = 10.0
+"""The most the person's push in the reference is scaled up by when joints within their bands
+leave it to the others (joint_limits.redirected_push); the push's cap (ClearanceSettings.
+max_speed) and the joints' speed limits bound it before this (30 gave the same runs)."""
 FEED_FORWARD_RATIO = 2.0
 """The hand's velocity enters qdot_r (eq. 14) capped at this times max_task_speed."""
 TRACKED_HAND_MARGIN = 0.05
@@ -1192,6 +1197,7 @@ class ArmController(TaskDrives):
                 body = self.whole_body_barrier(q, dq, human, exempt, fade)
                 if body.gradient is not None:
                     gradient, rate = body.gradient, body.rate
+                    pushed, pushed_rate = gradient, rate
                     if near > 0.0:
                         # Within a joint's band the person's push does not drive it into its
                         # stop (torque -g; the joint barrier's kb is 3 N m, several pairs on
@@ -1200,10 +1206,14 @@ class ArmController(TaskDrives):
                             q, dq, -gradient, -rate, self._lower, self._upper,
                             gains.limit_band, PUSH_SCALE)
                         gradient, rate = -torque, -torque_rate
+                        # The reference pushes as hard along the joints still free (the
+                        # torque, in V, keeps the gated g).
+                        pushed, pushed_rate = redirected_push(
+                            body.gradient, body.rate, gradient, rate, REDIRECT_MOST)
                     # The person's barrier joins the joint limits' (one g_B in V and eq. 22).
                     g_b = gradient if g_b is None else g_b + gradient
                     g_b_rate = rate if g_b_rate is None else g_b_rate + rate
-                    push, push_rate = self._capped_push(gradient, rate, pinv, pinv_rate,
+                    push, push_rate = self._capped_push(pushed, pushed_rate, pinv, pinv_rate,
                                                         human)
                     g_ref = push if g_ref is None else g_ref + push
                     g_ref_rate = push_rate if g_ref_rate is None else g_ref_rate + push_rate

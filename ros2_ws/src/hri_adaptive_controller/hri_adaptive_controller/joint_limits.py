@@ -209,6 +209,27 @@ def gate_feed_forward(q, dq, v, rate, lower, upper, band: float, scale: float = 
     return v * factor, rate * factor + v * factor_rate
 
 
+def redirected_push(gradient, rate, gated, gated_rate, most: float):
+    """The person's barrier gradient g (n,) N m and its rate as the reference pushes with it
+    once gate_feed_forward has faded the share of the joints within their bands towards
+    their stops (gated, gated_rate): the gated push scaled by r = (g . g) / (g . gated), so
+    that it moves the arm off the person as fast as the whole push would, along the joints
+    still free (g lies along the close pairs' rows n^T J_p: a single pair's distance changes
+    at r times the gated push's rate), r capped smoothly at `most`; and its rate. Why: the
+    SCARA's link 2, pushed off a person's torso, folded joint 2 into its band, where the
+    push kept only joint 1's small share (0.3 of 1.3 N m) and the arm turned away at under
+    1 rad/s while the torso closed in (docs/benchmarks.md)."""
+    whole = float(gradient @ gradient)
+    kept = float(gradient @ gated)
+    if kept <= 1e-12 * whole or kept >= whole:
+        return gated, gated_rate
+    ratio = whole / kept
+    ratio_rate = (2.0 * float(gradient @ rate) * kept
+                  - whole * (float(rate @ gated) + float(gradient @ gated_rate))) / (kept * kept)
+    scale, slope = speed_cap(ratio, most)
+    return scale * gated, scale * gated_rate + (slope * ratio_rate) * gated
+
+
 def joint_speed_limit(q, dq, qdot_r, qddot_r, lower, upper, speed, stop_rate: float,
                       band: float):
     """The reference joint motion qdot_r, qddot_r (n,) held within what the arm can stop from

@@ -24,7 +24,9 @@ from hri_adaptive_controller.joint_limits import (
     barrier_energy,
     gate_feed_forward,
     joint_motion,
+    redirected_push,
 )
+from hri_adaptive_controller.task_variable import CAP_BAND
 from hri_core.dynamics import ScaraParameters, dynamic_parameters
 from hri_core.potential import TaskShape
 from hri_core.robot_model import SCARA_LIMITS, JointLimits, ScaraModel
@@ -144,6 +146,39 @@ def test_the_gated_feed_forwards_rate_is_its_time_derivative():
         later, _ = gate([q + h * dq, 0.0], [dq, 0.0], [v + h * a, 0.0], [a, 0.0])
         earlier, _ = gate([q - h * dq, 0.0], [dq, 0.0], [v - h * a, 0.0], [a, 0.0])
         assert (later[0] - earlier[0]) / (2 * h) == pytest.approx(rate[0], abs=1e-5)
+
+
+def push_gated_along(t, g, g_rate, f, f_rate):
+    """redirected_push (most 3) at time t (s) of a push g + t g_rate gated by the factors
+    f + t f_rate, with their rates."""
+    whole, share = g + t * g_rate, f + t * f_rate
+    return redirected_push(whole, g_rate, share * whole, f_rate * whole + share * g_rate, 3.0)
+
+
+def test_a_push_a_joint_in_its_band_may_not_take_goes_to_the_free_joints():
+    # The SCARA's link2 pushed off a torso (g mostly on joint 2), joint 2 in its band: the
+    # gated push keeps joint 1's 0.3 N m; redirected, joint 1 gets the pair's whole share.
+    g, rate = np.array([0.3, -1.3]), np.zeros(2)
+    gated = np.array([0.3, 0.0])
+    pushed, _ = redirected_push(g, rate, gated, rate, 10.0)
+    assert pushed[1] == 0.0 and pushed[0] > 0.3 * 9.0  # g.g / g.gated = 19.8, capped near 10
+    assert pushed[0] <= 0.3 * 10.0 * (1.0 + CAP_BAND)  # speed_cap's smooth cap
+    # Nothing gated, or everything: the push as it came.
+    assert redirected_push(g, rate, g, rate, 10.0)[0].tolist() == g.tolist()
+    assert redirected_push(g, rate, np.zeros(2), rate, 10.0)[0].tolist() == [0.0, 0.0]
+    # Half gated along the way: the push is the whole one's share scaled up, never more
+    # than `most` times the gated push, and its rate is its time derivative.
+    rng = np.random.default_rng(5)
+    h = 1e-7
+    for _ in range(50):
+        g, g_rate = rng.uniform(-2.0, 2.0, 2), rng.uniform(-5.0, 5.0, 2)
+        f, f_rate = rng.uniform(0.05, 1.0, 2), rng.uniform(-2.0, 2.0, 2)
+
+        pushed, pushed_rate = push_gated_along(0.0, g, g_rate, f, f_rate)
+        assert np.all(np.abs(pushed) <= 3.0 * (1.0 + CAP_BAND) * np.abs(f * g) + 1e-12)
+        numeric = (push_gated_along(h, g, g_rate, f, f_rate)[0]
+                   - push_gated_along(-h, g, g_rate, f, f_rate)[0]) / (2 * h)
+        assert numeric == pytest.approx(pushed_rate, rel=1e-4, abs=1e-4)
 
 
 # One test for the two behaviours of the one run (the pair of 16 s runs once, not once in

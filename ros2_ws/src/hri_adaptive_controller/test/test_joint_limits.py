@@ -173,7 +173,6 @@ def test_a_push_a_joint_in_its_band_may_not_take_goes_to_the_free_joints():
     for _ in range(50):
         g, g_rate = rng.uniform(-2.0, 2.0, 2), rng.uniform(-5.0, 5.0, 2)
         f, f_rate = rng.uniform(0.05, 1.0, 2), rng.uniform(-2.0, 2.0, 2)
-
         pushed, pushed_rate = push_gated_along(0.0, g, g_rate, f, f_rate)
         assert np.all(np.abs(pushed) <= 3.0 * (1.0 + CAP_BAND) * np.abs(f * g) + 1e-12)
         numeric = (push_gated_along(h, g, g_rate, f, f_rate)[0]

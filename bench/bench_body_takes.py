@@ -127,13 +127,6 @@ def clear_pose_at_hand(law: ArmController, shape, hand: np.ndarray, frame: np.nd
     return False
 
 
-def turned(placement: Placement, turn: float) -> Placement:
-    """`placement` followed by a turn (rad) about the base's vertical axis."""
-    c, s = math.cos(turn), math.sin(turn)
-    x, y, z = placement.translation
-    return Placement((c * x - s * y, s * x + c * y, z), placement.yaw + turn)
-
-
 def placements(robot: str, body, path: Path, turns: int, rng) -> list[tuple[float, Placement]]:
     """(turn in rad, placement) of a take: choose_placement's (turn 0) and `turns` more,
     each turned by a random angle the start rule accepts (module docstring)."""
@@ -147,7 +140,7 @@ def placements(robot: str, body, path: Path, turns: int, rng) -> list[tuple[floa
     for _ in range(turns):
         for _ in range(TURN_DRAWS):
             turn = float(rng.uniform(-math.pi, math.pi))
-            placement = turned(chosen, turn)
+            placement = chosen.turned(turn)
             if start(placement):
                 found.append((turn, placement))
                 break

@@ -392,13 +392,11 @@ def test_a_person_coming_closer_widens_the_band_and_a_still_one_does_not():
 
 
 @pytest.mark.first
-def test_a_person_pressing_the_scaras_elbow_does_not_drive_it_into_its_stop():
-    """A recorded person inspecting an object beside the SCARA (avoid, auto_place with the
-    arm rule, as bench_body_takes): the person's capsules fold link2 towards joint 2's stop.
-    The joint barrier's 3 N m is less than several pairs' push on link2; within the joint's
-    band that push now fades out, so the stop damper holds the joint off the stop (a quarter
-    of the band: 1.4 deg). Before: at the stop (0.0 deg)."""
-    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
+def recorded_scara_scene(take_name: str, turn: float = 0.0):
+    """A recorded take beside the SCARA as bench_body_takes places it: auto_place with the
+    arm rule (the person at the first frame clear of the arm at home), then turned by `turn`
+    rad about the base (which must keep the rule). (model, robot body, the hand's motion, the
+    person's body), both in the base frame."""
     from hri_core.bodies import clear_of_arm
     from hri_core.human_body import read_recorded_body
     from hri_core.recorded_motion import (
@@ -408,16 +406,27 @@ def test_a_person_pressing_the_scaras_elbow_does_not_drive_it_into_its_stop():
         read_vicon_csv,
     )
 
-    take = Path(__file__).resolve().parents[4] / 'data' / 'human-motion' / \
-        'ObjectInspection_0.csv'
+    take = Path(__file__).resolve().parents[4] / 'data' / 'human-motion' / f'{take_name}.csv'
     model, body, _, _ = scene('scara', 'chest')
     recorded = read_recorded_body(take)
     rule = clear_of_arm(body, human_capsules(*recorded.first_frame()), SETTINGS.clearance)
     placement = choose_placement(read_vicon_csv(take).positions, ReachAnnulus(0.222, 0.65),
                                  body=recorded.trunk(), clearance=BODY_CLEARANCE['scara'],
-                                 accept=rule)
-    hand = read_vicon_csv(take, placement=placement)
-    person = read_recorded_body(take, placement=placement)
+                                 accept=rule).turned(turn)
+    assert rule(placement)  # the person does not start inside the arm
+    return (model, body, read_vicon_csv(take, placement=placement),
+            read_recorded_body(take, placement=placement))
+
+
+def test_a_person_pressing_the_scaras_elbow_does_not_drive_it_into_its_stop():
+    """A recorded person inspecting an object beside the SCARA (avoid, auto_place with the
+    arm rule, as bench_body_takes): the person's capsules fold link2 towards joint 2's stop.
+    The joint barrier's 3 N m is less than several pairs' push on link2; within the joint's
+    band that push now fades out, so the stop damper holds the joint off the stop (a quarter
+    of the band: 1.4 deg). Before: at the stop (0.0 deg)."""
+    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
+
+    model, body, hand, person = recorded_scara_scene('ObjectInspection_0')
     keep = hand.times <= 16.0
     result = simulate({'avoid': AVOID}, [(0.0, 'avoid')],
                       recorded_target(hand.times[keep], hand.positions[keep, :2]), 16.0,
@@ -439,31 +448,9 @@ def test_a_torso_closing_on_the_folded_scara_turns_it_away_in_time():
     turns the arm away before the torso's pair is within clearance - 3 cm. Before: 2.8 % of
     the samples, least +0.038 m (joint 1 at under 1 rad/s with 1-3 N m of its 20)."""
     from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
-    from hri_core.bodies import clear_of_arm
-    from hri_core.human_body import read_recorded_body
-    from hri_core.recorded_motion import (
-        BODY_CLEARANCE,
-        Placement,
-        ReachAnnulus,
-        choose_placement,
-        read_vicon_csv,
-    )
 
-    take = Path(__file__).resolve().parents[4] / 'data' / 'human-motion' / \
-        'HumanRobotHandover_0.csv'
-    model, body, _, _ = scene('scara', 'chest')
-    recorded = read_recorded_body(take)
-    rule = clear_of_arm(body, human_capsules(*recorded.first_frame()), SETTINGS.clearance)
-    chosen = choose_placement(read_vicon_csv(take).positions, ReachAnnulus(0.222, 0.65),
-                              body=recorded.trunk(), clearance=BODY_CLEARANCE['scara'],
-                              accept=rule)
-    turn = math.radians(-33.0)
-    x, y, z = chosen.translation
-    placement = Placement((math.cos(turn) * x - math.sin(turn) * y,
-                           math.sin(turn) * x + math.cos(turn) * y, z), chosen.yaw + turn)
-    assert rule(placement)  # the person does not start inside the arm
-    hand = read_vicon_csv(take, placement=placement)
-    person = read_recorded_body(take, placement=placement)
+    model, body, hand, person = recorded_scara_scene('HumanRobotHandover_0',
+                                                     math.radians(-33.0))
     keep = hand.times <= 3.0  # the torso's pass is over by 2.6 s
     result = simulate({'follow': FOLLOW}, [(0.0, 'follow')],
                       recorded_target(hand.times[keep], hand.positions[keep, :2]), 3.0,

@@ -43,6 +43,13 @@ class Placement:
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return points @ rotation.T + np.asarray(self.translation, dtype=float)
 
+    def turned(self, turn: float) -> 'Placement':
+        """This placement followed by a turn (rad) about the base's vertical axis: the person
+        keeps every distance from the base and stands elsewhere round it."""
+        c, s = math.cos(turn), math.sin(turn)
+        x, y, z = self.translation
+        return Placement((c * x - s * y, s * x + c * y, z), self.yaw + turn)
+
 
 @dataclass(frozen=True)
 class RecordedMotion:

@@ -165,6 +165,19 @@ def test_placement_of_the_shipped_takes(take):
     assert reach_fraction(placed, SCARA_REACH) >= 0.65
 
 
+def test_a_turned_placement_keeps_every_distance_from_the_base_and_turns_the_points():
+    rng = np.random.default_rng(4)
+    points = rng.uniform(-2.0, 2.0, size=(20, 3))
+    placement = Placement((0.6, -0.3, 0.1), 0.4)
+    turned = placement.turned(-0.9)
+    before, after = placement.apply(points), turned.apply(points)
+    assert np.allclose(np.hypot(after[:, 0], after[:, 1]), np.hypot(before[:, 0], before[:, 1]))
+    assert np.allclose(after[:, 2], before[:, 2])
+    assert np.allclose(np.arctan2(after[:, 1], after[:, 0]),
+                       np.angle(np.exp(1j * (np.arctan2(before[:, 1], before[:, 0]) - 0.9))))
+    assert placement.turned(0.0) == placement
+
+
 def test_placement_needs_a_seen_frame_and_a_sane_annulus():
     with pytest.raises(ValueError, match='no seen frame'):
         choose_placement(np.full((5, 3), np.nan), SCARA_REACH)

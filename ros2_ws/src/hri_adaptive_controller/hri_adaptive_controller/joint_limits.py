@@ -496,7 +496,9 @@ class ReachRound:
     Panda's: a far side reached by turning round) and from the arm's joints so swung, the
     nearest that reaches (0.9-1.1 ms for the Panda's hand behind its base, 0.26 ms for one
     out of reach, once); then refreshed every IK_PERIOD s from the arm's joints and from the
-    last q* (IK_REFRESH iterations each), the nearest to the arm that reaches (the SCARA: the elbow
+    last q* (IK_REFRESH iterations each; while the last q* misses the goal by more than
+    FAR_GOAL, from the home pose swung to the goal's azimuth too: the way round through the
+    free range), the nearest to the arm that reaches (the SCARA: the elbow
     nearer to the arm's), so that the numerical solve stays off most control cycles; a
     clearance-aware solve (keep_off set), the engaging one too, runs IK_STEPS_PER_CYCLE of its
     iterations a cycle, the last q* kept until it ends (on engaging, none: the blend holds the
@@ -730,6 +732,26 @@ class ReachRound:
                                        2.0 * math.pi)
         return np.array([q, swung_home, swung_arm])
 
+    def _refresh_seeds(self, goal, q, x, last) -> np.ndarray:
+        """A refresh's seeds (class docstring): the arm's joints and the last joint goal
+        `last` (n,); for an arm with as many joints as task axes whose last goal is held at
+        an edge of its box while it misses `goal` by more than FAR_GOAL, also the home pose
+        swung to the goal's azimuth. Why: a hand that passed behind the SCARA's base (joint
+        1's dead zone) to the far side left the solves from the arm's joints and the last
+        goal clamped at joint 1's stop, the way round through the free range never tried; a
+        redundant arm's solves move through its null space, and there the swung seed took
+        the Panda's arm on long swings away from hands it was near."""
+        pair = np.array([q, last])
+        if not self._square:
+            return pair
+        lower, upper = self._box
+        if not np.any((last <= lower) | (last >= upper)):
+            return pair
+        reached = self._model.task_kinematics(last, self._still)[0]
+        if math.dist(reached.tolist(), goal.tolist()) <= self.FAR_GOAL:
+            return pair
+        return np.array([q, last, self._seeds(goal, q, x)[1]])
+
     def _refresh(self, goal, q, x) -> np.ndarray | None:
         """The joint goal q*: solved afresh on engaging, refreshed every IK_PERIOD s (a
         clearance-aware solve, on engaging too, over the cycles it takes, from its start:
@@ -745,7 +767,7 @@ class ReachRound:
                 seeds = self._seeds(goal, q, x)
                 iterations, plain = self.IK_ITERATIONS, MODEL_IK_ITERATIONS
             else:
-                seeds = np.array([q, last[1]])
+                seeds = self._refresh_seeds(goal, q, x, last[1])
                 iterations = plain = self.IK_REFRESH
             if self.keep_off is not None:
                 self._pending = (now, clearance_inverse_kinematics_steps(

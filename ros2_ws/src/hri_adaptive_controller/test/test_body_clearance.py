@@ -470,6 +470,43 @@ def test_a_torso_closing_on_the_folded_scara_turns_it_away_in_time():
     assert not result.fault.any()
 
 
+def test_a_hand_gone_behind_the_scaras_base_is_reached_the_long_way_round():
+    """A recorded person handing over beside the SCARA (HumanRobotHandover_0 as
+    bench_body_takes places it, turned by 130 deg about the base), follow: the arm follows
+    the hand clockwise to joint 1's stop; the hand passes behind the base (joint 1's dead
+    zone, where the torso stands) to rest on the far side at 114 deg. The reach-round's
+    refresh, whose last joint goal misses the goal by more than FAR_GOAL, also starts from the
+    home pose swung to the goal's azimuth, and the arm turns the long way round through its
+    free range, clear of the person. Before: the refreshes from the arm's joints and the last
+    goal stayed clamped at the stop, the tool 0.86 m from the resting hand."""
+    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
+
+    model, body, hand, person = recorded_scara_scene('HumanRobotHandover_0',
+                                                     math.radians(130.0))
+    keep = hand.times <= 10.0
+    result = simulate({'follow': FOLLOW}, [(0.0, 'follow')],
+                      recorded_target(hand.times[keep], hand.positions[keep, :2]), 10.0,
+                      LoopConditions(arm=model, monitor=False, target_period=0.01,
+                                     body=recorded_body(hand.times[keep], BODY_POINTS,
+                                                        person.points[keep]),
+                                     robot_body=body))
+    frames = np.clip(np.searchsorted(hand.times[keep], result.time, side='right') - 1, 0,
+                     int(keep.sum()) - 1)
+    resting = result.time >= 8.0
+    reach = np.linalg.norm(result.position[resting] - hand.positions[keep][frames[resting], :2],
+                           axis=1)
+    assert np.median(reach) <= 0.08, np.median(reach)
+    trunk = [BODY_POINTS.index(name) for name in TRUNK]
+    least = min(
+        capsule_distances(body.capsules(result.q[i], checked=False),
+                          human_capsules(TRUNK, person.points[frames[i]][trunk]),
+                          body.planar).distance.min()
+        for i in range(0, len(result.time), 10))
+    assert least >= SETTINGS.clearance - 0.03, least
+    assert np.all(result.q[:, 0] >= model.limits.lower[0])
+    assert not result.fault.any()
+
+
 @pytest.mark.parametrize('robot', ['scara', 'panda'])
 def test_the_approach_damper_holds_the_clearance_where_the_barrier_alone_gives_way(robot):
     """The hand held 0.25 m before the chest pulls the tool towards the still torso. With a

@@ -496,9 +496,10 @@ class ReachRound:
     Panda's: a far side reached by turning round) and from the arm's joints so swung, the
     nearest that reaches (0.9-1.1 ms for the Panda's hand behind its base, 0.26 ms for one
     out of reach, once); then refreshed every IK_PERIOD s from the arm's joints and from the
-    last q* (IK_REFRESH iterations each; while the last q* misses the goal by more than
-    FAR_GOAL, from the home pose swung to the goal's azimuth too: the way round through the
-    free range), the nearest to the arm that reaches (the SCARA: the elbow
+    last q* (IK_REFRESH iterations each; for an arm with as many joints as task axes whose
+    last q* is held at an edge of its box while it misses the goal by more than FAR_GOAL,
+    from the home pose swung to the goal's azimuth too: the way round through the free
+    range), the nearest to the arm that reaches (the SCARA: the elbow
     nearer to the arm's), so that the numerical solve stays off most control cycles; a
     clearance-aware solve (keep_off set), the engaging one too, runs IK_STEPS_PER_CYCLE of its
     iterations a cycle, the last q* kept until it ends (on engaging, none: the blend holds the

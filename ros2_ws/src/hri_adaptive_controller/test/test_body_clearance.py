@@ -475,10 +475,11 @@ def test_a_hand_gone_behind_the_scaras_base_is_reached_the_long_way_round():
     bench_body_takes places it, turned by 130 deg about the base), follow: the arm follows
     the hand clockwise to joint 1's stop; the hand passes behind the base (joint 1's dead
     zone, where the torso stands) to rest on the far side at 114 deg. The reach-round's
-    refresh, whose last joint goal misses the goal by more than FAR_GOAL, also starts from the
-    home pose swung to the goal's azimuth, and the arm turns the long way round through its
-    free range, clear of the person. Before: the refreshes from the arm's joints and the last
-    goal stayed clamped at the stop, the tool 0.86 m from the resting hand."""
+    refresh, whose last joint goal is held at joint 1's stop and misses the goal by more than
+    FAR_GOAL, also starts from the home pose swung to the goal's azimuth, and the arm turns
+    the long way round through its free range, clear of the person. Before: the refreshes
+    from the arm's joints and the last goal stayed clamped at the stop, the tool 0.86 m from
+    the resting hand."""
     from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
 
     model, body, hand, person = recorded_scara_scene('HumanRobotHandover_0',

@@ -391,7 +391,6 @@ def test_a_person_coming_closer_widens_the_band_and_a_still_one_does_not():
     assert np.linalg.norm(glitch) == pytest.approx(3.0)  # MAX_BODY_SPEED, not 100 m/s
 
 
-@pytest.mark.first
 def recorded_scara_scene(take_name: str, turn: float = 0.0):
     """A recorded take beside the SCARA as bench_body_takes places it: auto_place with the
     arm rule (the person at the first frame clear of the arm at home), then turned by `turn`
@@ -418,22 +417,44 @@ def recorded_scara_scene(take_name: str, turn: float = 0.0):
             read_recorded_body(take, placement=placement))
 
 
+
+def run_recorded_scara(take_name: str, task: str, shape, duration: float, turn: float = 0.0):
+    """recorded_scara_scene's take, its first `duration` s, with `task` (its TaskShape
+    `shape`) in the pure loop beside the person's body. (model, robot body, the person's
+    points (N, k, 3) m of the frames run, the result, each step's frame index)."""
+    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
+
+    model, body, hand, person = recorded_scara_scene(take_name, turn)
+    keep = hand.times <= duration
+    times, points = hand.times[keep], person.points[keep]
+    result = simulate({task: shape}, [(0.0, task)],
+                      recorded_target(times, hand.positions[keep, :2]), duration,
+                      LoopConditions(arm=model, monitor=False, target_period=0.01,
+                                     body=recorded_body(times, BODY_POINTS, points),
+                                     robot_body=body))
+    frames = np.clip(np.searchsorted(times, result.time, side='right') - 1, 0, len(times) - 1)
+    return model, body, hand.positions[keep], points, result, frames
+
+
+def least_trunk_distance(body, result, points, frames) -> float:
+    """The least distance (m) of the arm's capsules from the head, torso and hip capsules
+    over a run of run_recorded_scara, every tenth step."""
+    trunk = [BODY_POINTS.index(name) for name in TRUNK]
+    return min(
+        capsule_distances(body.capsules(result.q[i], checked=False),
+                          human_capsules(TRUNK, points[frames[i]][trunk]),
+                          body.planar).distance.min()
+        for i in range(0, len(result.time), 10))
+
+@pytest.mark.first
 def test_a_person_pressing_the_scaras_elbow_does_not_drive_it_into_its_stop():
     """A recorded person inspecting an object beside the SCARA (avoid, auto_place with the
     arm rule, as bench_body_takes): the person's capsules fold link2 towards joint 2's stop.
     The joint barrier's 3 N m is less than several pairs' push on link2; within the joint's
     band that push now fades out, so the stop damper holds the joint off the stop (a quarter
     of the band: 1.4 deg). Before: at the stop (0.0 deg)."""
-    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
-
-    model, body, hand, person = recorded_scara_scene('ObjectInspection_0')
-    keep = hand.times <= 16.0
-    result = simulate({'avoid': AVOID}, [(0.0, 'avoid')],
-                      recorded_target(hand.times[keep], hand.positions[keep, :2]), 16.0,
-                      LoopConditions(arm=model, monitor=False, target_period=0.01,
-                                     body=recorded_body(hand.times[keep], BODY_POINTS,
-                                                        person.points[keep]),
-                                     robot_body=body))
+    model, _, _, _, result, _ = run_recorded_scara('ObjectInspection_0', 'avoid', AVOID,
+                                                   16.0)
     margin = np.minimum(result.q - model.limits.lower, model.limits.upper - result.q)
     band = ArmController(model).gains.limit_band
     assert margin.min() >= 0.25 * band, math.degrees(margin.min())
@@ -447,25 +468,10 @@ def test_a_torso_closing_on_the_folded_scara_turns_it_away_in_time():
     The push joint 2 may no longer take goes to joint 1 (joint_limits.redirected_push), which
     turns the arm away before the torso's pair is within clearance - 3 cm. Before: 2.8 % of
     the samples, least +0.038 m (joint 1 at under 1 rad/s with 1-3 N m of its 20)."""
-    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
-
-    model, body, hand, person = recorded_scara_scene('HumanRobotHandover_0',
-                                                     math.radians(-33.0))
-    keep = hand.times <= 3.0  # the torso's pass is over by 2.6 s
-    result = simulate({'follow': FOLLOW}, [(0.0, 'follow')],
-                      recorded_target(hand.times[keep], hand.positions[keep, :2]), 3.0,
-                      LoopConditions(arm=model, monitor=False, target_period=0.01,
-                                     body=recorded_body(hand.times[keep], BODY_POINTS,
-                                                        person.points[keep]),
-                                     robot_body=body))
-    frames = np.clip(np.searchsorted(hand.times[keep], result.time, side='right') - 1, 0,
-                     int(keep.sum()) - 1)
-    trunk = [BODY_POINTS.index(name) for name in TRUNK]
-    least = min(
-        capsule_distances(body.capsules(result.q[i], checked=False),
-                          human_capsules(TRUNK, person.points[frames[i]][trunk]),
-                          body.planar).distance.min()
-        for i in range(0, len(result.time), 10))
+    # 3 s: the torso's pass is over by 2.6 s.
+    _, body, _, points, result, frames = run_recorded_scara(
+        'HumanRobotHandover_0', 'follow', FOLLOW, 3.0, math.radians(-33.0))
+    least = least_trunk_distance(body, result, points, frames)
     assert least >= SETTINGS.clearance - 0.03, least
     assert not result.fault.any()
 
@@ -480,29 +486,12 @@ def test_a_hand_gone_behind_the_scaras_base_is_reached_the_long_way_round():
     the long way round through its free range, clear of the person. Before: the refreshes
     from the arm's joints and the last goal stayed clamped at the stop, the tool 0.86 m from
     the resting hand."""
-    from hri_adaptive_controller.closed_loop import recorded_body, recorded_target
-
-    model, body, hand, person = recorded_scara_scene('HumanRobotHandover_0',
-                                                     math.radians(130.0))
-    keep = hand.times <= 10.0
-    result = simulate({'follow': FOLLOW}, [(0.0, 'follow')],
-                      recorded_target(hand.times[keep], hand.positions[keep, :2]), 10.0,
-                      LoopConditions(arm=model, monitor=False, target_period=0.01,
-                                     body=recorded_body(hand.times[keep], BODY_POINTS,
-                                                        person.points[keep]),
-                                     robot_body=body))
-    frames = np.clip(np.searchsorted(hand.times[keep], result.time, side='right') - 1, 0,
-                     int(keep.sum()) - 1)
+    model, body, hand, points, result, frames = run_recorded_scara(
+        'HumanRobotHandover_0', 'follow', FOLLOW, 10.0, math.radians(130.0))
     resting = result.time >= 8.0
-    reach = np.linalg.norm(result.position[resting] - hand.positions[keep][frames[resting], :2],
-                           axis=1)
+    reach = np.linalg.norm(result.position[resting] - hand[frames[resting], :2], axis=1)
     assert np.median(reach) <= 0.08, np.median(reach)
-    trunk = [BODY_POINTS.index(name) for name in TRUNK]
-    least = min(
-        capsule_distances(body.capsules(result.q[i], checked=False),
-                          human_capsules(TRUNK, person.points[frames[i]][trunk]),
-                          body.planar).distance.min()
-        for i in range(0, len(result.time), 10))
+    least = least_trunk_distance(body, result, points, frames)
     assert least >= SETTINGS.clearance - 0.03, least
     assert np.all(result.q[:, 0] >= model.limits.lower[0])
     assert not result.fault.any()
